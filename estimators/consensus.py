@@ -1,0 +1,274 @@
+"""Consensus + innovation estimators for one agent (pure update rules, no kernel).
+
+An estimator object is agent i's update rule. The host (the event kernel, a test,
+a vectorised engine) calls :meth:`message_arrived` for every delivered message and
+:meth:`step` once per sampling step with the agent's own measurement, and reads
+:attr:`estimate`, :meth:`outgoing` and :attr:`last_delays`. The time the data
+refers to (the message's time-stamp ``sent_step``) is kept apart from the time it
+arrived (the order of :meth:`message_arrived` calls).
+
+Implemented update rules (agent i, step k >= 1; step 0 is innovation-only from the
+prior x-hat_{0|-1} = x0_mean):
+
+* :class:`CompensatingEstimator` -- LCSYS2022 eqs. (4)-(5), with A^(k - s_j)
+  compensation of a neighbour's estimate time-stamped s_j (the augmented form (9):
+  a fixed delay r gives A^(r+1)).
+* :class:`UncompensatedEstimator` -- delay-tolerant paper eqs. (6)-(7): the same with
+  A in place of A^(k - s_j), using the most recently *arrived* message.
+* :class:`BlockUpdateEstimator` -- LCSYS2022 eqs. (15)-(16): update and communicate
+  every tau+1 steps with A^(tau+1).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "NO_MESSAGE",
+    "ConsensusParameters",
+    "CompensatingEstimator",
+    "UncompensatedEstimator",
+    "BlockUpdateEstimator",
+]
+
+#: Effective delay recorded when nothing has arrived from a neighbour yet (agent i
+#: then substitutes its own estimate, DESIGN.md).
+NO_MESSAGE = -1
+
+
+@dataclass(frozen=True)
+class ConsensusParameters:
+    """What agent i knows: its weights, the plant model, its output and gain.
+
+    Parameters
+    ----------
+    agent : int
+        Index i of this agent.
+    weights : numpy.ndarray, shape (N,)
+        Row i of the consensus matrix P (p_ii > 0, row-stochastic).
+    A : numpy.ndarray, shape (n, n)
+        System matrix (known to every agent, Assumption 1).
+    C : numpy.ndarray, shape (m_i, n)
+        Agent i's output matrix.
+    L : numpy.ndarray, shape (n, m_i)
+        Innovation gain L_i = K_i C_i^T of eq. (5).
+    prior : numpy.ndarray, shape (n,)
+        Initial prior x-hat_{0|-1}.
+    """
+
+    agent: int
+    weights: np.ndarray
+    A: np.ndarray
+    C: np.ndarray
+    L: np.ndarray
+    prior: np.ndarray
+
+    @property
+    def neighbours(self) -> tuple[int, ...]:
+        """In-neighbours j != i with p_ij > 0, sorted."""
+        return tuple(int(j) for j in np.flatnonzero(self.weights) if j != self.agent)
+
+
+class _ConsensusBase:
+    """Shared state and innovation step (eq. 5) of the consensus estimators."""
+
+    #: Whether the rule uses time-stamps (freshest = largest time-stamp).
+    uses_timestamps = True
+
+    def __init__(self, params: ConsensusParameters) -> None:
+        self.params = params
+        self.agent = params.agent
+        self.neighbours = params.neighbours
+        self._weights = params.weights
+        self._A = params.A
+        self._C = params.C
+        self._L = params.L
+        self._powers: list[np.ndarray] = [np.eye(params.A.shape[0]), params.A]
+        self._estimate = np.asarray(params.prior, dtype=float).copy()
+        self._stored: dict[int, tuple[int, np.ndarray]] = {}
+        self._started = False
+        self.last_step: int | None = None
+        #: Effective delay r_ij[k] = k - 1 - s_j used by the last update, per
+        #: in-neighbour j (NO_MESSAGE when i substituted its own estimate).
+        self.last_delays: dict[int, int] = {}
+        #: Messages discarded on arrival by the freshest rule.
+        self.discarded = 0
+
+    # -- messages -------------------------------------------------------------
+    def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool:
+        """Store a delivered estimate x-hat^j_{s|s}; return False if discarded.
+
+        Freshest rule: with time-stamps, a message older than (or as old as) the
+        stored one from the same sender is discarded.
+        """
+        current = self._stored.get(sender)
+        if self.uses_timestamps and current is not None and sent_step <= current[0]:
+            self.discarded += 1
+            return False
+        self._stored[sender] = (sent_step, payload)
+        return True
+
+    def outgoing(self, step: int) -> np.ndarray | None:
+        """Return the payload to send after the update at ``step`` (None: send nothing)."""
+        return self._estimate
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """Agent i's current estimate x-hat^i_{k|k}, shape (n,)."""
+        return self._estimate
+
+    def power(self, exponent: int) -> np.ndarray:
+        """Return A^exponent, cached."""
+        while len(self._powers) <= exponent:
+            self._powers.append(self._A @ self._powers[-1])
+        return self._powers[exponent]
+
+    # -- update ---------------------------------------------------------------
+    def _innovate(self, prior: np.ndarray, y: np.ndarray) -> np.ndarray:
+        # eq. (5): x_{k|k} = x_{k|k-1} + K_i C_i^T (y - C_i x_{k|k-1}), K_i C_i^T = L_i
+        return prior + self._L @ (y - self._C @ prior)
+
+    def _neighbour_term(self, k: int, j: int, own: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def _prior(self, k: int) -> np.ndarray:
+        own = self._estimate
+        A = self._A
+        prior = self._weights[self.agent] * (A @ own)
+        delays = {}
+        for j in self.neighbours:
+            stored = self._stored.get(j)
+            if stored is None:
+                delays[j] = NO_MESSAGE
+                prior = prior + self._weights[j] * (A @ own)
+                continue
+            sent_step, payload = stored
+            if sent_step >= k:
+                raise RuntimeError(
+                    f"agent {self.agent}: message from {j} stamped {sent_step} used at step {k}"
+                )
+            delays[j] = k - 1 - sent_step
+            prior = prior + self._weights[j] * self._compensate(k, sent_step, payload)
+        self.last_delays = delays
+        return prior
+
+    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
+        raise NotImplementedError
+
+    def step(self, k: int, y: np.ndarray) -> np.ndarray:
+        """Run the update of step ``k`` with the measurement y^i_k (shape (m_i,)).
+
+        Returns
+        -------
+        numpy.ndarray, shape (n,)
+            The new estimate x-hat^i_{k|k}.
+        """
+        if not self._started:
+            prior = self._estimate
+            self._started = True
+            self.last_delays = {j: NO_MESSAGE for j in self.neighbours}
+        else:
+            prior = self._prior(k)
+        self._estimate = self._innovate(prior, y)
+        self.last_step = k
+        return self._estimate
+
+
+class CompensatingEstimator(_ConsensusBase):
+    """LCSYS2022 eqs. (4)-(5): known, time-stamped delays, A^(k - s) compensation.
+
+    x-hat^i_{k|k-1} = p_ii A x-hat^i_{k-1|k-1} + sum_j p_ij A^(k - s_j) x-hat^j_{s_j|s_j}
+    where s_j is the largest time-stamp received from j (freshest rule).
+    """
+
+    family = "compensated"
+    uses_timestamps = True
+
+    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
+        return self.power(k - sent_step) @ payload
+
+
+class UncompensatedEstimator(_ConsensusBase):
+    """Delay-tolerant paper eqs. (6)-(7): unknown delays, no time-stamps, A only.
+
+    x-hat^i_{k|k-1} = p_ii A x-hat^i_{k-1|k-1} + sum_j p_ij A x-hat^j (most recently
+    arrived estimate from j, whatever step it refers to).
+    """
+
+    family = "uncompensated"
+    uses_timestamps = False
+
+    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
+        return self._A @ payload
+
+
+class BlockUpdateEstimator(_ConsensusBase):
+    """LCSYS2022 eqs. (15)-(16): update and communicate every tau+1 steps.
+
+    At steps k = m (tau+1), m >= 1:
+    x-hat^i_{k|k-1} = sum_{j in N_i + {i}} p_ij A^(tau+1) x-hat^j_{k-tau-1}, then the
+    innovation (16) with y^i_k. Between block steps the estimator makes no update
+    and reports its open-loop prediction A^(k - k_m) x-hat^i_{k_m|k_m} (so the MSE
+    is comparable step by step). A neighbour estimate that has not arrived by the
+    block step (a delay above the bound) is replaced by the freshest one available,
+    compensated with A^(k - s), or by i's own estimate if none arrived.
+
+    Parameters
+    ----------
+    params : ConsensusParameters
+    tau : int
+        The delay bound tau-bar; the block length is tau + 1.
+    """
+
+    family = "block"
+    uses_timestamps = True
+
+    def __init__(self, params: ConsensusParameters, tau: int) -> None:
+        super().__init__(params)
+        self.tau = int(tau)
+        self.period = self.tau + 1
+        self._block_estimate = self._estimate
+        self._block_step = 0
+
+    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
+        return self.power(k - sent_step) @ payload
+
+    def _prior(self, k: int) -> np.ndarray:
+        own = self._block_estimate
+        prior = self._weights[self.agent] * (self.power(self.period) @ own)
+        delays = {}
+        for j in self.neighbours:
+            stored = self._stored.get(j)
+            if stored is None:
+                delays[j] = NO_MESSAGE
+                prior = prior + self._weights[j] * (self.power(self.period) @ own)
+                continue
+            sent_step, payload = stored
+            delays[j] = k - 1 - sent_step
+            prior = prior + self._weights[j] * self._compensate(k, sent_step, payload)
+        self.last_delays = delays
+        return prior
+
+    def step(self, k: int, y: np.ndarray) -> np.ndarray:
+        """Run step ``k``: a full update at block steps, a prediction otherwise."""
+        if not self._started or k % self.period == 0:
+            if not self._started:
+                prior = self._estimate
+                self._started = True
+                self.last_delays = {j: NO_MESSAGE for j in self.neighbours}
+            else:
+                prior = self._prior(k)
+            self._block_estimate = self._innovate(prior, y)
+            self._block_step = k
+            self._estimate = self._block_estimate
+        else:
+            self.last_delays = {}
+            self._estimate = self.power(k - self._block_step) @ self._block_estimate
+        self.last_step = k
+        return self._estimate
+
+    def outgoing(self, step: int) -> np.ndarray | None:
+        """Send only at block steps (the estimate x-hat^i at that block step)."""
+        return self._block_estimate if step % self.period == 0 else None

@@ -1,0 +1,203 @@
+"""Link delay models: fixed per link, and time-varying random bounded.
+
+A delay model answers one question for the kernel: a message sent on link
+``(sender, receiver)`` at step ``s`` is delayed by how much? Models in *steps*
+return an integer d >= 0 (the message is usable by the receiver's update at step
+s + 1 + d, DESIGN.md); models in *time* return a continuous latency l >= 0 in the
+unit of the sampling period Ts, which maps to d = ceil(l / Ts) - 1 clamped at 0.
+
+Every random model owns its generator(s), derived from one seed by name
+(:mod:`models.seeding`), so two models, or two links, never share a stream.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from models.seeding import SeedLike, stream
+
+__all__ = [
+    "DelayModel",
+    "FixedDelays",
+    "SynchronousRandomDelays",
+    "AsynchronousRandomDelays",
+    "FixedLatencies",
+    "heterogeneous_delays",
+    "homogeneous_delays",
+    "latency_to_steps",
+]
+
+Link = tuple[int, int]
+
+
+def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:
+    """Map a continuous latency to a step delay, d = max(ceil(l / Ts) - 1, 0).
+
+    A message that arrives exactly at a sampling instant counts as arrived there.
+
+    Parameters
+    ----------
+    latency : float
+        Latency l >= 0 in the unit of ``sample_period``.
+    sample_period : float
+        Ts > 0.
+
+    Returns
+    -------
+    int
+    """
+    if latency < 0 or not math.isfinite(latency):
+        raise ValueError(f"latency must be finite and >= 0, got {latency}")
+    return max(math.ceil(latency / sample_period) - 1, 0)
+
+
+class DelayModel(Protocol):
+    """Contract of a delay model used by the kernel."""
+
+    #: ``"steps"`` (integer step delays) or ``"time"`` (continuous latencies).
+    unit: Literal["steps", "time"]
+    #: Upper bound tau-bar on the step delay (the papers' bound).
+    max_delay: int
+    #: Whether the delay of a link is constant over time.
+    time_invariant: bool
+
+    def draw(self, sender: int, receiver: int, send_step: int) -> float:
+        """Return the delay of one message (steps or time, see ``unit``)."""
+        ...
+
+
+@dataclass(frozen=True)
+class FixedDelays:
+    """Constant, possibly heterogeneous, integer delay per link (LCSYS2022 Assumption 2).
+
+    Parameters
+    ----------
+    delays : Mapping[(sender, receiver), int]
+        Delay tau_ij in steps of each link; links not listed use ``default``.
+    default : int
+        Delay of unlisted links.
+    """
+
+    delays: Mapping[Link, int] = field(default_factory=dict)
+    default: int = 0
+    unit: Literal["steps", "time"] = "steps"
+    time_invariant: bool = True
+
+    def __post_init__(self) -> None:
+        for link, d in {**self.delays, "default": self.default}.items():
+            if int(d) != d or d < 0:
+                raise ValueError(f"delay of link {link} must be a non-negative integer, got {d}")
+
+    @property
+    def max_delay(self) -> int:
+        return int(max([self.default, *self.delays.values()]))
+
+    def draw(self, sender: int, receiver: int, send_step: int) -> int:
+        return int(self.delays.get((sender, receiver), self.default))
+
+
+def homogeneous_delays(links: Iterable[Link], tau: int) -> FixedDelays:
+    """Return fixed delays equal to ``tau`` on every link."""
+    return FixedDelays({link: int(tau) for link in links}, default=int(tau))
+
+
+def heterogeneous_delays(links: Iterable[Link], tau: int, seed: SeedLike) -> FixedDelays:
+    """Return fixed delays drawn once, uniformly from {0, ..., tau}, per link.
+
+    This is the heterogeneous setting of LCSYS2022 Section IV (delays uniformly
+    distributed between 0 and tau-bar for different links). The realisation uses
+    the stream ``"delays/heterogeneous"`` of ``seed``.
+    """
+    rng = stream(seed, "delays/heterogeneous")
+    links = sorted(links)
+    draws = rng.integers(0, int(tau) + 1, size=len(links))
+    delays = {link: int(d) for link, d in zip(links, draws, strict=True)}
+    return FixedDelays(delays, default=int(tau) if not links else int(max(draws)))
+
+
+class SynchronousRandomDelays:
+    """Time-varying bounded delay, one uniform draw in {0..tau} per step for all links.
+
+    The delay-tolerant paper's "synchronous time-varying" case (Fig. 2): at a given
+    step every link has the same delay, which changes from step to step.
+    """
+
+    unit: Literal["steps", "time"] = "steps"
+    time_invariant = False
+
+    def __init__(self, tau: int, seed: SeedLike) -> None:
+        if int(tau) != tau or tau < 0:
+            raise ValueError(f"delay bound tau must be a non-negative integer, got {tau}")
+        self.max_delay = int(tau)
+        self._rng = stream(seed, "delays/synchronous")
+        self._draws: list[int] = []
+
+    def draw(self, sender: int, receiver: int, send_step: int) -> int:
+        while len(self._draws) <= send_step:
+            self._draws.append(int(self._rng.integers(0, self.max_delay + 1)))
+        return self._draws[send_step]
+
+
+class AsynchronousRandomDelays:
+    """Time-varying bounded delay, an independent uniform draw per link per message.
+
+    The delay-tolerant paper's "asynchronous time-varying" case: each link has its
+    own stream ``"delays/link/<sender>-<receiver>"``, so messages can be reordered.
+    """
+
+    unit: Literal["steps", "time"] = "steps"
+    time_invariant = False
+
+    def __init__(self, tau: int, seed: SeedLike) -> None:
+        if int(tau) != tau or tau < 0:
+            raise ValueError(f"delay bound tau must be a non-negative integer, got {tau}")
+        self.max_delay = int(tau)
+        self._seed = seed
+        self._rngs: dict[Link, np.random.Generator] = {}
+
+    def draw(self, sender: int, receiver: int, send_step: int) -> int:
+        rng = self._rngs.get((sender, receiver))
+        if rng is None:
+            rng = self._rngs[(sender, receiver)] = stream(
+                self._seed, f"delays/link/{sender}-{receiver}"
+            )
+        return int(rng.integers(0, self.max_delay + 1))
+
+
+@dataclass(frozen=True)
+class FixedLatencies:
+    """Constant continuous latency per link, in the time unit of Ts.
+
+    Parameters
+    ----------
+    latencies : Mapping[(sender, receiver), float]
+        Latency l_ij >= 0 of each link; unlisted links use ``default``.
+    default : float
+        Latency of unlisted links.
+    sample_period : float
+        Ts, used to report the equivalent step bound.
+    """
+
+    latencies: Mapping[Link, float] = field(default_factory=dict)
+    default: float = 0.0
+    sample_period: float = 1.0
+    unit: Literal["steps", "time"] = "time"
+    time_invariant: bool = True
+
+    def __post_init__(self) -> None:
+        for link, lat in {**self.latencies, "default": self.default}.items():
+            if not math.isfinite(lat) or lat < 0:
+                raise ValueError(f"latency of link {link} must be finite and >= 0, got {lat}")
+
+    @property
+    def max_delay(self) -> int:
+        worst = max([self.default, *self.latencies.values()])
+        return latency_to_steps(worst, self.sample_period)
+
+    def draw(self, sender: int, receiver: int, send_step: int) -> float:
+        return float(self.latencies.get((sender, receiver), self.default))

@@ -1,0 +1,618 @@
+"""Scenarios: TOML files describing a plant, a network, delays, gains and a run.
+
+A scenario fixes everything that is *not* Monte Carlo randomness: the plant, the
+network and its weights (random weights use ``network.seed``), the fixed delay
+realisation (heterogeneous delays use ``delays.seed``), the gains, and which
+estimators run. The run seed (``run.seed`` or ``--seed``) drives only the trial
+randomness: initial states, noise, and time-varying delays.
+
+Agents are numbered from 0. A link ``[j, i]`` means agent i receives from agent j.
+Every validation failure raises :class:`ScenarioError` naming the offending key.
+See ``models/scenarios/*.toml`` for the built-in scenarios and the README for the
+full schema.
+"""
+
+from __future__ import annotations
+
+import difflib
+import math
+import tomllib
+from dataclasses import dataclass, field, replace
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import networkx as nx
+import numpy as np
+
+from models.delays import (
+    AsynchronousRandomDelays,
+    DelayModel,
+    FixedDelays,
+    FixedLatencies,
+    SynchronousRandomDelays,
+    heterogeneous_delays,
+    homogeneous_delays,
+)
+from models.network import (
+    NetworkError,
+    check_consensus_matrix,
+    directed_cycle,
+    geometric,
+    graph_from_weights,
+    lazy_metropolis_weights,
+    random_strongly_connected,
+    random_weights,
+    uniform_weights,
+)
+from models.plant import LinearPlant
+from models.seeding import SeedLike
+
+__all__ = [
+    "ScenarioError",
+    "DelaySpec",
+    "GainSpec",
+    "Scenario",
+    "ESTIMATOR_FAMILIES",
+    "DELAY_MODELS",
+    "DEFAULTS",
+    "load_scenario",
+    "parse_scenario",
+    "builtin_scenarios",
+    "resolve_scenario",
+]
+
+#: Estimator families a scenario may list under ``run.estimators``.
+ESTIMATOR_FAMILIES = ("compensated", "uncompensated", "block", "centralized-kf")
+#: Delay models a scenario may name under ``delays.model``.
+DELAY_MODELS = (
+    "none", "homogeneous", "heterogeneous", "fixed", "synchronous", "asynchronous", "latency",
+)
+#: Defaults of every optional key, in one place.
+DEFAULTS: dict[str, Any] = {
+    "run.steps": 200,
+    "run.trials": 20,
+    "run.seed": 0,
+    "run.sample_period": 1.0,
+    "run.divergence_threshold": 1e8,
+    "run.steady_state_fraction": 0.25,
+    "run.estimators": list(ESTIMATOR_FAMILIES),
+    "plant.x0_cov": 1.0,
+    "network.weights": "random",
+    "network.seed": 0,
+    "network.edge_probability": 0.1,
+    "delays.model": "none",
+    "delays.tau": 0,
+    "delays.seed": 0,
+    "delays.default": 0,
+    "gains.method": "lmi",
+}
+
+_SCHEMA: dict[str, set[str]] = {
+    "": {"name", "description", "run", "plant", "network", "delays", "gains"},
+    "run": {
+        "steps", "trials", "seed", "sample_period", "divergence_threshold",
+        "steady_state_fraction", "estimators",
+    },
+    "plant": {"A", "C", "Q", "R", "x0_mean", "x0_cov"},
+    "network": {"topology", "agents", "edges", "weights", "P", "seed", "edge_probability",
+                "radius"},
+    "delays": {"model", "tau", "links", "default", "seed"},
+    "gains": {"method", "K"},
+}
+
+
+class ScenarioError(ValueError):
+    """An invalid scenario; ``key`` names the offending entry."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}" if key else message)
+        self.key = key
+
+
+@dataclass(frozen=True)
+class DelaySpec:
+    """Link delays of a scenario.
+
+    Attributes
+    ----------
+    model : str
+        One of :data:`DELAY_MODELS`.
+    tau : int
+        Delay bound tau-bar (steps) for homogeneous, heterogeneous and random models.
+    links : dict[(sender, receiver), float]
+        Per-link delays (``fixed``, steps) or latencies (``latency``, time units).
+    default : float
+        Delay or latency of links not listed.
+    seed : int
+        Seed of the heterogeneous delay realisation (fixed across trials).
+    """
+
+    model: str = "none"
+    tau: int = 0
+    links: dict[tuple[int, int], float] = field(default_factory=dict)
+    default: float = 0
+    seed: int = 0
+
+
+@dataclass(frozen=True)
+class GainSpec:
+    """How the innovation gains are obtained: ``lmi`` design or ``given`` K_i."""
+
+    method: str = "lmi"
+    K: tuple[np.ndarray, ...] | None = None
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario.
+
+    Attributes
+    ----------
+    name, description : str
+    plant : LinearPlant
+    weights : numpy.ndarray, shape (N, N)
+        Consensus matrix P (row-stochastic, positive diagonal, strongly connected).
+    delays : DelaySpec
+    gains : GainSpec
+    estimators : tuple of str
+    steps, trials, seed : int
+    sample_period, divergence_threshold, steady_state_fraction : float
+    source : str
+        File path or ``builtin:<name>``.
+    """
+
+    name: str
+    description: str
+    plant: LinearPlant
+    weights: np.ndarray
+    delays: DelaySpec
+    gains: GainSpec
+    estimators: tuple[str, ...]
+    steps: int
+    trials: int
+    seed: int
+    sample_period: float
+    divergence_threshold: float
+    steady_state_fraction: float
+    source: str = ""
+
+    @property
+    def graph(self) -> nx.DiGraph:
+        """Communication graph, edge (j, i): i receives from j."""
+        return graph_from_weights(self.weights)
+
+    @property
+    def links(self) -> list[tuple[int, int]]:
+        """Sorted links (sender, receiver)."""
+        return sorted(self.graph.edges)
+
+    @property
+    def n_agents(self) -> int:
+        return self.weights.shape[0]
+
+    @property
+    def max_delay(self) -> int:
+        """Delay bound tau-bar in steps implied by the delay specification."""
+        return int(self.delay_model(0).max_delay)
+
+    @property
+    def delay_bound(self) -> int:
+        """The bound tau-bar the agents know: ``delays.tau`` for the models that have
+        one (homogeneous, heterogeneous, synchronous, asynchronous), else the largest
+        per-link step delay."""
+        if self.delays.model in ("homogeneous", "heterogeneous", "synchronous", "asynchronous"):
+            return int(self.delays.tau)
+        return self.max_delay
+
+    def with_tau(self, tau: int) -> Scenario:
+        """Return a copy with delay bound ``tau`` (model ``none`` becomes homogeneous)."""
+        if int(tau) != tau or tau < 0:
+            raise ScenarioError("delays.tau", f"must be a non-negative integer, got {tau}")
+        model = self.delays.model
+        if model in ("fixed", "latency"):
+            raise ScenarioError(
+                "delays.tau", f"cannot override tau of per-link '{model}' delays"
+            )
+        if model == "none":
+            model = "homogeneous"
+        return replace(self, delays=replace(self.delays, model=model, tau=int(tau)))
+
+    def delay_model(self, trial_seed: SeedLike) -> DelayModel:
+        """Build the delay model; random models draw from the trial's streams."""
+        spec = self.delays
+        links = self.links
+        if spec.model == "none":
+            return homogeneous_delays(links, 0)
+        if spec.model == "homogeneous":
+            return homogeneous_delays(links, spec.tau)
+        if spec.model == "heterogeneous":
+            return heterogeneous_delays(links, spec.tau, spec.seed)
+        if spec.model == "fixed":
+            return FixedDelays({k: int(v) for k, v in spec.links.items()}, int(spec.default))
+        if spec.model == "latency":
+            return FixedLatencies(dict(spec.links), float(spec.default), self.sample_period)
+        if spec.model == "synchronous":
+            return SynchronousRandomDelays(spec.tau, trial_seed)
+        if spec.model == "asynchronous":
+            return AsynchronousRandomDelays(spec.tau, trial_seed)
+        raise ScenarioError("delays.model", f"unknown model {spec.model!r}")
+
+    def summary(self) -> dict[str, Any]:
+        """Return a JSON-ready description of the scenario."""
+        return {
+            "name": self.name,
+            "description": self.description,
+            "source": self.source,
+            "n_states": self.plant.n_states,
+            "n_agents": self.n_agents,
+            "links": [list(link) for link in self.links],
+            "delays": {
+                "model": self.delays.model,
+                "tau": self.delays.tau,
+                "bound": self.delay_bound,
+                "max_delay": self.max_delay,
+            },
+            "estimators": list(self.estimators),
+            "steps": self.steps,
+            "trials": self.trials,
+            "seed": self.seed,
+        }
+
+
+# -- parsing helpers -----------------------------------------------------------
+
+
+def _check_keys(table: dict[str, Any], section: str) -> None:
+    allowed = _SCHEMA[section]
+    for key in table:
+        if key not in allowed:
+            full = f"{section}.{key}" if section else key
+            close = difflib.get_close_matches(key, sorted(allowed), n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            raise ScenarioError(
+                full, f"unknown key{hint}; allowed: {', '.join(sorted(allowed))}"
+            )
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise ScenarioError(key, f"expected a number, got {value!r}")
+    if math.isnan(value):
+        raise ScenarioError(key, "is NaN")
+    if math.isinf(value):
+        raise ScenarioError(key, "is infinite")
+    return float(value)
+
+
+def _int(value: Any, key: str, minimum: int | None = None) -> int:
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ScenarioError(key, f"expected an integer, got {value!r}")
+    if minimum is not None and value < minimum:
+        raise ScenarioError(key, f"must be >= {minimum}, got {value}")
+    return int(value)
+
+
+def _matrix(value: Any, key: str, shape: tuple[int | None, int | None] = (None, None)) -> np.ndarray:
+    if not isinstance(value, list) or not value:
+        raise ScenarioError(key, f"expected a non-empty matrix (list of rows), got {value!r}")
+    rows = value if isinstance(value[0], list) else None
+    if rows is None:
+        raise ScenarioError(key, "expected a matrix (list of rows), got a flat list")
+    width = len(rows[0])
+    for r, row in enumerate(rows):
+        if not isinstance(row, list):
+            raise ScenarioError(f"{key}[{r}]", f"expected a row (list of numbers), got {row!r}")
+        if len(row) != width:
+            raise ScenarioError(
+                key, f"row {r} has {len(row)} entries, row 0 has {width}: rows must be equal length"
+            )
+        for c, entry in enumerate(row):
+            _number(entry, f"{key}[{r}][{c}]")
+    matrix = np.array(rows, dtype=float)
+    rows_expected, cols_expected = shape
+    if (rows_expected is not None and matrix.shape[0] != rows_expected) or (
+        cols_expected is not None and matrix.shape[1] != cols_expected
+    ):
+        want = f"({rows_expected or 'any'}, {cols_expected or 'any'})"
+        raise ScenarioError(key, f"has shape {matrix.shape}, expected {want}")
+    return matrix
+
+
+def _vector(value: Any, key: str, length: int) -> np.ndarray:
+    if not isinstance(value, list):
+        raise ScenarioError(key, f"expected a list of {length} numbers, got {value!r}")
+    if len(value) != length:
+        raise ScenarioError(key, f"has {len(value)} entries, expected n = {length}")
+    return np.array([_number(v, f"{key}[{i}]") for i, v in enumerate(value)])
+
+
+def _covariance(value: Any, key: str, size: int) -> np.ndarray:
+    if isinstance(value, int | float) and not isinstance(value, bool):
+        scale = _number(value, key)
+        if scale < 0:
+            raise ScenarioError(key, f"variance must be >= 0, got {scale}")
+        return scale * np.eye(size)
+    matrix = _matrix(value, key, (size, size))
+    if not np.allclose(matrix, matrix.T, atol=1e-12):
+        raise ScenarioError(key, "covariance must be symmetric")
+    if np.linalg.eigvalsh(matrix).min() < -1e-12:
+        raise ScenarioError(key, "covariance must be positive semi-definite")
+    return matrix
+
+
+def _require(table: dict[str, Any], key: str, section: str) -> Any:
+    if key not in table:
+        raise ScenarioError(f"{section}.{key}", "is missing")
+    return table[key]
+
+
+def _section(data: dict[str, Any], name: str, required: bool = True) -> dict[str, Any]:
+    if name not in data:
+        if required:
+            raise ScenarioError(name, "section is missing")
+        return {}
+    table = data[name]
+    if not isinstance(table, dict):
+        raise ScenarioError(name, f"expected a table, got {table!r}")
+    _check_keys(table, name)
+    return table
+
+
+def _parse_plant(table: dict[str, Any]) -> LinearPlant:
+    A = _matrix(_require(table, "A", "plant"), "plant.A")
+    n = A.shape[0]
+    if A.shape != (n, n):
+        raise ScenarioError("plant.A", f"must be square, got shape {A.shape}")
+    C_raw = _require(table, "C", "plant")
+    if not isinstance(C_raw, list) or not C_raw:
+        raise ScenarioError("plant.C", "expected a list with one output matrix per sensor")
+    C = []
+    for i, Ci in enumerate(C_raw):
+        if isinstance(Ci, list) and Ci and not isinstance(Ci[0], list):
+            Ci = [Ci]  # a single row given flat
+        C.append(_matrix(Ci, f"plant.C[{i}]", (None, n)))
+    Q = _covariance(_require(table, "Q", "plant"), "plant.Q", n)
+    R_raw = _require(table, "R", "plant")
+    if isinstance(R_raw, list):
+        # one entry per sensor: a variance (times I) or an m_i x m_i matrix
+        if len(R_raw) != len(C):
+            raise ScenarioError(
+                "plant.R", f"has {len(R_raw)} entries but plant.C has {len(C)} sensors"
+            )
+        R = [_covariance(r, f"plant.R[{i}]", C[i].shape[0]) for i, r in enumerate(R_raw)]
+    else:
+        R = [_covariance(R_raw, "plant.R", Ci.shape[0]) for Ci in C]
+    x0_mean = (
+        _vector(table["x0_mean"], "plant.x0_mean", n) if "x0_mean" in table else np.zeros(n)
+    )
+    x0_cov = _covariance(table.get("x0_cov", DEFAULTS["plant.x0_cov"]), "plant.x0_cov", n)
+    return LinearPlant(A, tuple(C), Q, tuple(R), x0_mean, x0_cov)
+
+
+def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
+    seed = _int(table.get("seed", DEFAULTS["network.seed"]), "network.seed", 0)
+    weights_spec = table.get("weights", DEFAULTS["network.weights"])
+    if "P" in table:
+        P = _matrix(table["P"], "network.P", (n_sensors, n_sensors))
+        _check_weights(P, "network.P")
+        return P
+    agents = _int(table.get("agents", n_sensors), "network.agents", 2)
+    if agents != n_sensors:
+        raise ScenarioError(
+            "network.agents", f"is {agents} but plant.C has {n_sensors} sensors (one per agent)"
+        )
+    topology = table.get("topology")
+    if topology is None:
+        raise ScenarioError("network.topology", "is missing (or give the matrix network.P)")
+    if topology == "cycle":
+        graph = directed_cycle(agents)
+    elif topology == "random":
+        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
+                       "network.edge_probability")
+        graph = random_strongly_connected(agents, prob, seed)
+    elif topology == "geometric":
+        radius = table.get("radius")
+        graph = geometric(agents, None if radius is None else _number(radius, "network.radius"),
+                          seed)
+    elif topology == "edges":
+        edges = _require(table, "edges", "network")
+        graph = nx.DiGraph()
+        graph.add_nodes_from(range(agents))
+        if not isinstance(edges, list):
+            raise ScenarioError("network.edges", "expected a list of [sender, receiver] pairs")
+        for e, edge in enumerate(edges):
+            key = f"network.edges[{e}]"
+            if not (isinstance(edge, list) and len(edge) == 2):
+                raise ScenarioError(key, f"expected [sender, receiver], got {edge!r}")
+            j, i = (_int(v, key, 0) for v in edge)
+            if j >= agents or i >= agents:
+                raise ScenarioError(key, f"agent index out of range 0..{agents - 1}")
+            if i != j:
+                graph.add_edge(j, i)
+    else:
+        raise ScenarioError(
+            "network.topology",
+            f"unknown topology {topology!r}; expected cycle, random, geometric or edges",
+        )
+    if weights_spec == "random":
+        P = random_weights(graph, seed)
+    elif weights_spec == "uniform":
+        P = uniform_weights(graph)
+    elif weights_spec == "lazy-metropolis":
+        P = lazy_metropolis_weights(graph)
+    else:
+        raise ScenarioError(
+            "network.weights",
+            f"unknown scheme {weights_spec!r}; expected random, uniform or lazy-metropolis "
+            "(or give the matrix network.P)",
+        )
+    _check_weights(P, "network")
+    return P
+
+
+def _check_weights(P: np.ndarray, key: str) -> None:
+    try:
+        check_consensus_matrix(P, key)
+    except NetworkError as exc:
+        raise ScenarioError("", str(exc)) from None
+
+
+def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelaySpec:
+    model = table.get("model", DEFAULTS["delays.model"])
+    if model not in DELAY_MODELS:
+        raise ScenarioError(
+            "delays.model", f"unknown model {model!r}; expected one of {', '.join(DELAY_MODELS)}"
+        )
+    tau = _int(table.get("tau", DEFAULTS["delays.tau"]), "delays.tau")
+    if tau < 0:
+        raise ScenarioError("delays.tau", f"delay bound must be >= 0, got {tau}")
+    seed = _int(table.get("seed", DEFAULTS["delays.seed"]), "delays.seed", 0)
+    default = _number(table.get("default", DEFAULTS["delays.default"]), "delays.default")
+    if default < 0:
+        raise ScenarioError("delays.default", f"delay must be >= 0, got {default}")
+    per_link: dict[tuple[int, int], float] = {}
+    raw_links = table.get("links", [])
+    if not isinstance(raw_links, list):
+        raise ScenarioError("delays.links", "expected a list of {from, to, delay} tables")
+    link_set = set(links)
+    for e, entry in enumerate(raw_links):
+        key = f"delays.links[{e}]"
+        if not isinstance(entry, dict) or set(entry) != {"from", "to", "delay"}:
+            raise ScenarioError(key, f"expected {{from, to, delay}}, got {entry!r}")
+        link = (_int(entry["from"], f"{key}.from", 0), _int(entry["to"], f"{key}.to", 0))
+        if link not in link_set:
+            raise ScenarioError(key, f"link {link[0]} -> {link[1]} is not in the network")
+        delay = _number(entry["delay"], f"{key}.delay")
+        if delay < 0:
+            raise ScenarioError(f"{key}.delay", f"delay must be >= 0, got {delay:g}")
+        if model == "fixed" and delay != int(delay):
+            raise ScenarioError(f"{key}.delay", f"fixed delays are integer steps, got {delay}")
+        per_link[link] = delay
+    if per_link and model not in ("fixed", "latency"):
+        raise ScenarioError("delays.links", f"per-link delays need model 'fixed' or 'latency', "
+                            f"not {model!r}")
+    if model == "fixed" and default != int(default):
+        raise ScenarioError("delays.default", f"fixed delays are integer steps, got {default}")
+    return DelaySpec(model, tau, per_link, default, seed)
+
+
+def _parse_gains(table: dict[str, Any], plant: LinearPlant) -> GainSpec:
+    method = table.get("method", DEFAULTS["gains.method"])
+    if method not in ("lmi", "given"):
+        raise ScenarioError("gains.method", f"unknown method {method!r}; expected lmi or given")
+    if method == "lmi":
+        if "K" in table:
+            raise ScenarioError("gains.K", "given gains need gains.method = 'given'")
+        return GainSpec("lmi", None)
+    K_raw = _require(table, "K", "gains")
+    if not isinstance(K_raw, list) or len(K_raw) != plant.n_sensors:
+        raise ScenarioError("gains.K", f"expected {plant.n_sensors} matrices, one per agent")
+    n = plant.n_states
+    K = tuple(_matrix(Ki, f"gains.K[{i}]", (n, n)) for i, Ki in enumerate(K_raw))
+    return GainSpec("given", K)
+
+
+def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
+    """Validate a parsed TOML document and build the :class:`Scenario`.
+
+    Raises
+    ------
+    ScenarioError
+        Naming the first offending key.
+    """
+    _check_keys(data, "")
+    name = data.get("name", Path(source).stem if source else "scenario")
+    if not isinstance(name, str):
+        raise ScenarioError("name", f"expected a string, got {name!r}")
+    description = data.get("description", "")
+    run = _section(data, "run", required=False)
+    plant = _parse_plant(_section(data, "plant"))
+    P = _parse_network(_section(data, "network"), plant.n_sensors)
+    links = sorted(graph_from_weights(P).edges)
+    delays = _parse_delays(_section(data, "delays", required=False), links)
+    gains = _parse_gains(_section(data, "gains", required=False), plant)
+    estimators = run.get("estimators", DEFAULTS["run.estimators"])
+    if not isinstance(estimators, list) or not estimators:
+        raise ScenarioError("run.estimators", "expected a non-empty list of estimator names")
+    for e in estimators:
+        if e not in ESTIMATOR_FAMILIES:
+            raise ScenarioError(
+                "run.estimators",
+                f"unknown estimator {e!r}; expected some of {', '.join(ESTIMATOR_FAMILIES)}",
+            )
+    fraction = _number(run.get("steady_state_fraction", DEFAULTS["run.steady_state_fraction"]),
+                       "run.steady_state_fraction")
+    if not 0 < fraction <= 1:
+        raise ScenarioError("run.steady_state_fraction", f"must be in (0, 1], got {fraction}")
+    period = _number(run.get("sample_period", DEFAULTS["run.sample_period"]),
+                     "run.sample_period")
+    if period <= 0:
+        raise ScenarioError("run.sample_period", f"must be > 0, got {period}")
+    threshold = _number(run.get("divergence_threshold", DEFAULTS["run.divergence_threshold"]),
+                        "run.divergence_threshold")
+    if threshold <= 0:
+        raise ScenarioError("run.divergence_threshold", f"must be > 0, got {threshold}")
+    return Scenario(
+        name=name,
+        description=str(description),
+        plant=plant,
+        weights=P,
+        delays=delays,
+        gains=gains,
+        estimators=tuple(estimators),
+        steps=_int(run.get("steps", DEFAULTS["run.steps"]), "run.steps", 1),
+        trials=_int(run.get("trials", DEFAULTS["run.trials"]), "run.trials", 1),
+        seed=_int(run.get("seed", DEFAULTS["run.seed"]), "run.seed", 0),
+        sample_period=period,
+        divergence_threshold=threshold,
+        steady_state_fraction=fraction,
+        source=source,
+    )
+
+
+def load_scenario(path: str | Path) -> Scenario:
+    """Read and validate a scenario TOML file.
+
+    Raises
+    ------
+    ScenarioError
+        If the file cannot be read, is not valid TOML, or fails validation.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as exc:
+        raise ScenarioError("", f"cannot read scenario file {path}: {exc.strerror}") from None
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError("", f"{path} is not valid TOML: {exc}") from None
+    return parse_scenario(data, str(path))
+
+
+def builtin_scenarios() -> dict[str, Path]:
+    """Return the built-in scenario files by name."""
+    folder = resources.files("models") / "scenarios"
+    return {
+        Path(entry.name).stem: Path(str(entry))
+        for entry in sorted(folder.iterdir(), key=lambda e: e.name)
+        if entry.name.endswith(".toml")
+    }
+
+
+def resolve_scenario(name_or_path: str) -> Scenario:
+    """Load a built-in scenario by name, or a scenario file by path."""
+    builtins = builtin_scenarios()
+    if name_or_path in builtins:
+        scenario = load_scenario(builtins[name_or_path])
+        return replace(scenario, source=f"builtin:{name_or_path}")
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        return load_scenario(path)
+    close = difflib.get_close_matches(name_or_path, list(builtins), n=1)
+    hint = f" (did you mean '{close[0]}'?)" if close else ""
+    raise ScenarioError(
+        "", f"no built-in scenario or file named {name_or_path!r}{hint}; "
+        f"built-ins: {', '.join(builtins)}"
+    )

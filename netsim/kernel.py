@@ -1,0 +1,284 @@
+"""The SimPy event kernel: plant process, agents hosting estimators, delayed links.
+
+One run of one estimator family over one realisation of the plant and the links.
+Event order within a sampling instant k (simulation time k, in units of Ts):
+
+1. deliveries arriving at k (URGENT events, scheduled when sent);
+2. the plant process makes x_k and every sensor's y^i_k, then fires the step's tick;
+3. every agent process, in agent order, runs its estimator's update for step k;
+   then, in the same order, sends its new estimate on its out-links;
+4. the monitor process records each agent's error and checks for divergence.
+
+Deliveries scheduled during step 3 for time k (zero latency) are processed after
+all updates of step k, so a message is never used at the step it was sent.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+import simpy
+
+from models.delays import DelayModel
+from models.plant import LinearPlant
+from netsim.links import Link, Message
+
+__all__ = [
+    "KernelObserver",
+    "HostedEstimator",
+    "AgentSpec",
+    "TrialResult",
+    "Simulation",
+    "NOT_USED",
+    "DEFAULT_DIVERGENCE_THRESHOLD",
+]
+
+#: Entry of ``TrialResult.effective_delays`` where no neighbour estimate was used.
+NOT_USED = -2
+#: An agent's error norm above this (or non-finite) marks the trial as diverged.
+DEFAULT_DIVERGENCE_THRESHOLD = 1e8
+
+
+class HostedEstimator(Protocol):
+    """What the kernel needs from an estimator object."""
+
+    def step(self, k: int, y: np.ndarray) -> np.ndarray: ...
+
+    @property
+    def estimate(self) -> np.ndarray: ...
+
+
+class KernelObserver(Protocol):
+    """Hooks called by the kernel (e.g. a trace recorder); all optional."""
+
+    def on_plant(self, k: int, state: np.ndarray, measurements: Sequence[np.ndarray]) -> None: ...
+    def on_sent(self, message: Message) -> None: ...
+    def on_delivered(self, message: Message, accepted: bool) -> None: ...
+    def on_update(
+        self, agent: int, k: int, estimate: np.ndarray, delays: dict[int, int]
+    ) -> None: ...
+
+
+@dataclass
+class AgentSpec:
+    """An agent of the simulation.
+
+    Parameters
+    ----------
+    estimator : HostedEstimator
+        The update rule (knows nothing of SimPy).
+    measure : callable(list of y^i_k) -> numpy.ndarray
+        Selects this agent's measurement from all sensors' (e.g. ``lambda ys: ys[i]``).
+    out_neighbours : sequence of int
+        Agents this one sends its estimate to.
+    """
+
+    estimator: Any
+    measure: Callable[[Sequence[np.ndarray]], np.ndarray]
+    out_neighbours: Sequence[int] = ()
+
+
+@dataclass
+class TrialResult:
+    """Everything one run produced.
+
+    Attributes
+    ----------
+    states : numpy.ndarray, shape (K+1, n)
+        True states x_0..x_K.
+    measurements : list of numpy.ndarray, each (K+1, m_i)
+        Each sensor's measurements.
+    estimates : numpy.ndarray, shape (K+1, N_agents, n)
+        Each agent's estimate after its update at each step.
+    squared_errors : numpy.ndarray, shape (K+1, N_agents)
+        ||x_k - x-hat^i_{k|k}||^2 (NaN after divergence).
+    effective_delays : numpy.ndarray or None, shape (K+1, N_agents, N_agents), int
+        r_ij[k] = k - 1 - s_j used by agent i's update at step k; -1 when i
+        substituted its own estimate (nothing arrived yet), NOT_USED (-2) when j's
+        estimate was not used at that step.
+    diverged_at : int or None
+        First step at which an agent's error exceeded the threshold or was not finite.
+    messages_sent, messages_delivered, messages_discarded : int
+        Counts over all links (discarded: stale on arrival, freshest rule).
+    messages : list of Message
+        Every delivered message, in delivery order (when recorded).
+    """
+
+    states: np.ndarray
+    measurements: list[np.ndarray]
+    estimates: np.ndarray
+    squared_errors: np.ndarray
+    effective_delays: np.ndarray | None
+    diverged_at: int | None
+    messages_sent: int
+    messages_delivered: int
+    messages_discarded: int
+    messages: list[Message] = field(default_factory=list)
+
+
+class Simulation:
+    """One run: a plant, agents and links in a SimPy environment.
+
+    Parameters
+    ----------
+    plant : LinearPlant
+    agents : sequence of AgentSpec
+    delay_model : DelayModel
+        Delay of every link (j, i) for j in agent i's in-neighbours.
+    plant_rng : numpy.random.Generator
+        Stream for x_0, process and measurement noise.
+    sample_period : float
+        Ts.
+    divergence_threshold : float
+        Error norm that counts as divergence.
+    record_delays : bool
+        Keep the (K+1, N, N) array of effective delays.
+    record_messages : bool
+        Keep every delivered message.
+    observer : KernelObserver, optional
+        Receives every event (trace recording).
+    """
+
+    def __init__(
+        self,
+        plant: LinearPlant,
+        agents: Sequence[AgentSpec],
+        delay_model: DelayModel,
+        plant_rng: np.random.Generator,
+        *,
+        sample_period: float = 1.0,
+        divergence_threshold: float = DEFAULT_DIVERGENCE_THRESHOLD,
+        record_delays: bool = True,
+        record_messages: bool = False,
+        observer: KernelObserver | None = None,
+    ) -> None:
+        self.env = simpy.Environment()
+        self.plant = plant
+        self.agents = list(agents)
+        self.delay_model = delay_model
+        self.plant_rng = plant_rng
+        self.sample_period = float(sample_period)
+        self.divergence_threshold = float(divergence_threshold)
+        self.record_delays = record_delays
+        self.record_messages = record_messages
+        self.observer = observer
+        self.links: dict[tuple[int, int], Link] = {}
+        self._out_links: list[list[Link]] = []
+        for i, spec in enumerate(self.agents):
+            links = []
+            for r in spec.out_neighbours:
+                link = Link(self.env, i, int(r), delay_model, self._deliver, self.sample_period)
+                if observer is not None:
+                    link.on_send = observer.on_sent
+                self.links[(i, int(r))] = link
+                links.append(link)
+            self._out_links.append(links)
+        self._messages: list[Message] = []
+        self._discarded = 0
+
+    def _deliver(self, message: Message) -> None:
+        estimator = self.agents[message.receiver].estimator
+        accepted = estimator.message_arrived(message.sender, message.sent_step, message.payload)
+        if not accepted:
+            self._discarded += 1
+        if self.record_messages:
+            self._messages.append(message)
+        if self.observer is not None:
+            self.observer.on_delivered(message, accepted)
+
+    def run(self, steps: int) -> TrialResult:
+        """Simulate steps 0..``steps`` and return the recorded result."""
+        env = self.env
+        n = self.plant.n_states
+        n_agents = len(self.agents)
+        states = np.full((steps + 1, n), np.nan)
+        measurements = [np.full((steps + 1, C.shape[0]), np.nan) for C in self.plant.C]
+        estimates = np.full((steps + 1, n_agents, n), np.nan)
+        sq_errors = np.full((steps + 1, n_agents), np.nan)
+        delays = (
+            np.full((steps + 1, n_agents, n_agents), NOT_USED, dtype=np.int32)
+            if self.record_delays
+            else None
+        )
+        shared: dict[str, Any] = {"tick": env.event(), "ys": None, "diverged_at": None}
+        done = env.event()
+        threshold_sq = self.divergence_threshold**2
+        observer = self.observer
+
+        def plant_process():
+            x = self.plant.sample_initial(self.plant_rng)
+            for k in range(steps + 1):
+                if k > 0:
+                    x = self.plant.step(x, self.plant_rng)
+                ys = self.plant.measure(x, self.plant_rng)
+                states[k] = x
+                for i, y in enumerate(ys):
+                    measurements[i][k] = y
+                if observer is not None:
+                    observer.on_plant(k, x, ys)
+                shared["ys"] = ys
+                shared["k"] = k
+                tick, shared["tick"] = shared["tick"], env.event()
+                tick.succeed(k)
+                yield env.timeout(1.0)
+
+        def agent_process(i: int, spec: AgentSpec):
+            estimator = spec.estimator
+            out_links = self._out_links[i]
+            while True:
+                k = yield shared["tick"]
+                estimate = estimator.step(k, spec.measure(shared["ys"]))
+                estimates[k, i] = estimate
+                used = getattr(estimator, "last_delays", None)
+                if delays is not None and used:
+                    for j, r in used.items():
+                        delays[k, i, j] = r
+                if observer is not None:
+                    observer.on_update(i, k, estimate, used or {})
+                if out_links:
+                    payload = (
+                        estimator.outgoing(k) if hasattr(estimator, "outgoing") else estimate
+                    )
+                    if payload is not None:
+                        for link in out_links:
+                            link.send(k, payload)
+
+        def monitor_process():
+            while True:
+                k = yield shared["tick"]
+                err = estimates[k] - states[k]
+                sq = np.einsum("ij,ij->i", err, err)
+                sq_errors[k] = sq
+                if not np.all(np.isfinite(sq)) or np.any(sq > threshold_sq):
+                    shared["diverged_at"] = k
+                    sq_errors[k] = np.where(np.isfinite(sq), sq, np.inf)
+                    done.succeed()
+                    return
+                if k == steps:
+                    done.succeed()
+                    return
+
+        # Agents and the monitor start (and wait on the first tick) before the plant
+        # fires it; their order is the order their updates run in at every step.
+        for i, spec in enumerate(self.agents):
+            env.process(agent_process(i, spec))
+        env.process(monitor_process())
+        env.process(plant_process())
+        with np.errstate(over="ignore", invalid="ignore"):
+            env.run(until=done)
+
+        return TrialResult(
+            states=states,
+            measurements=measurements,
+            estimates=estimates,
+            squared_errors=sq_errors,
+            effective_delays=delays,
+            diverged_at=shared["diverged_at"],
+            messages_sent=sum(link.sent for link in self.links.values()),
+            messages_delivered=sum(link.delivered for link in self.links.values()),
+            messages_discarded=self._discarded,
+            messages=self._messages,
+        )

@@ -1,0 +1,309 @@
+"""Scenario runner: build agents for an estimator family, run trials, summarise.
+
+Every trial uses the child seed ``(seed, "trial", t)``; within a trial the plant
+draws from stream ``"plant"`` and random delay models from ``"delays/..."``.
+Each estimator family runs in its own kernel run on the *same* trial seed, so all
+families see the same initial state and noise (and the same link delays, when the
+delay model is fixed or when they send on the same steps).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from estimators.consensus import (
+    BlockUpdateEstimator,
+    CompensatingEstimator,
+    ConsensusParameters,
+    UncompensatedEstimator,
+)
+from estimators.gains import GainDesign, design_gains, gains_from_matrices
+from estimators.kalman import CentralizedKalmanFilter
+from models.scenario import Scenario
+from models.seeding import SeedLike, child_sequence, stream
+from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
+
+__all__ = [
+    "GROWTH_TOLERANCE",
+    "EstimatorSummary",
+    "MonteCarloResult",
+    "scenario_gains",
+    "build_agents",
+    "run_trial",
+    "run_monte_carlo",
+]
+
+#: Factor by which the fitted MSE trend may grow over the second half of a run
+#: before a run without blow-up counts as diverging.
+GROWTH_TOLERANCE = 2.0
+
+
+def scenario_gains(scenario: Scenario) -> GainDesign:
+    """Return the scenario's gains: the given K_i, or the cvxpy LMI design."""
+    plant = scenario.plant
+    if scenario.gains.method == "given":
+        return gains_from_matrices(scenario.gains.K, scenario.weights, plant.A, plant.C)
+    return design_gains(scenario.weights, plant.A, plant.C)
+
+
+def build_agents(scenario: Scenario, family: str, gains: GainDesign | None) -> list[AgentSpec]:
+    """Return the agents of one estimator family.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    family : str
+        ``compensated``, ``uncompensated``, ``block`` or ``centralized-kf``.
+    gains : GainDesign or None
+        Innovation gains L_i (unused by the centralised filter).
+    """
+    plant = scenario.plant
+    if family == "centralized-kf":
+        kf = CentralizedKalmanFilter(
+            plant.A, plant.C_stacked, plant.Q, plant.R_stacked, plant.x0_mean, plant.x0_cov
+        )
+        return [AgentSpec(kf, np.concatenate, ())]
+    if gains is None:
+        raise ValueError(f"estimator family {family!r} needs gains")
+    P = scenario.weights
+    graph = scenario.graph
+    agents = []
+    for i in range(scenario.n_agents):
+        params = ConsensusParameters(
+            agent=i, weights=P[i], A=plant.A, C=plant.C[i], L=gains.L[i], prior=plant.x0_mean
+        )
+        if family == "compensated":
+            estimator: Any = CompensatingEstimator(params)
+        elif family == "uncompensated":
+            estimator = UncompensatedEstimator(params)
+        elif family == "block":
+            estimator = BlockUpdateEstimator(params, scenario.delay_bound)
+        else:
+            raise ValueError(f"unknown estimator family {family!r}")
+        agents.append(AgentSpec(estimator, _Select(i), sorted(graph.successors(i))))
+    return agents
+
+
+class _Select:
+    """Picklable measurement selector ys -> ys[i]."""
+
+    __slots__ = ("index",)
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+
+    def __call__(self, ys: Sequence[np.ndarray]) -> np.ndarray:
+        return ys[self.index]
+
+
+def run_trial(
+    scenario: Scenario,
+    family: str,
+    gains: GainDesign | None,
+    trial_seed: SeedLike,
+    steps: int | None = None,
+    *,
+    record_delays: bool = True,
+    record_messages: bool = False,
+    observer: KernelObserver | None = None,
+) -> TrialResult:
+    """Run one trial of one estimator family in the event kernel."""
+    agents = build_agents(scenario, family, gains)
+    simulation = Simulation(
+        scenario.plant,
+        agents,
+        scenario.delay_model(trial_seed),
+        stream(trial_seed, "plant"),
+        sample_period=scenario.sample_period,
+        divergence_threshold=scenario.divergence_threshold,
+        record_delays=record_delays,
+        record_messages=record_messages,
+        observer=observer,
+    )
+    return simulation.run(scenario.steps if steps is None else steps)
+
+
+@dataclass
+class EstimatorSummary:
+    """Monte Carlo summary of one estimator family.
+
+    Attributes
+    ----------
+    family : str
+    mse : numpy.ndarray, shape (K+1,)
+        Network MSE (1/N) sum_i ||x_k - x-hat^i_k||^2 averaged over the trials that
+        did not diverge (NaN if all diverged).
+    steady_state_mse : float
+        Mean of ``mse`` over the last ``steady_state_fraction`` of the steps.
+    growth_rate : float
+        exp(slope) of a least-squares line through log(mse) over the second half:
+        the per-step MSE growth factor (about 1 at steady state, < 1 while decaying).
+    diverged : list of (trial, step)
+        Trials whose error blew up, with the step it happened.
+    verdict : str
+        ``diverged`` (some trial blew up), ``diverging`` (the fitted MSE trend grows
+        by more than GROWTH_TOLERANCE over the second half) or ``stable``.
+    """
+
+    family: str
+    mse: np.ndarray
+    steady_state_mse: float
+    growth_rate: float
+    diverged: list[tuple[int, int]]
+    verdict: str
+    messages_sent: int = 0
+    messages_delivered: int = 0
+    messages_discarded: int = 0
+
+    def to_dict(self) -> dict[str, Any]:
+        k = len(self.mse) - 1
+        marks = sorted({0, k // 10, k // 4, k // 2, (3 * k) // 4, k})
+        return {
+            "family": self.family,
+            "verdict": self.verdict,
+            "steady_state_mse": _json_float(self.steady_state_mse),
+            "growth_rate": _json_float(self.growth_rate),
+            "mse_at": {str(m): _json_float(self.mse[m]) for m in marks},
+            "diverged_trials": [{"trial": t, "step": s} for t, s in self.diverged],
+            "messages": {
+                "sent": self.messages_sent,
+                "delivered": self.messages_delivered,
+                "discarded_stale": self.messages_discarded,
+            },
+        }
+
+
+@dataclass
+class MonteCarloResult:
+    """Result of :func:`run_monte_carlo`."""
+
+    scenario: Scenario
+    gains: GainDesign | None
+    steps: int
+    trials: int
+    seed: int
+    estimators: dict[str, EstimatorSummary] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        gains = None
+        if self.gains is not None:
+            gains = {
+                "method": self.gains.method,
+                "solver": self.gains.solver,
+                "status": self.gains.status,
+                "certified": self.gains.certified,
+                "certified_rate": _json_float(self.gains.certified_rate),
+                "rho_delay_free": _json_float(self.gains.rho),
+                "L": [np.asarray(L).tolist() for L in self.gains.L],
+            }
+        return {
+            "scenario": self.scenario.summary(),
+            "steps": self.steps,
+            "trials": self.trials,
+            "seed": self.seed,
+            "gains": gains,
+            "estimators": {name: s.to_dict() for name, s in self.estimators.items()},
+        }
+
+
+def _json_float(value: float | None) -> float | None | str:
+    if value is None:
+        return None
+    value = float(value)
+    if math.isnan(value):
+        return None
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return value
+
+
+def _summarise(
+    family: str, trials: list[TrialResult], fraction: float, n_steps: int
+) -> EstimatorSummary:
+    diverged = [(t, r.diverged_at) for t, r in enumerate(trials) if r.diverged_at is not None]
+    good = [r.squared_errors.mean(axis=1) for r in trials if r.diverged_at is None]
+    if good:
+        mse = np.mean(good, axis=0)
+    else:
+        mse = np.full(n_steps + 1, np.nan)
+    tail = max(1, int(round(fraction * (n_steps + 1))))
+    steady = float(np.mean(mse[-tail:])) if good else math.nan
+    half = mse[(n_steps + 1) // 2 :]
+    if good and len(half) >= 2 and np.all(half > 0):
+        slope = np.polyfit(np.arange(len(half)), np.log(half), 1)[0]
+        growth = float(np.exp(slope))
+    else:
+        growth = math.nan
+    if diverged:
+        verdict = "diverged"
+    elif not math.isfinite(growth) or growth ** len(half) > GROWTH_TOLERANCE:
+        verdict = "diverging"
+    else:
+        verdict = "stable"
+    return EstimatorSummary(
+        family=family,
+        mse=mse,
+        steady_state_mse=steady,
+        growth_rate=growth,
+        diverged=diverged,
+        verdict=verdict,
+        messages_sent=sum(r.messages_sent for r in trials),
+        messages_delivered=sum(r.messages_delivered for r in trials),
+        messages_discarded=sum(r.messages_discarded for r in trials),
+    )
+
+
+def run_monte_carlo(
+    scenario: Scenario,
+    *,
+    steps: int | None = None,
+    trials: int | None = None,
+    seed: int | None = None,
+    families: Sequence[str] | None = None,
+    progress: Callable[[int], None] | None = None,
+    gains: GainDesign | None = None,
+) -> MonteCarloResult:
+    """Run every estimator family of the scenario over Monte Carlo trials.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    steps, trials, seed : int, optional
+        Override the scenario's run settings.
+    families : sequence of str, optional
+        Subset of the scenario's estimators.
+    progress : callable(int), optional
+        Called with 1 after every finished trial (e.g. a tqdm ``update``).
+    gains : GainDesign, optional
+        Pre-computed gains (otherwise designed or taken from the scenario).
+
+    Returns
+    -------
+    MonteCarloResult
+    """
+    steps = scenario.steps if steps is None else int(steps)
+    trials = scenario.trials if trials is None else int(trials)
+    seed = scenario.seed if seed is None else int(seed)
+    families = tuple(scenario.estimators if families is None else families)
+    needs_gains = any(f != "centralized-kf" for f in families)
+    if gains is None and needs_gains:
+        gains = scenario_gains(scenario)
+    result = MonteCarloResult(scenario, gains, steps, trials, seed)
+    for family in families:
+        runs = []
+        for t in range(trials):
+            trial_seed = child_sequence(seed, "trial", t)
+            runs.append(
+                run_trial(scenario, family, gains, trial_seed, steps, record_delays=False)
+            )
+            if progress is not None:
+                progress(1)
+        result.estimators[family] = _summarise(
+            family, runs, scenario.steady_state_fraction, steps
+        )
+    return result

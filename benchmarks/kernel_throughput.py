@@ -1,0 +1,665 @@
+#!/usr/bin/env python
+"""Throughput of the SimPy event kernel (netsim.kernel.Simulation).
+
+For each network size N the script builds one scenario -- a random strongly
+connected digraph with about ``--in-degree`` in-neighbours per agent, random
+row-stochastic weights, a stable 2-state plant with one scalar output per agent,
+constant gains L_i = 0.1 C_i^T, asynchronous random delays in {0..tau} -- and runs
+``Simulation(...).run(steps)`` with ``record_delays=False``. It measures, in one
+process:
+
+* **kernel**: wall time of ``run(steps)`` (``time.perf_counter``, best of
+  ``--repeat``), simulated steps/s, delivered messages/s, and the number of SimPy
+  events the kernel processed. Events are counted exactly in a separate,
+  untimed run of the same scenario (same seeds, so the same events) whose
+  ``env.step`` is wrapped to classify each popped event by type; the timed runs
+  are not instrumented.
+* **bare SimPy**: the same number of bare events, timed the same way.
+  ``bare-timeout`` creates that many ``env.timeout(d)`` events, each with a
+  no-op callback, then ``env.run()`` (creation is inside the timed region, as the
+  kernel's event creation is). ``bare-process`` is one process yielding that
+  many ``env.timeout(1)`` (one generator resume per event).
+* **ratio**: kernel cost per event / bare cost per event.
+* **null estimator**: the same kernel run with an estimator that does no
+  arithmetic (``step`` returns a constant), to separate the kernel's own
+  machinery from the estimators' numpy work.
+* **process per message**: the same scenario with links that start one SimPy
+  process per message (``env.process(gen)``, the generator yields
+  ``env.timeout(wait)`` then delivers) instead of scheduling one URGENT
+  ``Delivery`` event. Its estimates are checked to be bit-identical to the
+  kernel's, and the ratio of wall times is reported.
+
+Usage::
+
+    python benchmarks/kernel_throughput.py                # default sizes 4,32,128
+    python benchmarks/kernel_throughput.py --sizes 8,64 --steps 500 --repeat 5
+    python benchmarks/kernel_throughput.py --json > kernel.json
+
+Progress goes to stderr; stdout holds the table (or, with ``--json``, exactly one
+JSON object and no table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import gc
+import json
+import platform
+import sys
+import time
+from collections import Counter
+from collections.abc import Callable
+from contextlib import contextmanager
+from dataclasses import dataclass
+from typing import Any
+from unittest import mock
+
+import networkx as nx
+import numpy as np
+import simpy
+
+import netsim.kernel
+from estimators.consensus import CompensatingEstimator, ConsensusParameters
+from models.delays import AsynchronousRandomDelays, DelayModel, latency_to_steps
+from models.network import random_strongly_connected, random_weights
+from models.plant import LinearPlant
+from models.seeding import stream
+from netsim.kernel import AgentSpec, Simulation, TrialResult
+from netsim.links import Link, Message
+
+DEFAULT_SIZES = (4, 32, 128)
+#: Default steps: about 51200 / N, clamped to [200, 2000] (2000, 1600, 400 for the
+#: default sizes), which keeps the default run well under two minutes on 2 cores.
+STEPS_BUDGET = 51200
+STEPS_MIN, STEPS_MAX = 200, 2000
+
+EVENT_COUNT_EXPLANATION = (
+    "events = every event popped from the SimPy queue by env.step, counted by type in "
+    "an untimed run with the same seeds: Delivery = one per delivered message (URGENT, "
+    "scheduled at send time); Timeout = the plant process's one timeout per step; Event "
+    "= the per-step tick (one event, resuming all N agent processes and the monitor) "
+    "plus the final 'done' event; Initialize = start of the N+2 processes; Process = "
+    "termination of a finished process. Process-per-message links add one Initialize, "
+    "one Timeout and one Process (termination) event per message instead of a Delivery."
+)
+
+
+def progress(message: str) -> None:
+    print(message, file=sys.stderr, flush=True)
+
+
+# --------------------------------------------------------------------------- scenario
+
+
+@dataclass
+class Scenario:
+    n_agents: int
+    graph: nx.DiGraph
+    weights: np.ndarray
+    plant: LinearPlant
+    tau: int
+    seed: int
+
+    @property
+    def n_links(self) -> int:
+        return self.graph.number_of_edges()
+
+    @property
+    def mean_in_degree(self) -> float:
+        return self.n_links / self.n_agents
+
+
+def build_scenario(n_agents: int, in_degree: float, tau: int, seed: int) -> Scenario:
+    """Random strongly-connected digraph, random weights and a stable 2-state plant."""
+    # The Hamiltonian cycle gives every agent one in-neighbour; each other ordered
+    # pair is added with probability p, so E[in-degree] = 1 + p (N - 1).
+    p = min(1.0, max(0.0, (in_degree - 1.0) / (n_agents - 1)))
+    graph = random_strongly_connected(n_agents, p, seed=seed)
+    weights = random_weights(graph, seed=seed)
+    A = np.array([[0.95, 0.1], [0.0, 0.9]])
+    angles = stream(seed, "benchmark/outputs").uniform(0.0, np.pi, n_agents)
+    C = tuple(np.array([[np.cos(a), np.sin(a)]]) for a in angles)
+    plant = LinearPlant(
+        A=A,
+        C=C,
+        Q=0.01 * np.eye(2),
+        R=tuple(0.1 * np.eye(1) for _ in C),
+        x0_mean=np.zeros(2),
+        x0_cov=np.eye(2),
+    )
+    return Scenario(n_agents, graph, weights, plant, tau, seed)
+
+
+class _Select:
+    __slots__ = ("index",)
+
+    def __init__(self, index: int) -> None:
+        self.index = index
+
+    def __call__(self, ys):
+        return ys[self.index]
+
+
+class NullEstimator:
+    """Hosts in the kernel like an estimator but does no arithmetic."""
+
+    __slots__ = ("_estimate", "last_delays")
+
+    def __init__(self, n_states: int) -> None:
+        self._estimate = np.zeros(n_states)
+        self.last_delays: dict[int, int] = {}
+
+    def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool:
+        return True
+
+    def step(self, k: int, y: np.ndarray) -> np.ndarray:
+        return self._estimate
+
+    def outgoing(self, step: int) -> np.ndarray:
+        return self._estimate
+
+    @property
+    def estimate(self) -> np.ndarray:
+        return self._estimate
+
+
+def build_agents(scn: Scenario, estimator: str) -> list[AgentSpec]:
+    plant = scn.plant
+    agents = []
+    for i in range(scn.n_agents):
+        if estimator == "compensated":
+            params = ConsensusParameters(
+                agent=i,
+                weights=scn.weights[i],
+                A=plant.A,
+                C=plant.C[i],
+                L=0.1 * plant.C[i].T,
+                prior=plant.x0_mean,
+            )
+            est: Any = CompensatingEstimator(params)
+        elif estimator == "null":
+            est = NullEstimator(plant.n_states)
+        else:
+            raise ValueError(estimator)
+        agents.append(AgentSpec(est, _Select(i), sorted(scn.graph.successors(i))))
+    return agents
+
+
+def delay_model(scn: Scenario) -> DelayModel:
+    return AsynchronousRandomDelays(scn.tau, seed=scn.seed)
+
+
+# ------------------------------------------------------------ process-per-message link
+
+
+class ProcessPerMessageLink(Link):
+    """A link that starts one SimPy process per message (the alternative design).
+
+    ``send`` mirrors :meth:`netsim.links.Link.send` (same delay draw, same Message),
+    but instead of scheduling one URGENT ``Delivery`` event it starts
+    ``env.process(gen)`` where ``gen`` yields ``env.timeout(wait)`` and then
+    delivers. Deliveries still precede the updates of their arrival step (their
+    timeouts were scheduled before the step's tick), so the run is bit-identical;
+    the benchmark checks this.
+    """
+
+    __slots__ = ()
+
+    def send(self, step: int, payload: np.ndarray) -> Message:
+        raw = self.delay_model.draw(self.sender, self.receiver, step)
+        ts = self.sample_period
+        if self.delay_model.unit == "steps":
+            d = int(raw)
+            wait = 1.0 + d
+        else:
+            d = latency_to_steps(float(raw), ts)
+            wait = float(raw) / ts
+        now = self.env.now
+        message = Message(
+            self.sender, self.receiver, step, self._sequence, payload, now * ts, (now + wait) * ts, d
+        )
+        self._sequence += 1
+        self.sent += 1
+        self.env.process(self._carry(wait, message))
+        if self.on_send is not None:
+            self.on_send(message)
+        return message
+
+    def _carry(self, wait: float, message: Message):
+        yield self.env.timeout(wait)
+        self.delivered += 1
+        self._deliver(message)
+
+
+@contextmanager
+def link_class(variant: str):
+    """Make ``Simulation.__init__`` build links of the given variant."""
+    if variant == "scheduled":
+        yield Link
+        return
+    with mock.patch.object(netsim.kernel, "Link", ProcessPerMessageLink):
+        yield ProcessPerMessageLink
+
+
+def make_simulation(scn: Scenario, estimator: str, variant: str) -> Simulation:
+    agents = build_agents(scn, estimator)
+    with link_class(variant) as cls:
+        sim = Simulation(
+            scn.plant,
+            agents,
+            delay_model(scn),
+            stream(scn.seed, "plant"),
+            record_delays=False,
+        )
+    if not all(type(link) is cls for link in sim.links.values()):
+        raise RuntimeError(
+            f"link variant {variant!r} was not applied (netsim.kernel no longer builds "
+            "links through its module-level name 'Link'); update the benchmark"
+        )
+    return sim
+
+
+# ------------------------------------------------------------------------- measuring
+
+
+def timed_runs(
+    factory: Callable[[], Simulation], steps: int, repeat: int, label: str
+) -> tuple[float, TrialResult]:
+    """Best wall time of ``run(steps)`` over ``repeat`` fresh simulations."""
+    best = float("inf")
+    result = None
+    for r in range(repeat):
+        sim = factory()
+        gc.collect()
+        t0 = time.perf_counter()
+        res = sim.run(steps)
+        dt = time.perf_counter() - t0
+        progress(f"  {label}: run {r + 1}/{repeat}: {dt:.3f} s")
+        best = min(best, dt)
+        result = res
+    assert result is not None
+    return best, result
+
+
+def count_events(sim: Simulation, steps: int) -> tuple[Counter, TrialResult]:
+    """Run once with ``env.step`` wrapped; count every processed event by type."""
+    env = sim.env
+    counts: Counter = Counter()
+    original = env.step  # bound method; env.run looks up self.step each iteration
+    queue = env._queue
+
+    def counting_step() -> None:
+        if queue:
+            counts[type(queue[0][3]).__name__] += 1
+        original()
+
+    env.step = counting_step  # type: ignore[method-assign]
+    result = sim.run(steps)
+    return counts, result
+
+
+def _noop(event: simpy.events.Event) -> None:
+    pass
+
+
+def bare_timeouts(n_events: int, spread: int) -> float:
+    """Create ``n_events`` timeouts (delays 1..spread) with a no-op callback; run."""
+    gc.collect()
+    t0 = time.perf_counter()
+    env = simpy.Environment()
+    timeout = env.timeout
+    for i in range(n_events):
+        timeout(1 + i % spread).callbacks.append(_noop)
+    env.run()
+    return time.perf_counter() - t0
+
+
+def bare_process(n_events: int) -> float:
+    """One process yielding ``n_events`` timeouts of delay 1."""
+
+    def proc(env: simpy.Environment, n: int):
+        timeout = env.timeout
+        for _ in range(n):
+            yield timeout(1)
+
+    gc.collect()
+    t0 = time.perf_counter()
+    env = simpy.Environment()
+    env.process(proc(env, n_events))
+    env.run()
+    return time.perf_counter() - t0
+
+
+def best_of(fn: Callable[[], float], repeat: int, label: str) -> float:
+    best = float("inf")
+    for r in range(repeat):
+        dt = fn()
+        progress(f"  {label}: run {r + 1}/{repeat}: {dt:.3f} s")
+        best = min(best, dt)
+    return best
+
+
+def default_steps(n_agents: int) -> int:
+    return int(min(STEPS_MAX, max(STEPS_MIN, STEPS_BUDGET // n_agents)))
+
+
+def benchmark_size(
+    n_agents: int, steps: int, repeat: int, tau: int, in_degree: float, seed: int
+) -> dict[str, Any]:
+    scn = build_scenario(n_agents, in_degree, tau, seed)
+    progress(
+        f"N={n_agents}: {scn.n_links} links (mean in-degree {scn.mean_in_degree:.2f}), "
+        f"{steps} steps, tau={tau}"
+    )
+
+    # exact event counts (untimed, instrumented runs with the same seeds)
+    kernel_counts, counted = count_events(make_simulation(scn, "compensated", "scheduled"), steps)
+    pp_counts, _ = count_events(make_simulation(scn, "compensated", "process"), steps)
+    null_counts, _ = count_events(make_simulation(scn, "null", "scheduled"), steps)
+    kernel_events = sum(kernel_counts.values())
+    pp_events = sum(pp_counts.values())
+    null_events = sum(null_counts.values())
+
+    kernel_wall, kernel_res = timed_runs(
+        lambda: make_simulation(scn, "compensated", "scheduled"), steps, repeat, "kernel"
+    )
+    if kernel_res.diverged_at is not None:
+        raise RuntimeError(f"N={n_agents}: run diverged at step {kernel_res.diverged_at}")
+    if kernel_res.messages_delivered != counted.messages_delivered:
+        raise RuntimeError("instrumented and timed runs delivered different message counts")
+    if kernel_counts.get("Delivery", 0) != kernel_res.messages_delivered:
+        raise RuntimeError("Delivery events counted != messages delivered")
+
+    pp_wall, pp_res = timed_runs(
+        lambda: make_simulation(scn, "compensated", "process"),
+        steps,
+        repeat,
+        "process-per-message",
+    )
+    identical = bool(
+        np.array_equal(pp_res.estimates, kernel_res.estimates)
+        and pp_res.messages_delivered == kernel_res.messages_delivered
+        and pp_res.messages_discarded == kernel_res.messages_discarded
+    )
+    if not identical:
+        progress("  WARNING: process-per-message run differs from the kernel run")
+
+    null_wall, null_res = timed_runs(
+        lambda: make_simulation(scn, "null", "scheduled"), steps, repeat, "null estimator"
+    )
+
+    bare_t_wall = best_of(lambda: bare_timeouts(kernel_events, tau + 1), repeat, "bare-timeout")
+    bare_p_wall = best_of(lambda: bare_process(kernel_events), repeat, "bare-process")
+
+    def per_event(wall: float, events: int) -> float:
+        return wall / events * 1e6
+
+    kernel_us = per_event(kernel_wall, kernel_events)
+    bare_t_us = per_event(bare_t_wall, kernel_events)
+    bare_p_us = per_event(bare_p_wall, kernel_events)
+    null_us = per_event(null_wall, null_events)
+    pp_us = per_event(pp_wall, pp_events)
+    simulated = steps + 1  # steps 0..steps
+    return {
+        "n_agents": n_agents,
+        "steps": steps,
+        "simulated_steps": simulated,
+        "links": scn.n_links,
+        "mean_in_degree": scn.mean_in_degree,
+        "tau": tau,
+        "messages_sent": kernel_res.messages_sent,
+        "messages_delivered": kernel_res.messages_delivered,
+        "messages_discarded_stale": kernel_res.messages_discarded,
+        "kernel": {
+            "wall_s": kernel_wall,
+            "steps_per_s": simulated / kernel_wall,
+            "messages_per_s": kernel_res.messages_delivered / kernel_wall,
+            "events": kernel_events,
+            "events_by_type": dict(sorted(kernel_counts.items())),
+            "events_per_s": kernel_events / kernel_wall,
+            "us_per_event": kernel_us,
+        },
+        "bare_timeout": {
+            "events": kernel_events,
+            "wall_s": bare_t_wall,
+            "us_per_event": bare_t_us,
+        },
+        "bare_process": {
+            "events": kernel_events,
+            "wall_s": bare_p_wall,
+            "us_per_event": bare_p_us,
+        },
+        "kernel_over_bare_timeout": kernel_us / bare_t_us,
+        "kernel_over_bare_process": kernel_us / bare_p_us,
+        "null_estimator": {
+            "wall_s": null_wall,
+            "steps_per_s": simulated / null_wall,
+            "messages_per_s": null_res.messages_delivered / null_wall,
+            "events": null_events,
+            "us_per_event": null_us,
+            "over_bare_timeout": null_us / bare_t_us,
+            "share_of_kernel_wall": null_wall / kernel_wall,
+        },
+        "process_per_message": {
+            "wall_s": pp_wall,
+            "steps_per_s": simulated / pp_wall,
+            "messages_per_s": pp_res.messages_delivered / pp_wall,
+            "events": pp_events,
+            "events_by_type": dict(sorted(pp_counts.items())),
+            "us_per_event": pp_us,
+            "wall_over_kernel": pp_wall / kernel_wall,
+            "extra_us_per_message": (pp_wall - kernel_wall)
+            / max(1, kernel_res.messages_delivered)
+            * 1e6,
+            "identical_estimates": identical,
+        },
+    }
+
+
+# -------------------------------------------------------------------------- output
+
+
+def _table(headers: list[str], rows: list[list[str]]) -> str:
+    widths = [max(len(h), *(len(r[c]) for r in rows)) for c, h in enumerate(headers)]
+    line = "  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))
+    rule = "  ".join("-" * w for w in widths)
+    body = ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in rows]
+    return "\n".join([line, rule, *body])
+
+
+def _si(x: float) -> str:
+    if x >= 1e6:
+        return f"{x / 1e6:.2f}M"
+    if x >= 1e4:
+        return f"{x / 1e3:.1f}k"
+    return f"{x:.0f}"
+
+
+def render(report: dict[str, Any]) -> str:
+    results = report["results"]
+    out = [
+        f"netsim kernel throughput  (python {report['python']}, simpy {report['simpy']}, "
+        f"numpy {report['numpy']}; best of {report['repeat']} runs, wall = perf_counter "
+        "around Simulation.run)",
+        "scenario: random strongly-connected digraph, random row-stochastic weights, "
+        "n=2 plant, 1 output/agent, L_i = 0.1 C_i^T, "
+        f"asynchronous random delays tau={results[0]['tau'] if results else '?'}, "
+        "CompensatingEstimator, record_delays=False",
+        "",
+        "Kernel throughput",
+        _table(
+            ["N", "links", "in-deg", "steps", "msgs", "wall s", "steps/s", "msgs/s",
+             "events", "events/s", "us/event"],
+            [
+                [
+                    str(r["n_agents"]),
+                    str(r["links"]),
+                    f"{r['mean_in_degree']:.2f}",
+                    str(r["steps"]),
+                    str(r["messages_delivered"]),
+                    f"{r['kernel']['wall_s']:.3f}",
+                    _si(r["kernel"]["steps_per_s"]),
+                    _si(r["kernel"]["messages_per_s"]),
+                    str(r["kernel"]["events"]),
+                    _si(r["kernel"]["events_per_s"]),
+                    f"{r['kernel']['us_per_event']:.2f}",
+                ]
+                for r in results
+            ],
+        ),
+        "",
+        "Cost per event vs bare SimPy (same event count)",
+        _table(
+            ["N", "kernel us/ev", "bare-timeout us/ev", "ratio", "bare-process us/ev",
+             "ratio", "null-est us/ev", "null/bare-timeout", "null wall share"],
+            [
+                [
+                    str(r["n_agents"]),
+                    f"{r['kernel']['us_per_event']:.2f}",
+                    f"{r['bare_timeout']['us_per_event']:.3f}",
+                    f"{r['kernel_over_bare_timeout']:.1f}x",
+                    f"{r['bare_process']['us_per_event']:.3f}",
+                    f"{r['kernel_over_bare_process']:.1f}x",
+                    f"{r['null_estimator']['us_per_event']:.2f}",
+                    f"{r['null_estimator']['over_bare_timeout']:.1f}x",
+                    f"{100 * r['null_estimator']['share_of_kernel_wall']:.0f}%",
+                ]
+                for r in results
+            ],
+        ),
+        "",
+        "Scheduled Delivery events (kernel) vs one process per message (same scenario)",
+        _table(
+            ["N", "kernel wall s", "proc/msg wall s", "proc/msg ÷ kernel",
+             "extra us/msg", "kernel events", "proc/msg events", "identical"],
+            [
+                [
+                    str(r["n_agents"]),
+                    f"{r['kernel']['wall_s']:.3f}",
+                    f"{r['process_per_message']['wall_s']:.3f}",
+                    f"{r['process_per_message']['wall_over_kernel']:.2f}x",
+                    f"{r['process_per_message']['extra_us_per_message']:.2f}",
+                    str(r["kernel"]["events"]),
+                    str(r["process_per_message"]["events"]),
+                    "yes" if r["process_per_message"]["identical_estimates"] else "NO",
+                ]
+                for r in results
+            ],
+        ),
+        "",
+        "Kernel events by type",
+        _table(
+            ["N", *report["event_types"]],
+            [
+                [str(r["n_agents"])]
+                + [str(r["kernel"]["events_by_type"].get(t, 0)) for t in report["event_types"]]
+                for r in results
+            ],
+        ),
+        "",
+        "Notes:",
+        "- " + EVENT_COUNT_EXPLANATION,
+        "- bare-timeout: that many env.timeout(1 + i % (tau+1)) created with a no-op callback, "
+        "then env.run() (creation timed); bare-process: one process yielding that many "
+        "env.timeout(1). ratio = kernel us/event / bare us/event.",
+        "- null-est: the same kernel run with an estimator doing no arithmetic (kernel "
+        "machinery + plant + monitor); 'null wall share' = its wall time / the kernel's.",
+        "- proc/msg: links starting env.process(gen) per message (gen yields "
+        "env.timeout(wait), then delivers); 'identical' = bit-identical estimates and "
+        "message counts to the kernel run; extra us/msg = wall difference / messages.",
+        "- steps/s counts simulated steps 0..steps (steps + 1 per run).",
+    ]
+    return "\n".join(out)
+
+
+def parse_int_list(text: str) -> list[int]:
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {text!r}") from exc
+    if not values:
+        raise argparse.ArgumentTypeError("empty list")
+    return values
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(
+        prog="kernel_throughput.py",
+        description=(
+            "Throughput of the netsim SimPy kernel (steps/s, messages/s, events/s) "
+            "against bare SimPy events and a process-per-message link design."
+        ),
+        epilog=(
+            f"Default steps per size: {STEPS_BUDGET}/N clamped to [{STEPS_MIN}, {STEPS_MAX}] "
+            "(2000, 1600, 400 for N = 4, 32, 128). Progress is printed on stderr."
+        ),
+    )
+    parser.add_argument(
+        "--sizes", type=parse_int_list, default=list(DEFAULT_SIZES),
+        help="comma-separated numbers of agents (default: 4,32,128)",
+    )
+    parser.add_argument(
+        "--steps", type=parse_int_list, default=None,
+        help="steps per run: one value for every size, or one per size "
+        "(default: 51200/N clamped to [200, 2000])",
+    )
+    parser.add_argument(
+        "--repeat", type=int, default=3, help="timed runs per measurement; best is kept (3)"
+    )
+    parser.add_argument("--tau", type=int, default=3, help="delay bound of the random delays (3)")
+    parser.add_argument(
+        "--in-degree", type=float, default=3.0, help="target mean in-degree per agent (3)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="root seed (0)")
+    parser.add_argument(
+        "--json", action="store_true",
+        help="print one JSON object on stdout instead of the table",
+    )
+    args = parser.parse_args(argv)
+
+    sizes = args.sizes
+    if any(n < 2 for n in sizes):
+        parser.error("--sizes: every size must be >= 2")
+    if args.steps is None:
+        steps = [default_steps(n) for n in sizes]
+    elif len(args.steps) == 1:
+        steps = args.steps * len(sizes)
+    elif len(args.steps) == len(sizes):
+        steps = args.steps
+    else:
+        parser.error("--steps: give one value or one per size")
+    if any(s < 1 for s in steps):
+        parser.error("--steps: must be >= 1")
+    if args.repeat < 1:
+        parser.error("--repeat: must be >= 1")
+
+    t0 = time.perf_counter()
+    results = [
+        benchmark_size(n, s, args.repeat, args.tau, args.in_degree, args.seed)
+        for n, s in zip(sizes, steps, strict=True)
+    ]
+    types = sorted({t for r in results for t in r["kernel"]["events_by_type"]})
+    report = {
+        "benchmark": "kernel_throughput",
+        "command": " ".join([sys.argv[0], *(sys.argv[1:] if argv is None else argv)]),
+        "python": platform.python_version(),
+        "simpy": simpy.__version__,
+        "numpy": np.__version__,
+        "machine": platform.machine(),
+        "repeat": args.repeat,
+        "seed": args.seed,
+        "event_count_definition": EVENT_COUNT_EXPLANATION,
+        "event_types": types,
+        "results": results,
+        "total_wall_s": time.perf_counter() - t0,
+    }
+    progress(f"total {report['total_wall_s']:.1f} s")
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(render(report))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,168 @@
+"""The event kernel against independent recursions and the delay semantics."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from helpers import lcsys, lockstep_compensated, with_delays
+
+from models.seeding import child_sequence
+from netsim.runner import run_trial, scenario_gains
+
+STEPS = 60
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return lcsys()
+
+
+@pytest.fixture(scope="module")
+def gains(scenario):
+    return scenario_gains(scenario)
+
+
+def test_zero_delays_every_consensus_variant_is_the_delay_free_recursion(scenario, gains):
+    zero = with_delays(scenario, model="homogeneous", tau=0)
+    seed = child_sequence(7, "trial", 0)
+    runs = {
+        f: run_trial(zero, f, gains, seed, STEPS)
+        for f in ("compensated", "uncompensated", "block")
+    }
+    # identical arithmetic in all three variants when every delay is zero
+    np.testing.assert_array_equal(runs["compensated"].estimates, runs["uncompensated"].estimates)
+    np.testing.assert_array_equal(runs["compensated"].estimates, runs["block"].estimates)
+    # and the delay-free recursion of LCSYS2022 eq. (12) in stacked form
+    plant = zero.plant
+    run = runs["compensated"]
+    N, n = zero.n_agents, plant.n_states
+    PA = np.kron(zero.weights, plant.A)
+    KD = np.zeros((N * n, N * n))
+    for i in range(N):
+        KD[i * n:(i + 1) * n, i * n:(i + 1) * n] = gains.L[i] @ plant.C[i]
+    KDy = np.zeros((STEPS + 1, N * n))
+    for i in range(N):
+        KDy[:, i * n:(i + 1) * n] = run.measurements[i] @ gains.L[i].T
+    x = np.tile(plant.x0_mean, N)
+    x = x - KD @ x + KDy[0]
+    stacked = [x]
+    for k in range(1, STEPS + 1):
+        prior = PA @ stacked[-1]
+        stacked.append(prior - KD @ prior + KDy[k])
+    expected = np.array(stacked).reshape(STEPS + 1, N, n)
+    np.testing.assert_allclose(run.estimates, expected, rtol=1e-12, atol=1e-12)
+    assert run.diverged_at is None
+
+
+def test_compensating_estimator_matches_lockstep_recursion_of_eqs_4_5(scenario, gains):
+    links = scenario.links
+    delays = {link: d for link, d in zip(links, [0, 3, 1, 5], strict=True)}
+    fixed = with_delays(
+        scenario, model="fixed", links={k: float(v) for k, v in delays.items()}
+    )
+    run = run_trial(fixed, "compensated", gains, child_sequence(11, "trial", 0), 120)
+    plant = fixed.plant
+    expected = lockstep_compensated(
+        fixed.weights, plant.A, plant.C, gains.L, plant.x0_mean, run.measurements, delays, 120
+    )
+    err_sim = run.estimates - run.states[:, None, :]
+    err_ref = expected - run.states[:, None, :]
+    np.testing.assert_allclose(err_sim, err_ref, rtol=0, atol=1e-9)
+
+
+def test_message_sent_at_s_is_used_at_s_plus_1_plus_d(scenario, gains):
+    links = scenario.links
+    delays = {link: d for link, d in zip(links, [2, 0, 4, 1], strict=True)}
+    fixed = with_delays(scenario, model="fixed", links={k: float(v) for k, v in delays.items()})
+    run = run_trial(fixed, "compensated", gains, 3, 30, record_messages=True)
+    r = run.effective_delays
+    for (j, i), d in delays.items():
+        # nothing from j before step 1 + d: agent i substitutes its own estimate
+        assert np.all(r[1:1 + d, i, j] == -1)
+        # from step 1 + d on, the message of step k - 1 - d is used: r_ij[k] = d
+        assert np.all(r[1 + d:, i, j] == d)
+    for message in run.messages:
+        d = delays[(message.sender, message.receiver)]
+        assert message.arrival_time == message.sent_step + 1 + d
+        assert message.delay_steps == d
+
+
+@pytest.mark.parametrize(
+    ("latency", "expected_d"), [(0.0, 0), (0.4, 0), (1.0, 0), (1.5, 1), (2.0, 1), (2.01, 2)]
+)
+def test_continuous_latency_maps_to_ceil_minus_one(scenario, gains, latency, expected_d):
+    link = scenario.links[0]
+    lat = with_delays(scenario, model="latency", links={link: latency}, default=0.0)
+    run = run_trial(lat, "compensated", gains, 5, 12)
+    j, i = link
+    # a message arriving exactly at k * Ts counts as arrived for step k
+    assert np.all(run.effective_delays[1 + expected_d:, i, j] == expected_d)
+    assert np.all(run.effective_delays[1:1 + expected_d, i, j] == -1)
+
+
+def _freshest_reference(messages, i, j, steps, by_timestamp):
+    """s_j(k) from the delivered messages alone: largest stamp or last arrival."""
+    used = np.full(steps + 1, -1)
+    current = None
+    arrivals = [m for m in messages if (m.sender, m.receiver) == (j, i)]
+    idx = 0
+    for k in range(1, steps + 1):
+        while idx < len(arrivals) and arrivals[idx].arrival_time <= k:
+            s = arrivals[idx].sent_step
+            if current is None or not by_timestamp or s > current:
+                current = s
+            idx += 1
+        used[k] = -1 if current is None else k - 1 - current
+    return used
+
+
+@pytest.mark.parametrize("family", ["compensated", "uncompensated"])
+def test_reordered_messages_obey_the_freshest_rule(scenario, gains, family):
+    tv = with_delays(scenario, model="asynchronous", tau=6)
+    steps = 80
+    run = run_trial(tv, family, gains, 9, steps, record_messages=True)
+    reordered = 0
+    for j, i in tv.links:
+        arrivals = [m.sent_step for m in run.messages if (m.sender, m.receiver) == (j, i)]
+        reordered += sum(b < a for a, b in zip(arrivals, arrivals[1:], strict=False))
+        expected = _freshest_reference(
+            run.messages, i, j, steps, by_timestamp=(family == "compensated")
+        )
+        np.testing.assert_array_equal(run.effective_delays[1:, i, j], expected[1:])
+    assert reordered > 0, "the scenario must actually reorder messages"
+    if family == "compensated":
+        # with time-stamps the used stamp never goes backwards
+        for j, i in tv.links:
+            stamps = np.arange(steps + 1) - 1 - run.effective_delays[:, i, j]
+            valid = run.effective_delays[:, i, j] >= 0
+            assert np.all(np.diff(stamps[valid]) >= 0)
+        assert run.messages_discarded > 0
+
+
+def test_same_seed_same_numbers_bit_for_bit(scenario, gains):
+    tv = with_delays(scenario, model="asynchronous", tau=4)
+    a = run_trial(tv, "compensated", gains, child_sequence(5, "trial", 2), 50)
+    b = run_trial(tv, "compensated", gains, child_sequence(5, "trial", 2), 50)
+    c = run_trial(tv, "compensated", gains, child_sequence(6, "trial", 2), 50)
+    assert a.estimates.tobytes() == b.estimates.tobytes()
+    assert np.array_equal(a.effective_delays, b.effective_delays)
+    assert a.estimates.tobytes() != c.estimates.tobytes()
+
+
+def test_divergence_is_reported_with_its_step(scenario):
+    from dataclasses import replace
+
+    from estimators.gains import gains_from_matrices
+
+    zero_gain = gains_from_matrices(
+        [np.zeros((6, 6))] * 4, scenario.weights, scenario.plant.A, scenario.plant.C
+    )
+    tight = replace(scenario, divergence_threshold=50.0)
+    run = run_trial(tight, "compensated", zero_gain, 1, 400)
+    assert run.diverged_at is not None
+    k = run.diverged_at
+    # the error at the reported step is the first above the threshold
+    norms = np.sqrt(run.squared_errors[:k])
+    assert np.all(norms <= 50.0)
+    assert np.sqrt(run.squared_errors[k]).max() > 50.0
+    assert np.all(np.isnan(run.squared_errors[k + 1:]))

@@ -121,6 +121,8 @@ def geometric(n_agents: int, radius: float | None = None, seed: SeedLike = None)
         raise NetworkError(f"a geometric network needs at least 2 agents, got {n_agents}")
     rng = stream(seed, "network/geometric")
     positions = rng.random((n_agents, 2))
+    if radius is not None and not radius > 0:
+        raise NetworkError(f"geometric network radius must be > 0, got {radius}")
     r = radius if radius is not None else math.sqrt(2.0 * math.log(n_agents) / n_agents)
     dist = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=-1)
     while True:

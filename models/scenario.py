@@ -293,7 +293,9 @@ def _int(value: Any, key: str, minimum: int | None = None) -> int:
     return int(value)
 
 
-def _matrix(value: Any, key: str, shape: tuple[int | None, int | None] = (None, None)) -> np.ndarray:
+def _matrix(
+    value: Any, key: str, shape: tuple[int | None, int | None] = (None, None)
+) -> np.ndarray:
     if not isinstance(value, list) or not value:
         raise ScenarioError(key, f"expected a non-empty matrix (list of rows), got {value!r}")
     rows = value if isinstance(value[0], list) else None
@@ -410,11 +412,16 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     elif topology == "random":
         prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
                        "network.edge_probability")
+        if not 0 <= prob <= 1:
+            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
         graph = random_strongly_connected(agents, prob, seed)
     elif topology == "geometric":
         radius = table.get("radius")
-        graph = geometric(agents, None if radius is None else _number(radius, "network.radius"),
-                          seed)
+        if radius is not None:
+            radius = _number(radius, "network.radius")
+            if radius <= 0:
+                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+        graph = geometric(agents, radius, seed)
     elif topology == "edges":
         edges = _require(table, "edges", "network")
         graph = nx.DiGraph()
@@ -447,7 +454,7 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
             f"unknown scheme {weights_spec!r}; expected random, uniform or lazy-metropolis "
             "(or give the matrix network.P)",
         )
-    _check_weights(P, "network")
+    _check_weights(P, "network.edges" if topology == "edges" else "network")
     return P
 
 
@@ -455,7 +462,9 @@ def _check_weights(P: np.ndarray, key: str) -> None:
     try:
         check_consensus_matrix(P, key)
     except NetworkError as exc:
-        raise ScenarioError("", str(exc)) from None
+        error = ScenarioError("", str(exc))  # the message already starts with the key
+        error.key = key
+        raise error from None
 
 
 def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelaySpec:
@@ -584,6 +593,10 @@ def load_scenario(path: str | Path) -> Scenario:
         text = path.read_text(encoding="utf-8")
     except OSError as exc:
         raise ScenarioError("", f"cannot read scenario file {path}: {exc.strerror}") from None
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(
+            "", f"scenario file {path} is not UTF-8 text (byte {exc.start}: {exc.reason})"
+        ) from None
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
@@ -604,6 +617,8 @@ def builtin_scenarios() -> dict[str, Path]:
 def resolve_scenario(name_or_path: str) -> Scenario:
     """Load a built-in scenario by name, or a scenario file by path."""
     builtins = builtin_scenarios()
+    if not name_or_path.strip():
+        raise ScenarioError("", "empty scenario name; give a built-in name or a TOML file path")
     if name_or_path in builtins:
         scenario = load_scenario(builtins[name_or_path])
         return replace(scenario, source=f"builtin:{name_or_path}")

@@ -95,6 +95,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     families = scenario.estimators
     if args.estimators:
         families = tuple(f.strip() for f in args.estimators.split(",") if f.strip())
+        if not families:
+            raise CommandError("--estimators: empty list; name at least one estimator")
         unknown = [f for f in families if f not in scenario.estimators]
         if unknown:
             raise CommandError(

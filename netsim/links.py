@@ -122,7 +122,8 @@ class Link:
             wait = float(raw) / ts
         now = self.env.now
         message = Message(
-            self.sender, self.receiver, step, self._sequence, payload, now * ts, (now + wait) * ts, d
+            self.sender, self.receiver, step, self._sequence, payload,
+            now * ts, (now + wait) * ts, d,
         )
         self._sequence += 1
         self.sent += 1

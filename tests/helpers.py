@@ -43,7 +43,8 @@ def lockstep_compensated(P, A, C, L, prior, ys, delays, steps):
                     continue
                 d = delays[(j, i)]
                 if k - 1 - d >= 0:
-                    prior_i = prior_i + P[i, j] * np.linalg.matrix_power(A, d + 1) @ xs[k - 1 - d, j]
+                    Ad = np.linalg.matrix_power(A, d + 1)
+                    prior_i = prior_i + P[i, j] * Ad @ xs[k - 1 - d, j]
                 else:
                     prior_i = prior_i + P[i, j] * A @ xs[k - 1, i]
             xs[k, i] = prior_i + L[i] @ (ys[i][k] - C[i] @ prior_i)

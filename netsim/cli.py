@@ -156,6 +156,20 @@ def _format_run(data: dict[str, Any]) -> str:
             f"gains: {g['method']} ({g['solver']}, {g['status']}, {cert}); "
             f"rho(A-hat) delay-free = {_fmt(g['rho_delay_free'])}"
         )
+    a = data.get("analytics")
+    if a:
+        lines.append(
+            f"analytics at tau = {a['delay_bound']}: tau* (LCSYS2022 Thm 1) = {a['tau_star']}, "
+            f"eq. (26) bound = {_fmt(a['bound_lcsys_eq26'])}, delay-tolerant bound "
+            f"rho^(1/(tau+1)) = {_fmt(a['bound_delay_tolerant'])}"
+        )
+        if a.get("rho_exact_compensated") is not None:
+            lines.append(
+                f"exact rho of the augmented closed loop for the realised delays: "
+                f"compensated (eq. 9) = {_fmt(a['rho_exact_compensated'])}, "
+                f"uncompensated (eq. 11, valid only for a still state) = "
+                f"{_fmt(a['rho_exact_uncompensated'])}"
+            )
     lines.append("")
     marks = list(next(iter(data["estimators"].values()))["mse_at"])
     header = f"{'estimator':<16}{'verdict':<22}{'steady MSE':>12}{'growth/step':>13}  " + " ".join(

@@ -24,6 +24,13 @@ from estimators.consensus import (
 )
 from estimators.gains import GainDesign, design_gains, gains_from_matrices
 from estimators.kalman import CentralizedKalmanFilter
+from models.augmented import (
+    augmented_closed_loop,
+    delay_bound_lcsys,
+    spectral_radius,
+    tau_star,
+)
+from models.delays import latency_to_steps
 from models.scenario import Scenario
 from models.seeding import SeedLike, child_sequence, stream
 from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
@@ -36,6 +43,7 @@ __all__ = [
     "build_agents",
     "run_trial",
     "run_monte_carlo",
+    "delay_analytics",
 ]
 
 #: Factor by which the fitted MSE trend may grow over the second half of a run
@@ -128,6 +136,58 @@ def run_trial(
     return simulation.run(scenario.steps if steps is None else steps)
 
 
+def fixed_delay_matrix(scenario: Scenario) -> np.ndarray | None:
+    """Return the (N, N) step delays d_ij of a time-invariant delay model, else None."""
+    model = scenario.delay_model(0)
+    if not model.time_invariant:
+        return None
+    delays = np.zeros((scenario.n_agents, scenario.n_agents), dtype=int)
+    for j, i in scenario.links:
+        raw = model.draw(j, i, 0)
+        delays[i, j] = (
+            int(raw) if model.unit == "steps" else latency_to_steps(raw, scenario.sample_period)
+        )
+    return delays
+
+
+def delay_analytics(scenario: Scenario, gains: GainDesign) -> dict[str, Any]:
+    """Spectral quantities of the scenario's delays next to the papers' bounds.
+
+    Returns rho(A-hat) delay-free; Theorem 1's tau* (LCSYS2022); at the delay bound
+    tau: the eq. (26) bound rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)) and the
+    delay-tolerant paper's rho(A-hat)^(1/(tau+1)); and, for time-invariant delays,
+    the exact spectral radius of the augmented closed loop of the realised delays,
+    with compensation (LCSYS2022 eq. 9-10) and without (delay-tolerant eq. 11; that
+    matrix is the error recursion only for a plant whose state does not move).
+    """
+    plant = scenario.plant
+    P, A, C, L = scenario.weights, plant.A, plant.C, gains.L
+    tau = scenario.delay_bound
+    rho0 = float(gains.rho)
+    out: dict[str, Any] = {
+        "delay_bound": tau,
+        "rho_delay_free": rho0,
+        "tau_star": tau_star(P, A, C, L),
+        "bound_lcsys_eq26": float(delay_bound_lcsys(P, A, C, L, tau)),
+        "bound_delay_tolerant": rho0 ** (1.0 / (tau + 1)),
+        "rho_exact_compensated": None,
+        "rho_exact_uncompensated": None,
+    }
+    delays = fixed_delay_matrix(scenario)
+    if delays is not None and scenario.n_agents * plant.n_states * (tau + 1) <= 4000:
+        depth = int(delays.max())
+        out["realised_delays"] = {
+            f"{j}->{i}": int(delays[i, j]) for j, i in scenario.links
+        }
+        out["rho_exact_compensated"] = spectral_radius(
+            augmented_closed_loop(P, A, C, L, delays, depth, compensated=True)
+        )
+        out["rho_exact_uncompensated"] = spectral_radius(
+            augmented_closed_loop(P, A, C, L, delays, depth, compensated=False)
+        )
+    return out
+
+
 @dataclass
 class EstimatorSummary:
     """Monte Carlo summary of one estimator family.
@@ -188,6 +248,7 @@ class MonteCarloResult:
     trials: int
     seed: int
     estimators: dict[str, EstimatorSummary] = field(default_factory=dict)
+    analytics: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         gains = None
@@ -207,8 +268,17 @@ class MonteCarloResult:
             "trials": self.trials,
             "seed": self.seed,
             "gains": gains,
+            "analytics": _json_tree(self.analytics),
             "estimators": {name: s.to_dict() for name, s in self.estimators.items()},
         }
+
+
+def _json_tree(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {k: _json_tree(v) for k, v in value.items()}
+    if isinstance(value, float):
+        return _json_float(value)
+    return value
 
 
 def _json_float(value: float | None) -> float | None | str:
@@ -294,6 +364,8 @@ def run_monte_carlo(
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)
     result = MonteCarloResult(scenario, gains, steps, trials, seed)
+    if gains is not None:
+        result.analytics = delay_analytics(scenario, gains)
     for family in families:
         runs = []
         for t in range(trials):

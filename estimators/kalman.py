@@ -43,6 +43,10 @@ class CentralizedKalmanFilter:
         self._started = False
         self.last_step: int | None = None
 
+    def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool:
+        """The centralised filter receives no messages; refuse any."""
+        return False
+
     @property
     def estimate(self) -> np.ndarray:
         """Current estimate x-hat_{k|k}, shape (n,)."""

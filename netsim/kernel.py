@@ -43,7 +43,14 @@ DEFAULT_DIVERGENCE_THRESHOLD = 1e8
 
 
 class HostedEstimator(Protocol):
-    """What the kernel needs from an estimator object."""
+    """What the kernel needs from an estimator object.
+
+    Optional, used when present: ``outgoing(k)`` (the payload to send after step k,
+    None for nothing; default: the estimate) and ``last_delays`` (dict j -> r_ij[k]
+    of the last update).
+    """
+
+    def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool: ...
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray: ...
 
@@ -220,7 +227,6 @@ class Simulation:
                 if observer is not None:
                     observer.on_plant(k, x, ys)
                 shared["ys"] = ys
-                shared["k"] = k
                 tick, shared["tick"] = shared["tick"], env.event()
                 tick.succeed(k)
                 yield env.timeout(1.0)

@@ -83,7 +83,7 @@ class Link:
     """
 
     __slots__ = (
-        "env", "sender", "receiver", "delay_model", "_deliver", "_callbacks",
+        "env", "sender", "receiver", "delay_model", "_deliver",
         "sample_period", "sent", "delivered", "_sequence", "on_send",
     )
 
@@ -101,7 +101,6 @@ class Link:
         self.receiver = receiver
         self.delay_model = delay_model
         self._deliver = deliver
-        self._callbacks = [self._arrive]
         self.sample_period = sample_period
         self.sent = 0
         self.delivered = 0
@@ -128,7 +127,7 @@ class Link:
         self._sequence += 1
         self.sent += 1
         event = Delivery(self.env, wait, message)
-        event.callbacks = self._callbacks
+        event.callbacks.append(self._arrive)
         if self.on_send is not None:
             self.on_send(message)
         return message

@@ -13,6 +13,8 @@ import sys
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+
 __all__ = ["main", "build_parser"]
 
 EXIT_BAD_INPUT = 2
@@ -60,8 +62,64 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--tau", type=int, help="override the scenario's delay bound tau "
                      "(homogeneous, heterogeneous or time-varying delays)")
     run.add_argument("--estimators", help="comma-separated subset of the scenario's estimators")
+    run.add_argument("--trace", metavar="FILE.mcap",
+                     help="record every run to MCAP: FILE.mcap for a single run, else one "
+                     "file per estimator and trial, FILE.<estimator>.trial<k>.mcap")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+    design = sub.add_parser(
+        "design",
+        help="design the block-diagonal gains K of a scenario and report tau*",
+        description=(
+            "Design block-diagonal innovation gains K_i for SCENARIO with cvxpy: the "
+            "block-diagonal Lyapunov LMI of LCSYS2022 eq. (13) with bisection on the decay "
+            "rate, the cone-complementarity iteration with a full Lyapunov matrix (small "
+            "networks), a delay-bound design against P kron A^(tau1+1) (LCSYS2022 "
+            "Discussion 5), and an optional direct refinement of rho(A-hat). rho(A-hat) of "
+            "the returned gains is always recomputed with numpy, whatever the solver said."
+        ),
+    )
+    design.add_argument("scenario", help="built-in scenario name or TOML file")
+    design.add_argument("--method", default="auto", choices=["auto", "lmi", "ccl"],
+                        help="auto: cone-complementarity for small networks, block-diagonal "
+                        "LMI otherwise (default: auto)")
+    design.add_argument("--tau1", type=int, default=0,
+                        help="design to tolerate delays up to tau1 (default 0: delay-free)")
+    design.add_argument("--refine", action="store_true",
+                        help="then minimise rho(A-hat) directly from the LMI solution "
+                        "(reported as uncertified unless a certificate is found)")
+    design.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    analyze = sub.add_parser(
+        "analyze",
+        help="exact spectral radii of the augmented closed loop beside the papers' bounds",
+        description=(
+            "For SCENARIO and its gains: rho(A-hat) delay-free, Theorem 1's tau* "
+            "(contiguous and isolated passing values), and for homogeneous delays "
+            "0..TAU_MAX the exact spectral radius of the augmented closed loop "
+            "(compensated, LCSYS2022 eq. 9-10; uncompensated, delay-tolerant eq. 11) beside "
+            "the LCSYS2022 eq. (26) bound and the delay-tolerant bound rho(A-hat)^(1/(tau+1)); "
+            "a bound that the exact value violates is flagged with both numbers."
+        ),
+    )
+    analyze.add_argument("scenario", help="built-in scenario name or TOML file")
+    analyze.add_argument("--tau-max", type=int, default=30,
+                         help="largest homogeneous delay analysed (default 30)")
+    analyze.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    insp = sub.add_parser(
+        "inspect",
+        help="summarise an MCAP trace written by 'netsim run --trace'",
+        description=(
+            "What is in TRACE (scenario, estimator, trial, topics and counts, steps, agents), "
+            "per-link delay statistics (min, mean, max, histogram), drops and reorderings, "
+            "per-agent MSE, and whether the file is truncated (a file whose writer was "
+            "killed is still read: every complete chunk is recovered and counted)."
+        ),
+    )
+    insp.add_argument("trace", help="an MCAP file written by netsim")
+    insp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
     scen = sub.add_parser("scenarios", help="list the built-in scenarios",
                           description="List the built-in scenarios with their descriptions.")
@@ -114,14 +172,32 @@ def _cmd_run(args: argparse.Namespace) -> int:
     total = trials * len(families)
     bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",
                disable=True if args.no_progress else None, file=sys.stderr, leave=False)
+    written: list[str] = []
+    done = [0]
+
+    def _progress(count: int) -> None:
+        done[0] += count
+        bar.update(count)
+
     try:
         result = run_monte_carlo(
             scenario, steps=args.steps, trials=args.trials, seed=args.seed, families=families,
-            progress=bar.update, gains=gains,
+            progress=_progress, gains=gains, trace=args.trace, on_trace=written.append,
         )
+    except KeyboardInterrupt:
+        family = families[min(done[0] // trials, len(families) - 1)]
+        where = f"estimator {family}, trial {done[0] % trials} of {trials}"
+        kept = f"; trace files finished: {len(written) + (1 if args.trace else 0)}" \
+            if args.trace else ""
+        raise CommandError(f"interrupted during {where} ({done[0]} of {total} trials "
+                           f"done){kept}", EXIT_INTERRUPTED) from None
+    except OSError as exc:
+        raise CommandError(f"cannot write trace {args.trace}: {exc}") from None
     finally:
         bar.close()
     data = result.to_dict()
+    if args.trace:
+        data["traces"] = written
     if args.json:
         json.dump(data, sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
@@ -192,6 +268,180 @@ def _format_run(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _load(name: str, tau: int | None = None):
+    from models.scenario import ScenarioError, resolve_scenario
+
+    try:
+        scenario = resolve_scenario(name)
+        if tau is not None:
+            scenario = scenario.with_tau(tau)
+    except ScenarioError as exc:
+        raise CommandError(f"scenario {name}: {exc}") from None
+    return scenario
+
+
+def _design_dict(design) -> dict[str, Any]:
+    return {
+        "method": design.method,
+        "solver": design.solver,
+        "status": design.status,
+        "certified": design.certified,
+        "certified_rate": _num(design.certified_rate),
+        "rho_delay_free": _num(design.rho),
+        "design_tau": getattr(design, "design_tau", 0),
+        "rho_design": _num(getattr(design, "rho_design", design.rho)),
+        "message": design.message,
+        "K": [np.asarray(K).tolist() for K in design.K],
+        "L": [np.asarray(L).tolist() for L in design.L],
+    }
+
+
+def _num(value):
+    if value is None:
+        return None
+    value = float(value)
+    if value != value:
+        return None
+    if value in (float("inf"), float("-inf")):
+        return "inf" if value > 0 else "-inf"
+    return value
+
+
+def _cmd_design(args: argparse.Namespace) -> int:
+    from estimators.gains import GainDesignError, design_gains, refine_gains
+    from models.augmented import tau_star_report
+    from models.observability import observability_report
+
+    if args.tau1 < 0:
+        raise CommandError(f"--tau1 must be a non-negative integer, got {args.tau1}")
+    scenario = _load(args.scenario)
+    P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
+    try:
+        design = design_gains(P, A, C, method=args.method, tau1=args.tau1)
+        if args.refine:
+            design = refine_gains(design, P, A, C, tau1=args.tau1)
+    except (GainDesignError, ValueError) as exc:
+        raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
+                           EXIT_DESIGN_FAILED) from None
+    star = tau_star_report(P, A, C, design.L)
+    obs = observability_report(P, A, C)
+    data = {
+        "scenario": scenario.summary(),
+        "observability": obs.to_dict(),
+        "design": _design_dict(design),
+        "tau_star": star.contiguous,
+        "tau_star_isolated": list(star.isolated),
+    }
+    if args.json:
+        json.dump(data, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+        return 0
+    d = data["design"]
+    cert = (f"certified rate {_fmt(d['certified_rate'])}" if d["certified"]
+            else "NOT certified")
+    local = sum(obs.locally_observable)
+    lines = [
+        f"scenario {scenario.name}: n = {scenario.plant.n_states}, N = {scenario.n_agents}",
+        f"observability: global {obs.observable}, distributed (P kron A, D_C) "
+        f"{obs.distributed_observable}, structural {obs.structurally_observable}, locally "
+        f"observable agents {local}/{scenario.n_agents}; A full rank {obs.full_rank}, "
+        f"self-damped {obs.self_damped}; {len(obs.irreducible_blocks)} irreducible blocks; "
+        f"Lemma 1 conditions {'hold' if obs.lemma1_satisfied else 'do NOT hold'}",
+        f"method: {d['method']} (solver {d['solver']}, status {d['status']}); {cert}",
+        f"rho(A-hat) delay-free, recomputed with numpy: {_fmt(d['rho_delay_free'])}",
+    ]
+    if d["design_tau"]:
+        lines.append(f"designed for delays up to tau1 = {d['design_tau']}: "
+                     f"rho((I-KD)(P kron A^(tau1+1))) = {_fmt(d['rho_design'])}")
+    iso = f", isolated passing values {data['tau_star_isolated']}" if star.isolated else ""
+    lines.append(f"tau* (LCSYS2022 Theorem 1) = {data['tau_star']}{iso}")
+    if d["message"]:
+        lines.append(d["message"])
+    lines.append("gains K_i (n x n, K_i = L_i (C_i C_i^T)^-1 C_i):")
+    for i, K in enumerate(design.K):
+        lines.append(f"  K_{i} = " + np.array2string(np.asarray(K), precision=4,
+                                                     suppress_small=True,
+                                                     prefix="  K_i = "))
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0
+
+
+def _cmd_analyze(args: argparse.Namespace) -> int:
+    from estimators.gains import GainDesignError
+    from netsim.analysis import analyze
+    from netsim.runner import scenario_gains
+
+    if args.tau_max < 0:
+        raise CommandError(f"--tau-max must be a non-negative integer, got {args.tau_max}")
+    scenario = _load(args.scenario)
+    try:
+        gains = scenario_gains(scenario)
+    except (GainDesignError, ValueError) as exc:
+        raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
+                           EXIT_DESIGN_FAILED) from None
+    report = analyze(scenario, gains, args.tau_max)
+    data = {"gains": _design_dict(gains), **report.to_dict()}
+    if args.json:
+        json.dump(data, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+        return 0
+    iso = (f"; isolated passing values above it: {list(report.tau_star_isolated)}"
+           if report.tau_star_isolated else "")
+    lines = [
+        f"scenario {scenario.name}: gains {gains.method} ({gains.solver}), "
+        f"rho(A-hat) delay-free = {_fmt(report.rho_delay_free)}, convergence-time order "
+        f"1/(1-rho) = {_fmt(report.convergence_order_delay_free)}",
+        f"tau* (LCSYS2022 Theorem 1: largest tau with rho((I-KD)(P kron A^(tau+1))) < 1 "
+        f"for all smaller tau) = {report.tau_star}{iso}",
+        "",
+        "homogeneous delay tau on every link (self-loops undelayed):",
+        f"{'tau':>4} {'exact comp':>11} {'eq.26 bound':>12} {'verdict':>10} {'Thm1':>6} "
+        f"{'exact uncomp':>13} {'tol. bound':>11} {'verdict':>10}",
+    ]
+    for row in report.rows:
+        lines.append(
+            f"{row.tau:>4} {_fmt(row.rho_compensated):>11} {_fmt(row.bound_eq26):>12} "
+            f"{row.verdict_eq26:>10} {'stable' if row.theorem1_predicts_stable else '-':>6} "
+            f"{_fmt(row.rho_uncompensated):>13} {_fmt(row.bound_tolerant):>11} "
+            f"{row.verdict_tolerant:>10}"
+        )
+    if report.realised is not None:
+        r = report.realised
+        lines += ["", f"the scenario's own fixed delays {r['delays']}:",
+                  f"  exact comp {_fmt(r['rho_compensated'])} vs eq. (26) bound "
+                  f"{_fmt(r['bound_eq26'])}: {r['verdict_eq26']}; exact uncomp "
+                  f"{_fmt(r['rho_uncompensated'])} vs tolerant bound "
+                  f"{_fmt(r['bound_tolerant'])}: {r['verdict_tolerant']}"]
+    lines.append("")
+    if report.violations:
+        lines.append(f"{len(report.violations)} bound violations:")
+        lines += [f"  VIOLATED {v}" for v in report.violations]
+    else:
+        lines.append("no bound is violated by the exact values")
+    lines.append("Note: the uncompensated eq. (11) matrix is the error recursion only for a "
+                 "plant whose state does not move; on a moving state its error also carries "
+                 "(A^(r+1) - A) x_{k-1-r}.")
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0
+
+
+def _cmd_inspect(args: argparse.Namespace) -> int:
+    from traces.inspect import inspect_trace
+    from traces.reader import TraceError, read_trace
+
+    try:
+        trace = read_trace(args.trace)
+    except TraceError as exc:
+        raise CommandError(str(exc)) from None
+    report = inspect_trace(trace)
+    if args.json:
+        json.dump(report.to_dict(), sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(report.format_text().rstrip("\n") + "\n")
+    return 0
+
+
 def _cmd_scenarios(args: argparse.Namespace) -> int:
     from models.scenario import ScenarioError, builtin_scenarios, load_scenario
 
@@ -223,7 +473,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.command is None:
         parser.print_help(sys.stderr)
         return EXIT_BAD_INPUT
-    handlers = {"run": _cmd_run, "scenarios": _cmd_scenarios}
+    handlers = {
+        "run": _cmd_run,
+        "design": _cmd_design,
+        "analyze": _cmd_analyze,
+        "inspect": _cmd_inspect,
+        "scenarios": _cmd_scenarios,
+    }
     try:
         return handlers[args.command](args)
     except CommandError as exc:

@@ -34,12 +34,17 @@ __all__ = [
     "Simulation",
     "NOT_USED",
     "DEFAULT_DIVERGENCE_THRESHOLD",
+    "ROUNDOFF_RELATIVE_ERROR",
 ]
 
 #: Entry of ``TrialResult.effective_delays`` where no neighbour estimate was used.
 NOT_USED = -2
 #: An agent's error norm above this (or non-finite) marks the trial as diverged.
 DEFAULT_DIVERGENCE_THRESHOLD = 1e8
+#: ... provided the error is also above this fraction of the state's norm: on an
+#: unstable plant the state outgrows double precision (|x| ~ 1e23 after ~1400 steps at
+#: rho(A) = 1.04), and one rounding step of x is then larger than the threshold.
+ROUNDOFF_RELATIVE_ERROR = 1e-9
 
 
 class HostedEstimator(Protocol):
@@ -258,7 +263,9 @@ class Simulation:
                 err = estimates[k] - states[k]
                 sq = np.einsum("ij,ij->i", err, err)
                 sq_errors[k] = sq
-                if not np.all(np.isfinite(sq)) or np.any(sq > threshold_sq):
+                state_sq = float(states[k] @ states[k])
+                floor = max(threshold_sq, ROUNDOFF_RELATIVE_ERROR**2 * state_sq)
+                if not np.all(np.isfinite(sq)) or np.any(sq > floor):
                     shared["diverged_at"] = k
                     sq_errors[k] = np.where(np.isfinite(sq), sq, np.inf)
                     done.succeed()

@@ -328,6 +328,23 @@ def _summarise(
     )
 
 
+def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_trace):
+    from traces.recorder import TraceRecorder, trace_path
+
+    path = trace_path(trace) if single else trace_path(trace, family, t)
+    recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps)
+    with recorder:
+        result = run_trial(
+            scenario, family, gains, child_sequence(seed, "trial", t), steps,
+            record_delays=False, observer=recorder,
+        )
+        if result.diverged_at is not None:
+            recorder.set_status("diverged", diverged_at=result.diverged_at)
+    if on_trace is not None:
+        on_trace(str(path))
+    return result
+
+
 def run_monte_carlo(
     scenario: Scenario,
     *,
@@ -337,6 +354,8 @@ def run_monte_carlo(
     families: Sequence[str] | None = None,
     progress: Callable[[int], None] | None = None,
     gains: GainDesign | None = None,
+    trace: str | None = None,
+    on_trace: Callable[[str], None] | None = None,
 ) -> MonteCarloResult:
     """Run every estimator family of the scenario over Monte Carlo trials.
 
@@ -351,6 +370,12 @@ def run_monte_carlo(
         Called with 1 after every finished trial (e.g. a tqdm ``update``).
     gains : GainDesign, optional
         Pre-computed gains (otherwise designed or taken from the scenario).
+    trace : str, optional
+        Record every run to MCAP: the file ``trace`` itself for a single run, else one
+        file per family and trial, ``<stem>.<family>.trial<k>.mcap``
+        (:func:`traces.recorder.trace_path`).
+    on_trace : callable(str), optional
+        Called with each trace file's path once it is finished.
 
     Returns
     -------
@@ -370,9 +395,16 @@ def run_monte_carlo(
         runs = []
         for t in range(trials):
             trial_seed = child_sequence(seed, "trial", t)
-            runs.append(
-                run_trial(scenario, family, gains, trial_seed, steps, record_delays=False)
-            )
+            if trace is None:
+                runs.append(
+                    run_trial(scenario, family, gains, trial_seed, steps, record_delays=False)
+                )
+            else:
+                runs.append(
+                    _traced_trial(scenario, family, gains, seed, t, steps, trace,
+                                  single=(trials == 1 and len(families) == 1),
+                                  on_trace=on_trace)
+                )
             if progress is not None:
                 progress(1)
         result.estimators[family] = _summarise(

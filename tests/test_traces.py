@@ -1,0 +1,545 @@
+"""MCAP trace recording, reading back, recovery and inspection (traces package)."""
+
+from __future__ import annotations
+
+import json
+import pickle
+import subprocess
+import sys
+import textwrap
+from collections import Counter
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.data_stream import ReadDataStream
+from mcap.reader import NonSeekingReader, make_reader
+from mcap.records import Chunk, Message
+from mcap.stream_reader import breakup_chunk
+from mcap.writer import Writer
+from mcap_protobuf.decoder import DecoderFactory
+
+from models.scenario import DelaySpec, resolve_scenario
+from netsim.kernel import NOT_USED
+from netsim.runner import run_trial, scenario_gains
+from traces.inspect import delay_statistics, inspect_trace
+from traces.reader import NOT_USED as TRACE_NOT_USED
+from traces.reader import TraceError, read_trace
+from traces.recorder import TRACE_FORMAT, TraceRecorder, to_ns, trace_path
+from traces.schemas import MESSAGE_TYPES, PACKAGE, file_descriptor_set, message_class
+
+STEPS = 50
+SEED = 7
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def setup():
+    scenario = resolve_scenario("lcsys2022-time-varying").with_tau(4)
+    return scenario, scenario_gains(scenario)
+
+
+def _record(path, scenario, gains, observer_wrapper=None, family="compensated", **options):
+    with TraceRecorder.for_run(path, scenario, gains, family, 0, seed=SEED, steps=STEPS,
+                               **options) as recorder:
+        observer = recorder if observer_wrapper is None else observer_wrapper(recorder)
+        result = run_trial(scenario, family, gains, SEED, STEPS, record_delays=True,
+                           record_messages=True, observer=observer)
+    return recorder, result
+
+
+@pytest.fixture(scope="module")
+def recorded(setup, tmp_path_factory):
+    scenario, gains = setup
+    path = tmp_path_factory.mktemp("trace") / "run.mcap"
+    recorder, result = _record(path, scenario, gains, flush_every=5)
+    return path, recorder, result
+
+
+# -- round trip -------------------------------------------------------------------------
+
+
+def test_read_back_matches_trial_result(setup, recorded):
+    scenario, gains = setup
+    path, recorder, result = recorded
+    trace = read_trace(path)
+    assert not trace.truncated
+    assert trace.recovered_messages == recorder.messages_written == sum(trace.counts.values())
+    assert trace.status["status"] == "complete"
+    assert trace.status["last_step"] == str(STEPS)
+    assert trace.family == "compensated" and trace.trial == 0 and trace.seed == str(SEED)
+    assert trace.run["trace_format"] == TRACE_FORMAT
+    assert trace.scenario["name"] == "lcsys2022-time-varying"
+    assert json.loads(trace.scenario["delays"])["tau"] == 4
+    assert trace.steps == list(range(STEPS + 1))
+    assert trace.agents == [0, 1, 2, 3]
+    assert trace.links == sorted(scenario.links)
+
+    np.testing.assert_array_equal(trace.states(), result.states)
+    for i in range(scenario.n_agents):
+        np.testing.assert_array_equal(trace.measurements(i), result.measurements[i])
+    np.testing.assert_array_equal(trace.estimates(), result.estimates)
+    np.testing.assert_allclose(trace.squared_errors(), result.squared_errors, rtol=1e-13, atol=0)
+    assert TRACE_NOT_USED == NOT_USED
+    np.testing.assert_array_equal(trace.effective_delays(), result.effective_delays)
+    for msg in trace.topic("/agent/2/update"):
+        for r, s in zip(msg.effective_delay, msg.used_timestamp, strict=True):
+            assert s == (msg.step - 1 - r if r >= 0 else -1)
+    for msg in trace.topic("/agent/1/estimate"):
+        assert msg.error_norm == pytest.approx(np.sqrt(msg.squared_error), rel=1e-15)
+
+    sent = sum(len(trace.link_events(j, i, "sent")) for j, i in trace.links)
+    delivered = [m for j, i in trace.links for m in trace.link_events(j, i, "delivered")]
+    assert sent == result.messages_sent
+    assert len(delivered) == result.messages_delivered == len(result.messages)
+    assert sum(not m.accepted for m in delivered) == result.messages_discarded
+
+    plant = scenario.plant
+    np.testing.assert_array_equal(trace.matrices["A"], plant.A)
+    np.testing.assert_array_equal(trace.matrices["P"], scenario.weights)
+    np.testing.assert_array_equal(trace.matrices["Q"], plant.Q)
+    for i in range(scenario.n_agents):
+        np.testing.assert_array_equal(trace.matrices[f"C_{i}"], plant.C[i])
+        np.testing.assert_array_equal(trace.matrices[f"R_{i}"], plant.R[i])
+        np.testing.assert_array_equal(trace.matrices[f"K_{i}"], gains.K[i])
+        np.testing.assert_array_equal(trace.matrices[f"L_{i}"], gains.L[i])
+
+
+def test_link_events_match_kernel_messages(recorded):
+    path, _, result = recorded
+    trace = read_trace(path)
+    # Deliveries, in delivery order, are exactly the kernel's recorded messages.
+    by_time = [r.message for r in trace.messages
+               if r.topic.startswith("/link/") and r.message.event == "delivered"]
+    assert len(by_time) == len(result.messages)
+    for got, want in zip(by_time, result.messages, strict=True):
+        assert (got.sender, got.receiver, got.sent_step, got.sequence, got.delay_steps) == (
+            want.sender, want.receiver, want.sent_step, want.sequence, want.delay_steps)
+        assert got.send_time == want.send_time and got.arrival_time == want.arrival_time
+        assert got.usable_step == want.sent_step + 1 + want.delay_steps
+    # Each sent event carries the payload that was transmitted.
+    for record in trace.records["/link/0/1"]:
+        if record.message.event == "sent":
+            np.testing.assert_array_equal(record.message.payload,
+                                          result.estimates[record.message.sent_step, 0])
+
+
+def test_plain_mcap_reader_reads_the_file(recorded):
+    path, recorder, result = recorded
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary is not None and summary.statistics is not None
+        assert summary.statistics.message_count == recorder.messages_written
+        assert len(summary.chunk_indexes) > 5  # flushed regularly
+        assert all(s.encoding == "protobuf" and s.name.startswith(PACKAGE + ".")
+                   for s in summary.schemas.values())
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert set(metadata) == {"scenario", "run", "run_status"}
+        attachments = {a.name: a for a in reader.iter_attachments()}
+        assert "A.npy" in attachments and attachments["A.npy"].media_type == "application/x-npy"
+
+        last = -1
+        estimates = np.full_like(result.estimates, np.nan)
+        ts = 1.0  # sample period of the scenario
+        for schema, channel, message, decoded in reader.iter_decoded_messages(
+            log_time_order=False
+        ):
+            assert message.log_time >= last, "messages must be in non-decreasing log_time"
+            last = message.log_time
+            if schema.name == f"{PACKAGE}.Estimate":
+                assert channel.topic == f"/agent/{decoded.agent}/estimate"
+                estimates[decoded.step, decoded.agent] = decoded.estimate
+                assert message.log_time == message.publish_time == to_ns(decoded.step * ts)
+            elif schema.name == f"{PACKAGE}.MessageEvent":
+                assert channel.topic == f"/link/{decoded.sender}/{decoded.receiver}"
+                assert message.publish_time == to_ns(decoded.send_time)
+                assert message.sequence == decoded.sequence
+                if decoded.event == "delivered":
+                    assert message.log_time == to_ns(decoded.arrival_time)
+                else:
+                    assert message.log_time == to_ns(decoded.send_time)
+        np.testing.assert_array_equal(estimates, result.estimates)
+
+    # A non-seeking (streaming) MCAP reader sees the same messages.
+    with open(path, "rb") as f:
+        count = sum(1 for _ in NonSeekingReader(f, validate_crcs=True).iter_messages(
+            log_time_order=False))
+    assert count == recorder.messages_written
+
+
+# -- inspection -------------------------------------------------------------------------
+
+
+def _kernel_link_stats(messages):
+    delays, reordered = {}, Counter()
+    newest: dict[tuple[int, int], int] = {}
+    for m in messages:
+        key = (m.sender, m.receiver)
+        delays.setdefault(key, []).append(m.delay_steps)
+        if m.sent_step < newest.get(key, -1):
+            reordered[key] += 1
+        newest[key] = max(newest.get(key, -1), m.sent_step)
+    return delays, reordered
+
+
+def test_inspect_report_statistics(recorded):
+    path, _, result = recorded
+    report = inspect_trace(read_trace(path))
+    delays, reordered = _kernel_link_stats(result.messages)
+    assert set(report.links) == {f"{j}->{i}" for j, i in delays}
+    for (j, i), values in delays.items():
+        stats = report.links[f"{j}->{i}"]
+        assert stats.delivered == len(values)
+        assert stats.delay["min"] == min(values) and stats.delay["max"] == max(values)
+        assert stats.delay["mean"] == pytest.approx(np.mean(values), rel=1e-12)
+        assert stats.delay["histogram"] == dict(sorted(Counter(values).items()))
+        assert stats.reordered == reordered[(j, i)]
+        assert stats.dropped == 0
+        assert stats.in_flight == stats.sent - stats.delivered
+    assert report.totals["sent"] == result.messages_sent
+    assert report.totals["delivered"] == result.messages_delivered
+    assert report.totals["discarded"] == result.messages_discarded
+    assert sum(reordered.values()) > 0  # asynchronous delays reorder
+
+    for i, agent in report.agents.items():
+        assert agent.mse == pytest.approx(result.squared_errors[:, i].mean(), rel=1e-12)
+        assert agent.final_squared_error == pytest.approx(result.squared_errors[-1, i],
+                                                          rel=1e-12)
+    # effective delays per link as used by the receiver
+    r = result.effective_delays
+    for (j, i) in delays:
+        used = r[:, i, j][r[:, i, j] >= 0]
+        assert report.links[f"{j}->{i}"].effective_delay == delay_statistics(used)
+
+    d = report.to_dict()
+    json.dumps(d, allow_nan=False)
+    assert d["scenario"] == "lcsys2022-time-varying" and d["status"] == "complete"
+    assert d["steps"] == {"first": 0, "last": STEPS, "recorded": STEPS + 1}
+    assert d["topics"]["/plant/state"] == STEPS + 1
+    text = report.format_text()
+    assert "lcsys2022-time-varying" in text and "compensated" in text and "0->1" in text
+
+
+def test_delay_statistics_helper():
+    assert delay_statistics([2, 0, 2, 1]) == {
+        "count": 4, "min": 0, "mean": 1.25, "max": 2, "histogram": {0: 1, 1: 1, 2: 2}}
+    assert delay_statistics([])["count"] == 0
+
+
+# -- crash safety -----------------------------------------------------------------------
+
+
+def _chunk_message_counts(path):
+    """(end offset, message count) of each chunk, from the finished file's index."""
+    out = []
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        for index in summary.chunk_indexes:
+            f.seek(index.chunk_start_offset + 9)
+            chunk = Chunk.read(ReadDataStream(f))
+            n = sum(isinstance(r, Message) for r in breakup_chunk(chunk))
+            out.append((index.chunk_start_offset + index.chunk_length, n))
+    return out
+
+
+def _signature(records):
+    return [(r.topic, r.log_time, r.publish_time, r.sequence, r.message.SerializeToString())
+            for r in records]
+
+
+@pytest.mark.parametrize("where", ["middle", "last-chunk"])
+def test_truncated_file_recovers_complete_chunks(recorded, tmp_path, where):
+    path, _, _ = recorded
+    data = path.read_bytes()
+    chunks = _chunk_message_counts(path)
+    if where == "middle":
+        cut = len(data) // 2
+    else:  # footer, summary and half of the last chunk gone
+        start = chunks[-2][0]
+        cut = start + (chunks[-1][0] - start) // 2
+    damaged = tmp_path / "cut.mcap"
+    damaged.write_bytes(data[:cut])
+    with open(damaged, "rb") as f, pytest.raises(Exception):  # noqa: B017
+        make_reader(f).get_summary()  # the premise: indexed reading fails
+
+    trace = read_trace(damaged)
+    expected = sum(n for end, n in chunks if end <= cut)
+    assert trace.truncated
+    assert trace.status is None
+    assert trace.recovered_messages == expected > 0
+    full = read_trace(path)
+    assert _signature(trace.messages) == _signature(full.messages[:expected])
+    assert trace.scenario == full.scenario
+    assert set(trace.matrices) == set(full.matrices)
+
+    report = inspect_trace(trace)
+    assert report.truncated and report.status == "truncated"
+    assert report.recovered_messages == expected
+    assert "TRUNCATED" in report.format_text()
+
+
+def test_unfinished_file_readable_while_open(setup, tmp_path):
+    scenario, gains = setup
+    path = tmp_path / "open.mcap"
+    recorder = TraceRecorder.for_run(path, scenario, gains, "compensated", 0, steps=STEPS)
+    try:
+        result = run_trial(scenario, "compensated", gains, SEED, STEPS, observer=recorder)
+        recorder.flush()
+        trace = read_trace(path)  # no footer yet: as if the process died now
+        assert trace.truncated and trace.recovered_messages == recorder.messages_written
+        np.testing.assert_array_equal(trace.estimates(), result.estimates)
+    finally:
+        recorder.close()
+    assert not read_trace(path).truncated
+
+
+class _Interrupt:
+    """Observer forwarding to a recorder and raising KeyboardInterrupt at a step."""
+
+    def __init__(self, recorder, at):
+        self.recorder, self.at = recorder, at
+
+    def on_plant(self, k, state, measurements):
+        self.recorder.on_plant(k, state, measurements)
+        if k == self.at:
+            raise KeyboardInterrupt
+
+    def on_sent(self, message):
+        self.recorder.on_sent(message)
+
+    def on_delivered(self, message, accepted):
+        self.recorder.on_delivered(message, accepted)
+
+    def on_update(self, agent, k, estimate, delays):
+        self.recorder.on_update(agent, k, estimate, delays)
+
+
+def test_keyboard_interrupt_leaves_finished_file(setup, tmp_path):
+    scenario, gains = setup
+    path = tmp_path / "interrupted.mcap"
+    with pytest.raises(KeyboardInterrupt):
+        _record(path, scenario, gains, lambda rec: _Interrupt(rec, 20))
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        assert summary is not None and summary.chunk_indexes
+        status = {m.name: m.metadata for m in reader.iter_metadata()}["run_status"]
+    assert status["status"] == "interrupted"
+    assert status["interrupted_at"] == "20" and status["last_step"] == "20"
+    assert "KeyboardInterrupt" in status["reason"]
+
+    trace = read_trace(path)
+    assert not trace.truncated
+    assert trace.steps == list(range(21))
+    assert max(m.step for m in trace.topic("/agent/0/estimate")) == 19
+    report = inspect_trace(trace)
+    assert report.status == "interrupted" and "interrupted_at 20" in report.format_text()
+
+
+def test_killed_writer_subprocess(setup, tmp_path):
+    """A process killed mid-run (os._exit) leaves a file the reader recovers."""
+    scenario, gains = setup
+    gains_file = tmp_path / "gains.pkl"
+    gains_file.write_bytes(pickle.dumps(gains))
+    path = tmp_path / "killed.mcap"
+    script = textwrap.dedent(f"""
+        import os, pickle
+        from models.scenario import DelaySpec, resolve_scenario
+        from netsim.runner import run_trial
+        from traces.recorder import TraceRecorder
+        s = resolve_scenario("lcsys2022-time-varying").with_tau(4)
+        gains = pickle.loads(open({str(gains_file)!r}, "rb").read())
+        rec = TraceRecorder.for_run({str(path)!r}, s, gains, "compensated", 0,
+                                    flush_every=10, flush_seconds=None)
+        class Kill:
+            def __getattr__(self, name):
+                return getattr(rec, name)
+            def on_plant(self, k, x, ys):
+                if k == 35:
+                    os._exit(3)
+                rec.on_plant(k, x, ys)
+        run_trial(s, "compensated", gains, {SEED}, {STEPS}, observer=Kill())
+    """)
+    done = subprocess.run([sys.executable, "-c", script], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 3, done.stderr
+    trace = read_trace(path)
+    assert trace.truncated and trace.status is None
+    # flushed at steps 10, 20, 30: everything before step 30's plant record survives
+    assert trace.steps == list(range(30))
+    assert trace.recovered_messages > 0
+    assert trace.scenario["name"] == "lcsys2022-time-varying"
+
+
+def test_failure_inside_context_is_noted(setup, tmp_path):
+    scenario, gains = setup
+    path = tmp_path / "failed.mcap"
+
+    class Boom(_Interrupt):
+        def on_plant(self, k, state, measurements):
+            self.recorder.on_plant(k, state, measurements)
+            if k == 5:
+                raise RuntimeError("disk on fire")
+
+    with pytest.raises(RuntimeError):
+        _record(path, scenario, gains, lambda rec: Boom(rec, 5))
+    trace = read_trace(path)
+    assert trace.status["status"] == "failed"
+    assert trace.status["reason"] == "RuntimeError: disk on fire"
+
+
+# -- bad files --------------------------------------------------------------------------
+
+
+def test_foreign_mcap_file(tmp_path):
+    path = tmp_path / "foreign.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        schema = writer.register_schema("Pose", "jsonschema", b'{"type": "object"}')
+        channel = writer.register_channel("/pose", "json", schema)
+        writer.add_message(channel, 1, b'{"x": 1}', 1)
+        writer.add_metadata("robot", {"name": "r2"})
+        writer.finish()
+    with pytest.raises(TraceError, match="not a netsim trace") as info:
+        read_trace(path)
+    assert str(path) in str(info.value) and "\n" not in str(info.value)
+
+
+def test_file_with_missing_schema(tmp_path):
+    path = tmp_path / "noschema.mcap"
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        writer.add_metadata("scenario", {"name": "x"})
+        writer.add_metadata("run", {"trace_format": TRACE_FORMAT})
+        channel = writer.register_channel("/plant/state", "protobuf", 0)
+        writer.add_message(channel, 1, b"", 1)
+        writer.finish()
+    with pytest.raises(TraceError, match="'/plant/state' has no schema"):
+        read_trace(path)
+
+
+@pytest.mark.parametrize("compression", ["none", "zstd"])
+def test_corrupted_chunk(setup, tmp_path, compression):
+    scenario, gains = setup
+    path = tmp_path / f"crc-{compression}.mcap"
+    _record(path, scenario, gains, compression=compression, flush_every=10)
+    chunks = _chunk_message_counts(path)
+    data = bytearray(path.read_bytes())
+    end = chunks[2][0]
+    data[end - 40] ^= 0xFF  # inside the third chunk's records
+    data[end - 41] ^= 0x5A
+    path.write_bytes(bytes(data))
+    with pytest.raises(TraceError, match="corrupted") as info:
+        read_trace(path)
+    assert str(path) in str(info.value)
+    if compression == "none":
+        assert "crc" in str(info.value).lower()
+
+
+def test_corrupted_chunk_in_unfinished_file(recorded, tmp_path):
+    """Corruption before the truncation point is an error, not a truncation."""
+    path, _, _ = recorded
+    chunks = _chunk_message_counts(path)
+    data = bytearray(path.read_bytes()[: chunks[-1][0] - 10])
+    data[chunks[1][0] - 30] ^= 0xFF
+    bad = tmp_path / "bad-unfinished.mcap"
+    bad.write_bytes(bytes(data))
+    with pytest.raises(TraceError, match="corrupted"):
+        read_trace(bad)
+
+
+def test_not_an_mcap_file(tmp_path):
+    noise = tmp_path / "noise.mcap"
+    noise.write_bytes(np.random.default_rng(0).bytes(4096))
+    with pytest.raises(TraceError, match="not an MCAP file") as info:
+        read_trace(noise)
+    assert str(noise) in str(info.value)
+    empty = tmp_path / "empty.mcap"
+    empty.write_bytes(b"")
+    with pytest.raises(TraceError, match="not an MCAP file"):
+        read_trace(empty)
+    with pytest.raises(TraceError, match="cannot read"):
+        read_trace(tmp_path / "missing.mcap")
+
+
+# -- API details ------------------------------------------------------------------------
+
+
+def test_trace_path_convention():
+    assert trace_path("out/run.mcap") == Path("out/run.mcap")
+    assert trace_path("out/run.mcap", "compensated", 3) == Path(
+        "out/run.compensated.trial3.mcap")
+    assert trace_path("run.mcap", trial=0) == Path("run.trial0.mcap")
+
+
+def test_schemas_are_self_describing():
+    fds = file_descriptor_set()
+    assert [f.package for f in fds.file] == [PACKAGE]
+    assert {m.name for m in fds.file[0].message_type} == set(MESSAGE_TYPES)
+    estimate = message_class("netsim.trace.Estimate")(step=3, agent=1, estimate=[1.0, 2.0],
+                                                      error_norm=0.5)
+    again = message_class("Estimate").FromString(estimate.SerializeToString())
+    assert again.error_norm == 0.5 and list(again.estimate) == [1.0, 2.0]
+    fields = {f.name for f in message_class("EstimatorUpdate").DESCRIPTOR.fields}
+    assert {"neighbours", "effective_delay", "used_timestamp"} <= fields
+
+
+def test_centralized_family_without_gains(setup, tmp_path):
+    scenario, _ = setup
+    path = tmp_path / "kf.mcap"
+    with TraceRecorder.for_run(path, scenario, None, "centralized-kf", 1, steps=10) as rec:
+        result = run_trial(scenario, "centralized-kf", None, SEED, 10, observer=rec)
+        rec.set_status("diverged", diverged_at=4)  # what the CLI does for a blown-up run
+    trace = read_trace(path)
+    assert trace.status["status"] == "diverged" and trace.status["diverged_at"] == "4"
+    assert trace.family == "centralized-kf" and trace.links == []
+    assert "K_0" not in trace.matrices
+    np.testing.assert_array_equal(trace.estimates(), result.estimates)
+
+
+def test_continuous_latencies_with_sample_period(setup, tmp_path):
+    """Ts != 1 and deliveries between sampling instants keep log_time ordered."""
+    scenario, gains = setup
+    scenario = replace(scenario, sample_period=0.1, delays=DelaySpec(
+        model="latency", default=0.23, links={(0, 1): 0.1, (1, 2): 0.05}))
+    path = tmp_path / "latency.mcap"
+    with TraceRecorder.for_run(path, scenario, gains, "compensated", 0, steps=30) as rec:
+        result = run_trial(scenario, "compensated", gains, SEED, 30, record_messages=True,
+                           observer=rec)
+    trace = read_trace(path)
+    times = [r.log_time for r in trace.messages]
+    assert times == sorted(times)
+    assert trace.sample_period == 0.1
+    assert trace.records["/plant/state"][3].log_time == 300_000_000
+    arrivals = {to_ns(m.arrival_time) for m in result.messages}
+    assert any(t % 100_000_000 for t in arrivals)  # some arrive between instants
+    np.testing.assert_array_equal(trace.estimates(), result.estimates)
+    np.testing.assert_array_equal(trace.effective_delays(), result.effective_delays)
+    report = inspect_trace(trace)
+    assert report.links["2->3"].delay["histogram"] == {2: report.links["2->3"].delivered}
+
+
+def test_traces_package_does_not_import_netsim_or_simpy():
+    code = ("import sys, traces.schemas, traces.recorder, traces.reader, traces.inspect; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('netsim', 'simpy')); "
+            "assert not bad, bad")
+    done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
+                          text=True, timeout=60)
+    assert done.returncode == 0, done.stderr
+
+
+def test_recorder_rejects_events_out_of_time_order(tmp_path):
+    class Msg:
+        sender, receiver, sent_step, sequence, delay_steps = 0, 1, 5, 0, 0
+        payload = np.zeros(2)
+        send_time, arrival_time = 5.0, 6.0
+
+    with TraceRecorder(tmp_path / "order.mcap", scenario_metadata={"name": "t"}, matrices={},
+                       family="f", trial=0) as rec:
+        rec.on_plant(7, np.zeros(2), [np.zeros(1)])
+        with pytest.raises(RuntimeError, match="time order"):
+            rec.on_sent(Msg())

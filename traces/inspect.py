@@ -1,0 +1,343 @@
+"""Summaries of a trace: what is in the file, link delays, drops, reorderings, errors.
+
+:func:`inspect_trace` turns a :class:`traces.reader.Trace` into an
+:class:`InspectReport`; ``report.to_dict()`` is JSON-ready and ``report.format_text()``
+(also ``str(report)``) is the human-readable form.
+
+Definitions
+-----------
+- Link delay statistics are over the *delivered* messages of a link (``delay_steps``
+  d: the message is usable at step s + 1 + d).
+- A *reordering* is a delivery whose time-stamp (``sent_step``) is smaller than that
+  of a message already delivered on the same link.
+- ``in_flight``: sent but neither delivered nor dropped when the trace ends.
+- Effective delays are the r_ij[k] the receiver's updates used (``/agent/<i>/update``),
+  excluding steps where it substituted its own estimate (counted as ``substituted``).
+- Per-agent MSE: the mean over recorded steps of ||x-hat^i_k - x_k||^2; ``final`` is
+  the value at the last recorded update; ``tail_mse`` the mean over the last quarter.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from traces.reader import Trace
+
+__all__ = ["LinkStats", "AgentStats", "InspectReport", "inspect_trace", "delay_statistics"]
+
+
+def _num(value: float | None) -> float | None:
+    if value is None:
+        return None
+    value = float(value)
+    if math.isnan(value):
+        return None
+    if math.isinf(value):
+        return math.copysign(1e308, value)
+    return value
+
+
+def delay_statistics(delays: list[int] | np.ndarray) -> dict[str, Any]:
+    """Return count, min, mean, max and histogram {d: count} of step delays."""
+    values = [int(d) for d in delays]
+    if not values:
+        return {"count": 0, "min": None, "mean": None, "max": None, "histogram": {}}
+    hist: dict[int, int] = {}
+    for d in values:
+        hist[d] = hist.get(d, 0) + 1
+    return {
+        "count": len(values),
+        "min": min(values),
+        "mean": sum(values) / len(values),
+        "max": max(values),
+        "histogram": dict(sorted(hist.items())),
+    }
+
+
+@dataclass
+class LinkStats:
+    """Traffic on one link sender -> receiver."""
+
+    sender: int
+    receiver: int
+    sent: int = 0
+    delivered: int = 0
+    dropped: int = 0
+    accepted: int = 0
+    discarded: int = 0
+    reordered: int = 0
+    in_flight: int = 0
+    delay: dict[str, Any] = field(default_factory=dict)
+    effective_delay: dict[str, Any] = field(default_factory=dict)
+    substituted: int = 0
+    drop_reasons: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def name(self) -> str:
+        return f"{self.sender}->{self.receiver}"
+
+    def to_dict(self) -> dict[str, Any]:
+        out = asdict(self)
+        for key in ("delay", "effective_delay"):
+            stats = dict(out[key])
+            stats["mean"] = _num(stats.get("mean"))
+            stats["histogram"] = {str(k): v for k, v in stats.get("histogram", {}).items()}
+            out[key] = stats
+        return out
+
+
+@dataclass
+class AgentStats:
+    """Estimation error of one agent."""
+
+    agent: int
+    updates: int
+    mse: float
+    tail_mse: float
+    final_squared_error: float
+    final_error_norm: float
+    max_squared_error: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {k: (_num(v) if isinstance(v, float) else v) for k, v in asdict(self).items()}
+
+
+@dataclass
+class InspectReport:
+    """Summary of a trace (see module docstring for the definitions)."""
+
+    path: str
+    scenario: str
+    family: str
+    trial: int | None
+    seed: str
+    status: str
+    status_detail: dict[str, str]
+    truncated: bool
+    recovered_messages: int
+    topics: dict[str, int]
+    first_step: int | None
+    last_step: int | None
+    steps_recorded: int
+    n_agents: int
+    n_states: int
+    links: dict[str, LinkStats]
+    agents: dict[int, AgentStats]
+    totals: dict[str, int]
+    network_mse: float
+    matrices: list[str]
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "path": self.path,
+            "scenario": self.scenario,
+            "family": self.family,
+            "trial": self.trial,
+            "seed": self.seed,
+            "status": self.status,
+            "status_detail": dict(self.status_detail),
+            "truncated": self.truncated,
+            "recovered_messages": self.recovered_messages,
+            "topics": dict(self.topics),
+            "steps": {
+                "first": self.first_step,
+                "last": self.last_step,
+                "recorded": self.steps_recorded,
+            },
+            "n_agents": self.n_agents,
+            "n_states": self.n_states,
+            "matrices": list(self.matrices),
+            "messages": dict(self.totals),
+            "links": {name: s.to_dict() for name, s in self.links.items()},
+            "agents": {str(i): s.to_dict() for i, s in self.agents.items()},
+            "network_mse": _num(self.network_mse),
+        }
+
+    def format_text(self) -> str:
+        lines = [f"trace {self.path}"]
+        lines.append(
+            f"  scenario {self.scenario or '?'}   family {self.family or '?'}   "
+            f"trial {self.trial if self.trial is not None else '?'}   seed {self.seed or '?'}"
+        )
+        if self.truncated:
+            state = (f"TRUNCATED (writer never finished): recovered {self.recovered_messages} "
+                     "messages from complete chunks")
+        else:
+            state = f"{self.status}"
+            extra = {k: v for k, v in self.status_detail.items() if k != "status"}
+            if extra:
+                state += " (" + ", ".join(f"{k} {v}" for k, v in extra.items()) + ")"
+        lines.append(f"  status {state}")
+        steps = ("none" if self.first_step is None
+                 else f"{self.first_step}..{self.last_step} ({self.steps_recorded} recorded)")
+        lines.append(f"  steps {steps}   agents {self.n_agents}   states {self.n_states}")
+        if self.matrices:
+            lines.append(f"  matrices {', '.join(self.matrices)}")
+        t = self.totals
+        lines.append(
+            f"  messages sent {t['sent']}, delivered {t['delivered']} "
+            f"(accepted {t['accepted']}, stale {t['discarded']}), dropped {t['dropped']}, "
+            f"reordered {t['reordered']}, in flight at end {t['in_flight']}"
+        )
+        lines.append("topics")
+        width = max((len(name) for name in self.topics), default=10)
+        for name, count in self.topics.items():
+            lines.append(f"  {name:<{width}}  {count:>8}")
+        if self.links:
+            lines.append("links (delay_steps of delivered messages; r = effective delay used)")
+            lines.append(
+                f"  {'link':<8}{'sent':>6}{'deliv':>7}{'drop':>6}{'reord':>7}{'fly':>5}"
+                f"{'min':>5}{'mean':>7}{'max':>5}  histogram d:count   | r min/mean/max"
+            )
+            for name, s in self.links.items():
+                d, r = s.delay, s.effective_delay
+                hist = " ".join(f"{k}:{v}" for k, v in d.get("histogram", {}).items()) or "-"
+                rtxt = ("-" if not r.get("count")
+                        else f"{r['min']}/{r['mean']:.2f}/{r['max']}")
+                lines.append(
+                    f"  {name:<8}{s.sent:>6}{s.delivered:>7}{s.dropped:>6}{s.reordered:>7}"
+                    f"{s.in_flight:>5}{_fmt(d.get('min')):>5}{_fmt(d.get('mean'), 2):>7}"
+                    f"{_fmt(d.get('max')):>5}  {hist}   | {rtxt}"
+                )
+        if self.agents:
+            lines.append("agents (squared error ||x-hat - x||^2)")
+            lines.append(f"  {'agent':<6}{'updates':>8}{'mse':>12}{'tail mse':>12}"
+                         f"{'final':>12}{'max':>12}")
+            for i, a in self.agents.items():
+                lines.append(
+                    f"  {i:<6}{a.updates:>8}{_fmt(a.mse, 4, True):>12}"
+                    f"{_fmt(a.tail_mse, 4, True):>12}{_fmt(a.final_squared_error, 4, True):>12}"
+                    f"{_fmt(a.max_squared_error, 4, True):>12}"
+                )
+            lines.append(f"  network mse {_fmt(self.network_mse, 4, True)}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.format_text()
+
+
+def _fmt(value: Any, digits: int = 0, sci: bool = False) -> str:
+    if value is None:
+        return "-"
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        return f"{value:.{digits}e}" if sci else f"{value:.{digits}f}"
+    return str(value)
+
+
+def inspect_trace(trace: Trace) -> InspectReport:
+    """Summarise a trace read by :func:`traces.reader.read_trace`."""
+    links: dict[tuple[int, int], LinkStats] = {}
+
+    def link(j: int, i: int) -> LinkStats:
+        if (j, i) not in links:
+            links[(j, i)] = LinkStats(j, i)
+        return links[(j, i)]
+
+    delays: dict[tuple[int, int], list[int]] = {}
+    for j, i in trace.links:
+        stats = link(j, i)
+        newest = -1
+        seen_sent: set[int] = set()
+        done: set[int] = set()
+        for msg in trace.link_events(j, i):
+            if msg.event == "sent":
+                stats.sent += 1
+                seen_sent.add(msg.sequence)
+            elif msg.event == "delivered":
+                stats.delivered += 1
+                done.add(msg.sequence)
+                if msg.accepted:
+                    stats.accepted += 1
+                else:
+                    stats.discarded += 1
+                if msg.sent_step < newest:
+                    stats.reordered += 1
+                newest = max(newest, int(msg.sent_step))
+                delays.setdefault((j, i), []).append(int(msg.delay_steps))
+            elif msg.event == "dropped":
+                stats.dropped += 1
+                done.add(msg.sequence)
+                reason = msg.reason or "unspecified"
+                stats.drop_reasons[reason] = stats.drop_reasons.get(reason, 0) + 1
+        stats.in_flight = len(seen_sent - done)
+        stats.delay = delay_statistics(delays.get((j, i), []))
+
+    effective: dict[tuple[int, int], list[int]] = {}
+    agents: dict[int, AgentStats] = {}
+    for i in trace.agents:
+        for msg in trace.topic(f"/agent/{i}/update"):
+            for j, r in zip(msg.neighbours, msg.effective_delay, strict=True):
+                if r < 0:
+                    link(int(j), i).substituted += 1
+                else:
+                    effective.setdefault((int(j), i), []).append(int(r))
+        estimates = trace.topic(f"/agent/{i}/estimate")
+        sq = np.array([m.squared_error for m in estimates], dtype=float)
+        if len(sq):
+            tail = sq[-max(1, len(sq) // 4):]
+            agents[i] = AgentStats(
+                agent=i,
+                updates=len(sq),
+                mse=float(np.mean(sq)),
+                tail_mse=float(np.mean(tail)),
+                final_squared_error=float(sq[-1]),
+                final_error_norm=float(estimates[-1].error_norm),
+                max_squared_error=float(np.max(sq)),
+            )
+    for key, values in effective.items():
+        link(*key).effective_delay = delay_statistics(values)
+    for stats in links.values():
+        if not stats.effective_delay:
+            stats.effective_delay = delay_statistics([])
+        if not stats.delay:
+            stats.delay = delay_statistics([])
+
+    ordered = {s.name: s for _, s in sorted(links.items())}
+    totals = {
+        key: sum(getattr(s, key) for s in ordered.values())
+        for key in ("sent", "delivered", "accepted", "discarded", "dropped", "reordered",
+                    "in_flight")
+    }
+    steps = trace.steps
+    status = trace.status
+    if trace.truncated:
+        status_name = "truncated"
+    elif status is None:
+        status_name = "unknown"
+    else:
+        status_name = status.get("status", "unknown")
+    mses = [a.mse for a in agents.values()]
+    return InspectReport(
+        path=trace.path,
+        scenario=trace.scenario.get("name", ""),
+        family=trace.family,
+        trial=trace.trial,
+        seed=trace.seed,
+        status=status_name,
+        status_detail=dict(status or {}),
+        truncated=trace.truncated,
+        recovered_messages=trace.recovered_messages,
+        topics=dict(sorted(trace.counts.items(), key=lambda kv: _topic_key(kv[0]))),
+        first_step=steps[0] if steps else None,
+        last_step=steps[-1] if steps else None,
+        steps_recorded=len(steps),
+        n_agents=trace.n_agents,
+        n_states=trace.n_states,
+        links=ordered,
+        agents=dict(sorted(agents.items())),
+        totals=totals,
+        network_mse=float(np.mean(mses)) if mses else math.nan,
+        matrices=sorted(trace.matrices, key=_topic_key),
+    )
+
+
+def _topic_key(name: str) -> tuple:
+    """Sort topics/names with embedded numbers numerically."""
+    return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))

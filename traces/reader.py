@@ -1,0 +1,539 @@
+"""Read a netsim MCAP trace back: metadata, matrices and decoded messages.
+
+:func:`read_trace` reads a finished file through ``mcap.reader.make_reader`` (chunk
+CRCs and the summary CRC are checked) and decodes the protobuf messages with
+``mcap_protobuf.decoder.DecoderFactory`` from the schemas stored in the file.
+
+A file whose writer never finished (no footer, summary or index: the process was
+killed) is read sequentially with ``mcap.stream_reader.StreamReader`` up to the first
+record that extends past the end of the file; every complete chunk is recovered, and
+the :class:`Trace` says ``truncated=True`` and how many messages it recovered.
+
+Anything else raises :class:`TraceError` with a one-line message naming the file:
+not an MCAP file, a corrupted file (bad CRC, undecodable record or message), an
+MCAP file not written by netsim (no ``scenario`` metadata or no ``netsim.trace``
+schemas), or a channel without its schema.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import struct
+import zlib
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from mcap.reader import make_reader
+from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
+from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap_protobuf.decoder import DecoderFactory
+
+from traces.schemas import PACKAGE
+
+__all__ = ["NOT_USED", "TraceError", "TraceRecord", "Trace", "read_trace"]
+
+#: Entry of :meth:`Trace.effective_delays` where agent i did not use j's estimate
+#: (equal to ``netsim.kernel.NOT_USED``).
+NOT_USED = -2
+
+_MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
+_FOOTER_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
+_FOOTER_OPCODE = 0x02
+_TOPIC_AGENT = re.compile(r"^/agent/(\d+)/(estimate|update)$")
+_TOPIC_LINK = re.compile(r"^/link/(\d+)/(\d+)$")
+_TOPIC_SENSOR = re.compile(r"^/sensor/(\d+)/measurement$")
+
+
+class TraceError(ValueError):
+    """A file that cannot be read as a netsim trace (the message names file and cause)."""
+
+
+class TraceRecord(NamedTuple):
+    """One decoded message."""
+
+    topic: str
+    log_time: int
+    publish_time: int
+    sequence: int
+    message: Any
+
+
+@dataclass
+class Trace:
+    """A trace read back from an MCAP file.
+
+    Attributes
+    ----------
+    path : str
+    metadata : dict of str -> dict of str -> str
+        Every metadata record by name (``scenario``, ``run``, ``run_status``).
+    matrices : dict of str -> numpy.ndarray
+        The ``.npy`` attachments by name without extension (``A``, ``C_0``, ...).
+    attachments : dict of str -> bytes
+        Any other attachments.
+    topics : dict of str -> str
+        Topic -> schema name.
+    counts : dict of str -> int
+        Messages read per topic.
+    records : dict of str -> list of TraceRecord
+        Decoded messages per netsim topic, in log_time order.
+    messages : list of TraceRecord
+        All decoded messages in file order (= non-decreasing log_time).
+    truncated : bool
+        The file was never finished; only complete chunks were read.
+    recovered_messages : int
+        Messages read (all of them for a finished file).
+    foreign_topics : list of str
+        Topics with schemas not from this project (counted, not decoded).
+    library : str
+        The MCAP header's library string.
+    """
+
+    path: str
+    metadata: dict[str, dict[str, str]]
+    matrices: dict[str, np.ndarray]
+    attachments: dict[str, bytes]
+    topics: dict[str, str]
+    counts: dict[str, int]
+    records: dict[str, list[TraceRecord]]
+    messages: list[TraceRecord]
+    truncated: bool
+    recovered_messages: int
+    foreign_topics: list[str] = field(default_factory=list)
+    library: str = ""
+
+    # -- metadata ------------------------------------------------------------------
+
+    @property
+    def scenario(self) -> dict[str, str]:
+        return self.metadata.get("scenario", {})
+
+    @property
+    def run(self) -> dict[str, str]:
+        return self.metadata.get("run", {})
+
+    @property
+    def status(self) -> dict[str, str] | None:
+        """The ``run_status`` record, None if the writer never finished."""
+        return self.metadata.get("run_status")
+
+    @property
+    def family(self) -> str:
+        return self.run.get("family", "")
+
+    @property
+    def trial(self) -> int | None:
+        value = self.run.get("trial", "")
+        return int(value) if value.lstrip("-").isdigit() else None
+
+    @property
+    def seed(self) -> str:
+        return self.run.get("seed", "")
+
+    @property
+    def sample_period(self) -> float:
+        try:
+            return float(self.run.get("sample_period", "1.0"))
+        except ValueError:
+            return 1.0
+
+    # -- structure -----------------------------------------------------------------
+
+    @property
+    def agents(self) -> list[int]:
+        """Agents with an estimate or update topic."""
+        return sorted({int(m.group(1)) for t in self.topics
+                       if (m := _TOPIC_AGENT.match(t))})
+
+    @property
+    def sensors(self) -> list[int]:
+        return sorted({int(m.group(1)) for t in self.topics if (m := _TOPIC_SENSOR.match(t))})
+
+    @property
+    def links(self) -> list[tuple[int, int]]:
+        """Links (sender, receiver) with a topic, sorted."""
+        return sorted((int(m.group(1)), int(m.group(2))) for t in self.topics
+                      if (m := _TOPIC_LINK.match(t)))
+
+    @property
+    def n_agents(self) -> int:
+        """Agents that ran (one, the fusion centre, for ``centralized-kf``)."""
+        agents = self.agents
+        if agents:
+            return agents[-1] + 1
+        value = self.scenario.get("n_agents", "0")
+        return int(value) if value.isdigit() else 0
+
+    @property
+    def n_states(self) -> int:
+        plant = self.records.get("/plant/state")
+        if plant:
+            return len(plant[0].message.state)
+        if "A" in self.matrices:
+            return int(self.matrices["A"].shape[0])
+        return 0
+
+    @property
+    def steps(self) -> list[int]:
+        """Plant steps recorded, in order."""
+        return [int(r.message.step) for r in self.records.get("/plant/state", [])]
+
+    def topic(self, name: str) -> list[Any]:
+        """The decoded messages of one topic (empty if absent)."""
+        return [r.message for r in self.records.get(name, [])]
+
+    # -- arrays --------------------------------------------------------------------
+
+    def _length(self) -> int:
+        last = -1
+        for topic, recs in self.records.items():
+            if topic == "/plant/state" or _TOPIC_AGENT.match(topic):
+                for r in recs:
+                    last = max(last, int(r.message.step))
+        return last + 1
+
+    def states(self) -> np.ndarray:
+        """True states, shape (K+1, n), row k = x_k (NaN where not recorded)."""
+        out = np.full((self._length(), self.n_states), np.nan)
+        for msg in self.topic("/plant/state"):
+            out[msg.step] = msg.state
+        return out
+
+    def measurements(self, sensor: int) -> np.ndarray:
+        """Sensor i's measurements, shape (K+1, m_i) (NaN where not recorded)."""
+        msgs = self.topic(f"/sensor/{sensor}/measurement")
+        width = len(msgs[0].values) if msgs else 0
+        out = np.full((self._length(), width), np.nan)
+        for msg in msgs:
+            out[msg.step] = msg.values
+        return out
+
+    def estimates(self) -> np.ndarray:
+        """Estimates, shape (K+1, N, n): [k, i] = x-hat^i_{k|k} (NaN where not recorded)."""
+        out = np.full((self._length(), self.n_agents, self.n_states), np.nan)
+        for i in self.agents:
+            for msg in self.topic(f"/agent/{i}/estimate"):
+                out[msg.step, i] = msg.estimate
+        return out
+
+    def squared_errors(self) -> np.ndarray:
+        """||x-hat^i_k - x_k||^2, shape (K+1, N) (NaN where not recorded)."""
+        out = np.full((self._length(), self.n_agents), np.nan)
+        for i in self.agents:
+            for msg in self.topic(f"/agent/{i}/estimate"):
+                out[msg.step, i] = msg.squared_error
+        return out
+
+    def effective_delays(self) -> np.ndarray:
+        """r_ij[k], shape (K+1, N, N), int: -1 own estimate substituted, NOT_USED (-2)
+        where j's estimate was not used (same convention as ``TrialResult``)."""
+        n = self.n_agents
+        out = np.full((self._length(), n, n), NOT_USED, dtype=np.int32)
+        for i in self.agents:
+            for msg in self.topic(f"/agent/{i}/update"):
+                for j, r in zip(msg.neighbours, msg.effective_delay, strict=True):
+                    out[msg.step, i, j] = r
+        return out
+
+    def link_events(self, sender: int, receiver: int, event: str | None = None) -> list[Any]:
+        """MessageEvents of link sender -> receiver, optionally of one kind."""
+        msgs = self.topic(f"/link/{sender}/{receiver}")
+        return [m for m in msgs if event is None or m.event == event]
+
+
+# -- reading -------------------------------------------------------------------------
+
+
+def read_trace(path: str | os.PathLike[str]) -> Trace:
+    """Read a netsim trace.
+
+    Raises
+    ------
+    TraceError
+        Not an MCAP file, corrupted, not a netsim trace, or missing schemas.
+    """
+    path = Path(path)
+    where = str(path)
+    try:
+        size = path.stat().st_size
+        with open(path, "rb") as f:
+            head = f.read(8)
+            if len(head) < 8 or head != _MAGIC:
+                raise TraceError(f"{where}: not an MCAP file (bad or missing magic bytes)")
+            finished = False
+            if size >= 8 + _FOOTER_SIZE + 8:
+                f.seek(size - 8)
+                finished = f.read(8) == _MAGIC
+            if finished:
+                return _read_finished(f, where, size)
+            return _read_unfinished(f, where, size)
+    except TraceError:
+        raise
+    except OSError as exc:
+        raise TraceError(f"{where}: cannot read file ({exc.strerror or exc})") from None
+
+
+class _Collector:
+    """Accumulates records of either reading path and builds the Trace."""
+
+    def __init__(self, where: str) -> None:
+        self.where = where
+        self.metadata: dict[str, dict[str, str]] = {}
+        self.matrices: dict[str, np.ndarray] = {}
+        self.attachments: dict[str, bytes] = {}
+        self.schemas: dict[int, Schema] = {}
+        self.channels: dict[int, Channel] = {}
+        self.topics: dict[str, str] = {}
+        self.counts: dict[str, int] = {}
+        self.records: dict[str, list[TraceRecord]] = {}
+        self.messages: list[TraceRecord] = []
+        self.foreign: set[str] = set()
+        self.library = ""
+        self._factory = DecoderFactory()
+        self._decoders: dict[int, Any] = {}
+
+    def metadata_record(self, record: Metadata) -> None:
+        self.metadata[record.name] = dict(record.metadata)
+
+    def attachment(self, record: Attachment) -> None:
+        name = record.name
+        if name.endswith(".npy"):
+            try:
+                array = np.load(io.BytesIO(record.data), allow_pickle=False)
+            except Exception as exc:  # noqa: BLE001 - any failure is a corrupt attachment
+                raise TraceError(
+                    f"{self.where}: attachment {name!r} is not a valid .npy array ({exc})"
+                ) from None
+            self.matrices[name[: -len(".npy")]] = array
+        else:
+            self.attachments[name] = bytes(record.data)
+
+    def channel(self, channel: Channel) -> None:
+        if channel.schema_id == 0 or channel.schema_id not in self.schemas:
+            raise TraceError(
+                f"{self.where}: channel {channel.topic!r} has no schema "
+                f"(schema id {channel.schema_id} missing)"
+            )
+        schema = self.schemas[channel.schema_id]
+        self.channels[channel.id] = channel
+        self.topics[channel.topic] = schema.name
+        self.counts.setdefault(channel.topic, 0)
+        if not _is_netsim(schema, channel):
+            self.foreign.add(channel.topic)
+
+    def message(self, message: Message) -> None:
+        channel = self.channels.get(message.channel_id)
+        if channel is None:
+            raise TraceError(
+                f"{self.where}: message on unknown channel id {message.channel_id}"
+            )
+        topic = channel.topic
+        self.counts[topic] += 1
+        if topic in self.foreign:
+            return
+        decoder = self._decoders.get(channel.id)
+        if decoder is None:
+            try:
+                decoder = self._factory.decoder_for(
+                    channel.message_encoding, self.schemas[channel.schema_id]
+                )
+            except Exception as exc:  # noqa: BLE001 - bad descriptor data
+                raise TraceError(
+                    f"{self.where}: schema of topic {topic!r} is unusable ({exc})"
+                ) from None
+            if decoder is None:
+                raise TraceError(f"{self.where}: no protobuf decoder for topic {topic!r}")
+            self._decoders[channel.id] = decoder
+        try:
+            decoded = decoder(message.data)
+        except Exception as exc:  # noqa: BLE001 - protobuf DecodeError and friends
+            raise TraceError(
+                f"{self.where}: message on {topic!r} at log_time {message.log_time} "
+                f"does not decode ({exc})"
+            ) from None
+        record = TraceRecord(topic, message.log_time, message.publish_time,
+                             message.sequence, decoded)
+        self.records.setdefault(topic, []).append(record)
+        self.messages.append(record)
+
+    def build(self, truncated: bool) -> Trace:
+        where = self.where
+        netsim_topics = [t for t in self.topics if t not in self.foreign]
+        if "scenario" not in self.metadata:
+            if truncated and not self.metadata:
+                raise TraceError(
+                    f"{where}: truncated before its metadata; nothing recoverable"
+                )
+            schemas = sorted(set(self.topics.values())) or ["none"]
+            raise TraceError(
+                f"{where}: not a netsim trace (no 'scenario' metadata; schemas: "
+                f"{', '.join(schemas)})"
+            )
+        fmt = self.metadata.get("run", {}).get("trace_format", "")
+        if not fmt.startswith("netsim-trace/"):
+            raise TraceError(
+                f"{where}: not a netsim trace (run.trace_format is {fmt!r}, "
+                "expected netsim-trace/...)"
+            )
+        if self.topics and not netsim_topics:
+            raise TraceError(
+                f"{where}: not a netsim trace (no {PACKAGE} schemas; found "
+                f"{', '.join(sorted(set(self.topics.values())))})"
+            )
+        return Trace(
+            path=where,
+            metadata=self.metadata,
+            matrices=self.matrices,
+            attachments=self.attachments,
+            topics=self.topics,
+            counts=self.counts,
+            records=self.records,
+            messages=self.messages,
+            truncated=truncated,
+            recovered_messages=sum(self.counts.values()),
+            foreign_topics=sorted(self.foreign),
+            library=self.library,
+        )
+
+
+def _is_netsim(schema: Schema, channel: Channel) -> bool:
+    return (
+        schema.encoding == SchemaEncoding.Protobuf
+        and channel.message_encoding == MessageEncoding.Protobuf
+        and schema.name.startswith(PACKAGE + ".")
+    )
+
+
+def _describe(exc: BaseException) -> str:
+    text = str(exc).strip().splitlines()
+    return f"{type(exc).__name__}: {text[0]}" if text and text[0] else type(exc).__name__
+
+
+def _read_finished(f: Any, where: str, size: int) -> Trace:
+    """A file with a footer: indexed reading with CRC checks."""
+    collect = _Collector(where)
+    try:
+        _check_summary_crc(f, where, size)
+        f.seek(0)
+        reader = make_reader(f, validate_crcs=True)
+        collect.library = reader.get_header().library
+        summary = reader.get_summary()
+        if summary is None:  # finished without a summary: read it sequentially
+            f.seek(0)
+            return _read_unfinished(f, where, size, finished=True)
+        for record in reader.iter_metadata():
+            collect.metadata_record(record)
+        for record in reader.iter_attachments():
+            collect.attachment(record)
+        collect.schemas.update(summary.schemas)
+        for channel in summary.channels.values():
+            collect.channel(channel)
+        # Decoding is done here (DecoderFactory from the stored FileDescriptorSet) so a
+        # decoding failure names its topic; iteration order is log_time, file order on ties.
+        for _schema, _channel, message in reader.iter_messages(log_time_order=True):
+            collect.message(message)
+        stats = summary.statistics
+        read = sum(collect.counts.values())
+        if stats is not None and stats.message_count != read:
+            raise TraceError(
+                f"{where}: summary lists {stats.message_count} messages, {read} were read"
+            )
+    except TraceError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - mcap, zstd, struct, CRC errors
+        raise TraceError(f"{where}: corrupted MCAP file ({_describe(exc)})") from None
+    return collect.build(truncated=False)
+
+
+def _check_summary_crc(f: Any, where: str, size: int) -> None:
+    footer_at = size - 8 - _FOOTER_SIZE
+    f.seek(footer_at)
+    raw = f.read(_FOOTER_SIZE)
+    opcode, length, summary_start, summary_offset_start, crc = struct.unpack("<BQQQI", raw)
+    if opcode != _FOOTER_OPCODE or length != _FOOTER_SIZE - 9:
+        raise TraceError(f"{where}: corrupted MCAP file (bad footer record)")
+    if crc == 0:
+        return
+    start = summary_start if summary_start else footer_at
+    if not 8 <= start <= footer_at:
+        raise TraceError(f"{where}: corrupted MCAP file (summary offset out of range)")
+    f.seek(start)
+    actual = zlib.crc32(f.read(footer_at - start))
+    actual = zlib.crc32(raw[:-4], actual)
+    if actual != crc:
+        raise TraceError(
+            f"{where}: corrupted MCAP file (summary CRC mismatch: "
+            f"expected {crc:#010x}, computed {actual:#010x})"
+        )
+
+
+def _read_unfinished(f: Any, where: str, size: int, finished: bool = False) -> Trace:
+    """Sequential reading up to the first incomplete record (truncation point)."""
+    collect = _Collector(where)
+    f.seek(0)
+    records = StreamReader(f, emit_chunks=True).records
+    truncated = False
+    saw_footer = False
+    while True:
+        position = f.tell()
+        try:
+            record = next(records)
+        except StopIteration:
+            break
+        except Exception as exc:  # noqa: BLE001 - decide: truncation or corruption
+            if not finished and _incomplete_record_at(f, position, size):
+                truncated = True
+                break
+            raise TraceError(f"{where}: corrupted MCAP file at byte {position} "
+                             f"({_describe(exc)})") from None
+        try:
+            for item in _expand(record):
+                _take(collect, item)
+        except TraceError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - CRC, decompression, parse errors
+            raise TraceError(f"{where}: corrupted MCAP file at byte {position} "
+                             f"({_describe(exc)})") from None
+        if isinstance(record, Footer):
+            saw_footer = True
+    if not saw_footer and not truncated:
+        truncated = True  # ended exactly on a record boundary without a footer
+    return collect.build(truncated=truncated)
+
+
+def _expand(record: Any) -> Iterable[Any]:
+    if isinstance(record, Chunk):
+        return breakup_chunk(record, validate_crc=True)
+    return (record,)
+
+
+def _take(collect: _Collector, record: Any) -> None:
+    if isinstance(record, Schema):
+        collect.schemas[record.id] = record
+    elif isinstance(record, Channel):
+        collect.channel(record)
+    elif isinstance(record, Message):
+        collect.message(record)
+    elif isinstance(record, Metadata):
+        collect.metadata_record(record)
+    elif isinstance(record, Attachment):
+        collect.attachment(record)
+    elif type(record).__name__ == "Header":
+        collect.library = record.library
+
+
+def _incomplete_record_at(f: Any, position: int, size: int) -> bool:
+    """True if the record starting at ``position`` does not fit in the file."""
+    if position == 0:
+        position = 8  # the magic was read by the first call
+    if size - position < 9:
+        return True
+    f.seek(position)
+    _opcode, length = struct.unpack("<BQ", f.read(9))
+    return position + 9 + length > size

@@ -1,0 +1,583 @@
+"""Record one simulation run as an MCAP file (protobuf messages).
+
+:class:`TraceRecorder` implements the kernel's observer hooks by duck typing
+(``on_plant``, ``on_sent``, ``on_delivered``, ``on_update``, plus ``on_dropped`` for
+links that lose messages); pass it as ``observer=`` to ``netsim.runner.run_trial``.
+This module does not import ``netsim`` or ``simpy``.
+
+Files
+-----
+One MCAP file per run, i.e. per (estimator family, Monte Carlo trial): each family
+runs in its own kernel run. :func:`trace_path` names them: a single run writes the
+given path; for several runs ``out.mcap`` becomes ``out.<family>.trial<k>.mcap``
+(e.g. ``out.compensated.trial3.mcap``).
+
+Contents
+--------
+Metadata records (written first, so even a file whose writer was killed has them):
+
+- ``scenario``: the scenario configuration, string values (JSON for structured ones).
+- ``run``: ``trace_format`` (:data:`TRACE_FORMAT`), ``family``, ``trial``, ``seed``,
+  ``sample_period``, ``steps`` (expected, if known), ``time_unit`` and the list of
+  matrix attachments.
+- ``run_status`` (written by :meth:`TraceRecorder.close`): ``status`` =
+  ``complete`` | ``interrupted`` (KeyboardInterrupt) | ``failed`` (other exception)
+  | anything given to :meth:`TraceRecorder.set_status` (e.g. ``diverged``),
+  ``last_step`` (last plant step recorded, -1 if none), ``messages`` (count written),
+  ``expected_steps`` and a ``note`` if the run ended before them, and after an
+  exception ``interrupted_at`` (the last plant step recorded) and ``reason``.
+  Missing in a file whose writer never finished.
+
+Attachments: each matrix as ``<name>.npy`` (numpy ``.npy`` bytes, media type
+``application/x-npy``): ``A``, ``C_<i>``, ``Q``, ``R_<i>``, ``x0_mean``, ``x0_cov``,
+``P`` (consensus weights), ``K_<i>``, ``L_<i>`` (gains), as given.
+
+Topics (schemas in :mod:`traces.schemas`, package ``netsim.trace``):
+
+====================================  ===================  =============================
+topic                                 type                 one message per
+====================================  ===================  =============================
+``/plant/state``                      ``PlantStep``        step: x_k
+``/sensor/<i>/measurement``           ``Measurement``      step and sensor: y^i_k
+``/link/<j>/<i>``                     ``MessageEvent``     message j -> i sent, delivered
+                                                           or dropped
+``/agent/<i>/estimate``               ``Estimate``         update: estimate, error,
+                                                           ``squared_error``,
+                                                           ``error_norm`` (plottable)
+``/agent/<i>/update``                 ``EstimatorUpdate``  update: per in-neighbour j the
+                                                           effective delay r_ij[k] and
+                                                           the time-stamp s_j it used
+====================================  ===================  =============================
+
+Times: ``log_time`` is the event's simulation time (plant/update at k * Ts; a sent
+message at its send time; a delivered one at its arrival time; a drop at the drop
+time), ``publish_time`` is the send time for link events and equals ``log_time``
+otherwise; both are integer nanoseconds of simulation time, ``round(t * 1e9)``.
+Messages are written in non-decreasing ``log_time`` order (the kernel calls the
+hooks in time order; the recorder checks). The MCAP ``sequence`` is the per-link
+sequence number for link events and the step otherwise.
+
+Crash safety: the chunk in progress is closed and flushed to the OS every
+``flush_every`` steps (and every ``flush_seconds`` of wall-clock time), so a killed
+writer loses at most that much; :func:`traces.reader.read_trace` recovers every
+complete chunk. Used as a context manager, the recorder finishes the file (summary,
+indexes, footer) even when the run raises, e.g. on KeyboardInterrupt, and notes the
+interruption in ``run_status``.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from mcap.well_known import MessageEncoding, SchemaEncoding
+from mcap.writer import CompressionType, Writer
+
+from traces.schemas import file_descriptor_set, message_classes, schema_name
+
+__all__ = [
+    "TRACE_FORMAT",
+    "NPY_MEDIA_TYPE",
+    "TraceRecorder",
+    "TraceOrderError",
+    "trace_path",
+    "scenario_metadata",
+    "run_matrices",
+    "to_ns",
+    "plant_topic",
+    "sensor_topic",
+    "link_topic",
+    "estimate_topic",
+    "update_topic",
+]
+
+#: Value of ``run.trace_format``; the reader accepts files whose format starts with
+#: ``netsim-trace/``.
+TRACE_FORMAT = "netsim-trace/1"
+#: Media type of the ``.npy`` matrix attachments.
+NPY_MEDIA_TYPE = "application/x-npy"
+#: Largest backwards step in log_time (ns) silently absorbed (float rounding).
+_ORDER_SLACK_NS = 1000
+
+
+class TraceOrderError(RuntimeError):
+    """An event arrived with a log_time earlier than one already written."""
+
+
+def to_ns(t: float) -> int:
+    """Return simulation time ``t`` (in time units of Ts) as integer nanoseconds."""
+    return int(round(float(t) * 1e9))
+
+
+def plant_topic() -> str:
+    return "/plant/state"
+
+
+def sensor_topic(i: int) -> str:
+    return f"/sensor/{int(i)}/measurement"
+
+
+def link_topic(sender: int, receiver: int) -> str:
+    """Topic of link sender -> receiver: ``/link/<sender>/<receiver>``."""
+    return f"/link/{int(sender)}/{int(receiver)}"
+
+
+def estimate_topic(agent: int) -> str:
+    return f"/agent/{int(agent)}/estimate"
+
+
+def update_topic(agent: int) -> str:
+    return f"/agent/{int(agent)}/update"
+
+
+def trace_path(base: str | os.PathLike[str], family: str | None = None,
+               trial: int | None = None) -> Path:
+    """Return the file of one run: ``base`` itself, or ``<stem>.<family>.trial<k>.mcap``.
+
+    Either part is left out when None (``<stem>.trial<k>.mcap``, ``<stem>.<family>.mcap``).
+    """
+    base = Path(base)
+    parts = [base.stem if base.suffix == ".mcap" else base.name]
+    if family is not None:
+        parts.append(str(family))
+    if trial is not None:
+        parts.append(f"trial{int(trial)}")
+    if len(parts) == 1:
+        return base
+    return base.with_name(".".join(parts) + ".mcap")
+
+
+def _meta_value(value: Any) -> str:
+    if isinstance(value, str):
+        return value
+    return json.dumps(value, sort_keys=True, default=_json_default)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    if isinstance(value, np.generic):
+        return value.item()
+    return str(value)
+
+
+def scenario_metadata(scenario: Any) -> dict[str, str]:
+    """Return a ``models.scenario.Scenario`` as MCAP metadata (string values).
+
+    Every key of ``scenario.summary()`` (structured values as JSON), the sample
+    period, divergence threshold, gains method and the delay specification.
+    """
+    summary = dict(scenario.summary())
+    out = {str(k): _meta_value(v) for k, v in summary.items()}
+    spec = scenario.delays
+    out["delay_spec"] = _meta_value({
+        "model": spec.model,
+        "tau": spec.tau,
+        "default": spec.default,
+        "seed": spec.seed,
+        "links": [[j, i, d] for (j, i), d in sorted(spec.links.items())],
+    })
+    out["sample_period"] = repr(float(scenario.sample_period))
+    out["divergence_threshold"] = repr(float(scenario.divergence_threshold))
+    out["gains_method"] = str(scenario.gains.method)
+    return out
+
+
+def run_matrices(scenario: Any, gains: Any = None) -> dict[str, np.ndarray]:
+    """Return the matrices of a run: A, C_i, Q, R_i, x0_mean, x0_cov, P, K_i, L_i."""
+    plant = scenario.plant
+    out: dict[str, np.ndarray] = {"A": np.asarray(plant.A)}
+    out.update({f"C_{i}": np.asarray(C) for i, C in enumerate(plant.C)})
+    out["Q"] = np.asarray(plant.Q)
+    out.update({f"R_{i}": np.asarray(R) for i, R in enumerate(plant.R)})
+    out["x0_mean"] = np.asarray(plant.x0_mean)
+    out["x0_cov"] = np.asarray(plant.x0_cov)
+    out["P"] = np.asarray(scenario.weights)
+    if gains is not None:
+        out.update({f"K_{i}": np.asarray(K) for i, K in enumerate(gains.K)})
+        out.update({f"L_{i}": np.asarray(L) for i, L in enumerate(gains.L)})
+    return out
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, np.asarray(array), allow_pickle=False)
+    return buffer.getvalue()
+
+
+def _compression(name: str) -> CompressionType:
+    name = name.lower()
+    if name == "zstd":
+        return CompressionType.ZSTD
+    if name == "lz4":
+        return CompressionType.LZ4
+    if name in ("none", ""):
+        return CompressionType.NONE
+    raise ValueError(f"unknown compression {name!r}; expected zstd, lz4 or none")
+
+
+class TraceRecorder:
+    """Kernel observer writing one run to an MCAP file.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The MCAP file to create (overwritten).
+    scenario_metadata : mapping str -> str
+        Written as the metadata record ``scenario`` (see :func:`scenario_metadata`).
+    matrices : mapping str -> numpy.ndarray
+        Written as ``<name>.npy`` attachments (see :func:`run_matrices`).
+    family : str
+        Estimator family of the run.
+    trial : int
+        Monte Carlo trial index.
+    seed : object, optional
+        Seed of the trial (stored as ``str(seed)``).
+    sample_period : float
+        Ts: plant step k happens at simulation time k * Ts.
+    steps : int, optional
+        Expected last step (stored; ``run_status`` says if the run ended early).
+    flush_every : int
+        Close the chunk in progress and flush it to the OS every this many steps.
+    flush_seconds : float or None
+        Also flush when this much wall-clock time passed since the last flush.
+    chunk_size : int
+        Close a chunk when it exceeds this many (uncompressed) bytes.
+    compression : str
+        ``zstd`` (default), ``lz4`` or ``none``.
+    record_payloads : bool
+        Store each sent message's payload (the transmitted estimate).
+    run_metadata : mapping str -> str, optional
+        Extra entries of the ``run`` metadata record.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        *,
+        scenario_metadata: Mapping[str, str],
+        matrices: Mapping[str, np.ndarray],
+        family: str,
+        trial: int,
+        seed: Any = None,
+        sample_period: float = 1.0,
+        steps: int | None = None,
+        flush_every: int = 25,
+        flush_seconds: float | None = 2.0,
+        chunk_size: int = 256 * 1024,
+        compression: str = "zstd",
+        record_payloads: bool = True,
+        run_metadata: Mapping[str, str] | None = None,
+    ) -> None:
+        if flush_every < 1:
+            raise ValueError(f"flush_every must be >= 1, got {flush_every}")
+        if not sample_period > 0:
+            raise ValueError(f"sample_period must be > 0, got {sample_period}")
+        self.path = Path(path)
+        self.family = str(family)
+        self.trial = int(trial)
+        self.sample_period = float(sample_period)
+        self.expected_steps = None if steps is None else int(steps)
+        self.flush_every = int(flush_every)
+        self.flush_seconds = flush_seconds
+        self.record_payloads = record_payloads
+        #: Last plant step recorded (-1 before the first).
+        self.last_step = -1
+        #: Step at which the run was interrupted (exception inside the context), or None.
+        self.interrupted_at: int | None = None
+        #: Messages written per topic.
+        self.counts: dict[str, int] = {}
+        self.messages_written = 0
+        self.closed = False
+        self._status: str | None = None
+        self._status_info: dict[str, str] = {}
+
+        self._classes = message_classes()
+        self._stream = open(self.path, "wb")  # noqa: SIM115 - closed in close()
+        try:
+            self._writer = Writer(
+                self._stream, chunk_size=int(chunk_size), compression=_compression(compression)
+            )
+            self._writer.start(profile="", library=f"{TRACE_FORMAT} {_mcap_library()}")
+            self._writer.add_metadata(
+                "scenario", {str(k): str(v) for k, v in scenario_metadata.items()}
+            )
+            run = {
+                "trace_format": TRACE_FORMAT,
+                "family": self.family,
+                "trial": str(self.trial),
+                "seed": "" if seed is None else str(seed),
+                "sample_period": repr(self.sample_period),
+                "steps": "" if steps is None else str(int(steps)),
+                "time_unit": "log_time/publish_time: integer ns of simulation time, "
+                             "round(t * 1e9), t = k * Ts",
+                "matrices": ",".join(matrices),
+            }
+            run.update({str(k): str(v) for k, v in (run_metadata or {}).items()})
+            self._writer.add_metadata("run", run)
+            for name, matrix in matrices.items():
+                self._writer.add_attachment(
+                    create_time=0, log_time=0, name=f"{name}.npy",
+                    media_type=NPY_MEDIA_TYPE, data=_npy_bytes(matrix),
+                )
+            descriptor_set = file_descriptor_set().SerializeToString()
+            self._schema_ids = {
+                name: self._writer.register_schema(
+                    name=schema_name(name), encoding=SchemaEncoding.Protobuf,
+                    data=descriptor_set,
+                )
+                for name in self._classes
+            }
+            self._writer.flush()
+        except BaseException:
+            self._stream.close()
+            raise
+        self._channels: dict[str, int] = {}
+        self._last_log_time = 0
+        self._last_flush = time.monotonic()
+        self._state: np.ndarray | None = None
+        self._state_step = -1
+
+    # -- construction from project objects ---------------------------------------
+
+    @classmethod
+    def for_run(
+        cls,
+        path: str | os.PathLike[str],
+        scenario: Any,
+        gains: Any,
+        family: str,
+        trial: int,
+        seed: Any = None,
+        *,
+        steps: int | None = None,
+        **options: Any,
+    ) -> TraceRecorder:
+        """Recorder for one run of ``scenario`` (a ``models.scenario.Scenario``) with
+        ``gains`` (an ``estimators.gains.GainDesign`` or None).
+
+        ``steps`` defaults to ``scenario.steps``; ``options`` go to the constructor.
+        """
+        run = dict(options.pop("run_metadata", None) or {})
+        if gains is not None:
+            run.setdefault("gains_method", str(getattr(gains, "method", "")))
+            run.setdefault("gains_solver", str(getattr(gains, "solver", "")))
+            run.setdefault("gains_certified", str(getattr(gains, "certified", "")))
+            run.setdefault("rho_delay_free", repr(float(getattr(gains, "rho", math.nan))))
+        return cls(
+            path,
+            scenario_metadata=scenario_metadata(scenario),
+            matrices=run_matrices(scenario, gains),
+            family=family,
+            trial=trial,
+            seed=seed,
+            sample_period=scenario.sample_period,
+            steps=scenario.steps if steps is None else steps,
+            run_metadata=run,
+            **options,
+        )
+
+    # -- kernel observer hooks ----------------------------------------------------
+
+    def on_plant(self, k: int, state: np.ndarray, measurements: Sequence[np.ndarray]) -> None:
+        """Record x_k on ``/plant/state`` and each y^i_k on ``/sensor/<i>/measurement``."""
+        self._check_open()
+        k = int(k)
+        if k > 0 and (
+            k % self.flush_every == 0
+            or (self.flush_seconds is not None
+                and time.monotonic() - self._last_flush >= self.flush_seconds)
+        ):
+            self.flush()
+        t = k * self.sample_period
+        ns = to_ns(t)
+        self._state = np.array(state, dtype=float)
+        self._state_step = k
+        self.last_step = k
+        c = self._classes
+        self._write(plant_topic(), "PlantStep",
+                    c["PlantStep"](step=k, time=t, state=self._state.tolist()), ns, ns, k)
+        for i, y in enumerate(measurements):
+            msg = c["Measurement"](step=k, time=t, sensor=i,
+                                   values=np.asarray(y, dtype=float).ravel().tolist())
+            self._write(sensor_topic(i), "Measurement", msg, ns, ns, k)
+
+    def on_update(self, agent: int, k: int, estimate: np.ndarray,
+                  delays: Mapping[int, int]) -> None:
+        """Record agent i's estimate (``/agent/<i>/estimate``) and the effective
+        delays r_ij[k] and time-stamps s_j = k - 1 - r_ij[k] it used
+        (``/agent/<i>/update``; r = -1 means i substituted its own estimate)."""
+        self._check_open()
+        agent, k = int(agent), int(k)
+        t = k * self.sample_period
+        ns = to_ns(t)
+        x_hat = np.asarray(estimate, dtype=float)
+        c = self._classes
+        if self._state is not None and self._state_step == k:
+            error = x_hat - self._state
+            sq = float(np.einsum("i,i->", error, error))
+            fields: dict[str, Any] = {
+                "error": error.tolist(), "squared_error": sq,
+                "error_norm": math.sqrt(sq) if sq >= 0 else math.nan,
+            }
+        else:  # no true state for this step (never in the kernel's event order)
+            fields = {"squared_error": math.nan, "error_norm": math.nan}
+        self._write(estimate_topic(agent), "Estimate",
+                    c["Estimate"](step=k, time=t, agent=agent, estimate=x_hat.tolist(),
+                                  **fields), ns, ns, k)
+        neighbours = sorted(int(j) for j in delays)
+        r = [int(delays[j]) for j in neighbours]
+        used = [k - 1 - d if d >= 0 else -1 for d in r]
+        self._write(update_topic(agent), "EstimatorUpdate",
+                    c["EstimatorUpdate"](step=k, time=t, agent=agent, neighbours=neighbours,
+                                         effective_delay=r, used_timestamp=used), ns, ns, k)
+
+    def on_sent(self, message: Any) -> None:
+        """Record a message leaving its sender (log_time = send time)."""
+        self._check_open()
+        self._link_event(message, "sent", message.send_time, payload=self.record_payloads)
+
+    def on_delivered(self, message: Any, accepted: bool) -> None:
+        """Record a delivery (log_time = arrival time); ``accepted``: the receiver kept
+        it (False: stale under the freshest-message rule)."""
+        self._check_open()
+        self._link_event(message, "delivered", message.arrival_time, accepted=bool(accepted))
+
+    def on_dropped(self, message: Any, reason: str = "", drop_time: float | None = None) -> None:
+        """Record a lost message (log_time = ``drop_time``, default its send time)."""
+        self._check_open()
+        when = message.send_time if drop_time is None else drop_time
+        self._link_event(message, "dropped", when, reason=str(reason))
+
+    # -- file management ----------------------------------------------------------
+
+    def flush(self) -> None:
+        """Close the chunk in progress and hand everything written to the OS."""
+        self._check_open()
+        self._writer.flush()
+        self._last_flush = time.monotonic()
+
+    def set_status(self, status: str | None = None, **info: Any) -> None:
+        """Set what :meth:`close` writes as ``run_status`` (e.g. after the run returned:
+        ``set_status("diverged", diverged_at=result.diverged_at)``); an exception
+        leaving the context still overrides the status with interrupted/failed."""
+        if status is not None:
+            self._status = str(status)
+        self._status_info.update({str(k): str(v) for k, v in info.items()})
+
+    def close(self, status: str | None = None, **info: Any) -> None:
+        """Write ``run_status`` and finish the file (summary, indexes, footer).
+
+        ``status`` defaults to the one given to :meth:`set_status`, else ``complete``
+        (``interrupted`` after an interruption); ``info`` adds entries to the
+        ``run_status`` record. Idempotent.
+        """
+        if self.closed:
+            return
+        self.closed = True
+        try:
+            if status is None:
+                status = self._status
+            if status is None:
+                status = "complete" if self.interrupted_at is None else "interrupted"
+            record = {
+                "status": status,
+                "last_step": str(self.last_step),
+                "messages": str(self.messages_written),
+            }
+            if self.interrupted_at is not None:
+                record["interrupted_at"] = str(self.interrupted_at)
+            if self.expected_steps is not None:
+                record["expected_steps"] = str(self.expected_steps)
+                if status == "complete" and self.last_step < self.expected_steps:
+                    record.setdefault("note", f"run ended at step {self.last_step} "
+                                              f"of {self.expected_steps}")
+            record.update(self._status_info)
+            record.update({str(k): str(v) for k, v in info.items()})
+            self._writer.flush()
+            self._writer.add_metadata("run_status", record)
+            self._writer.finish()
+        finally:
+            self._stream.close()
+
+    def __enter__(self) -> TraceRecorder:
+        return self
+
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+        if self.closed:
+            return False
+        if exc_type is None:
+            self.close()
+        else:
+            self.interrupted_at = self.last_step
+            status = "interrupted" if issubclass(exc_type, KeyboardInterrupt) else "failed"
+            reason = exc_type.__name__ + (f": {exc}" if str(exc) else "")
+            self.close(status, reason=reason)
+        return False
+
+    # -- internals ----------------------------------------------------------------
+
+    def _check_open(self) -> None:
+        if self.closed:
+            raise RuntimeError(f"trace recorder for {self.path} is closed")
+
+    def _link_event(self, message: Any, event: str, when: float, *, payload: bool = False,
+                    accepted: bool = False, reason: str = "") -> None:
+        sent_step = int(message.sent_step)
+        d = int(message.delay_steps)
+        fields: dict[str, Any] = {
+            "event": event,
+            "sender": int(message.sender),
+            "receiver": int(message.receiver),
+            "sent_step": sent_step,
+            "usable_step": sent_step + 1 + d,
+            "sequence": int(message.sequence),
+            "send_time": float(message.send_time),
+            "arrival_time": float(message.arrival_time),
+            "delay_steps": d,
+            "accepted": accepted,
+            "reason": reason,
+            "event_time": float(when),
+        }
+        if payload and message.payload is not None:
+            fields["payload"] = np.asarray(message.payload, dtype=float).ravel().tolist()
+        msg = self._classes["MessageEvent"](**fields)
+        self._write(link_topic(message.sender, message.receiver), "MessageEvent", msg,
+                    to_ns(when), to_ns(message.send_time), int(message.sequence))
+
+    def _write(self, topic: str, type_name: str, msg: Any, log_time: int,
+               publish_time: int, sequence: int) -> None:
+        if log_time < self._last_log_time:
+            if self._last_log_time - log_time > _ORDER_SLACK_NS:
+                raise TraceOrderError(
+                    f"{topic}: event at {log_time} ns after one at {self._last_log_time} ns; "
+                    "trace messages must be recorded in time order"
+                )
+            log_time = self._last_log_time
+        self._last_log_time = log_time
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf,
+                schema_id=self._schema_ids[type_name],
+            )
+            self._channels[topic] = channel
+        self._writer.add_message(
+            channel_id=channel, log_time=log_time, data=msg.SerializeToString(),
+            publish_time=max(0, publish_time), sequence=sequence & 0xFFFFFFFF,
+        )
+        self.counts[topic] = self.counts.get(topic, 0) + 1
+        self.messages_written += 1
+
+
+def _mcap_library() -> str:
+    from mcap.writer import LIBRARY_IDENTIFIER
+
+    return LIBRARY_IDENTIFIER

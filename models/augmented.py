@@ -20,31 +20,102 @@ Notation (all arrays are ``float64`` numpy arrays):
 * ``delays`` is an ``(N, N)`` integer array of effective link delays
   ``r_ij`` (the delay of the message from ``j`` used by ``i``).
 
-Only numpy is used; nothing is imported from the rest of the project.
+Structured spectral radius
+--------------------------
+The augmented closed loop is block companion with first block row
+``[M_0, ..., M_tau]``, ``M_r = (I - K D_C-bar)(P_r kron B_r)``, ``B_r = A^(r+1)``
+(compensated) or ``A`` (uncompensated). Since every edge ``j -> i`` lies in exactly
+one ``P_r``, the whole first block row has only ``nnz(P)`` non-zero ``n x n``
+blocks, ``p_ij (I - L_i C_i) B_(r_ij)``. :func:`augmented_spectral_radius` applies
+the companion matrix matrix-free (that block-sparse first row, or the factored form
+``(I - K D) vec(B_r X P_r^T)`` when ``P`` is dense) and runs ARPACK
+(``scipy.sparse.linalg.eigs``) for the largest-magnitude eigenvalues; it never builds
+an ``Nn x Nn`` dense block.
+
+Only numpy and scipy are used; nothing is imported from the rest of the project.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import ctypes
+import math
+import os
+import warnings
+from collections.abc import Callable, Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
+import scipy.sparse as sp
 from numpy.typing import ArrayLike
+from scipy.sparse.csgraph import breadth_first_order, connected_components
+from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
 
 __all__ = [
+    "ARPACK_K",
+    "ARPACK_MAXITER",
+    "ARPACK_TOL",
     "DEFAULT_TAU_MAX",
+    "DENSE_FALLBACK_MAX",
+    "DENSE_SIZE_THRESHOLD",
+    "GROWTH_BLOCK",
+    "GROWTH_FULL_MAX",
+    "TauStar",
     "augmented_closed_loop",
     "augmented_consensus",
+    "augmented_spectral_radius",
+    "closed_loop_sequence_growth",
+    "convergence_time_augmented",
+    "convergence_time_delay_free",
+    "convergence_time_order",
+    "decay_rate",
+    "decay_rate_lcsys",
+    "decay_rate_tolerant",
     "delay_bound_lcsys",
+    "delay_bound_tolerant",
     "delay_free_closed_loop",
+    "delay_free_spectral_radius",
     "delay_split",
     "gain_product",
     "output_gain_matrix",
     "spectral_radius",
     "tau_star",
+    "tau_star_report",
 ]
 
 #: Default upper end of the scan in :func:`tau_star`.
 DEFAULT_TAU_MAX: int = 200
+
+#: ``method="auto"`` uses dense ``numpy.linalg.eigvals`` when the matrix dimension
+#: (``N n (tau+1)`` for the augmented closed loop, ``N n`` for the delay-free one)
+#: is at most this, and the structured ARPACK method above it.
+DENSE_SIZE_THRESHOLD: int = 1500
+
+#: If ARPACK fails (no convergence, or a Ritz pair that does not pass the residual
+#: check), the structured method falls back to dense eigenvalues up to this
+#: dimension (with a RuntimeWarning) and raises RuntimeError above it.
+DENSE_FALLBACK_MAX: int = 6000
+
+#: Number of largest-magnitude eigenvalues ARPACK converges. Several eigenvalues
+#: often share the largest modulus (complex pairs; (tau+1)-th roots from the
+#: companion structure, LCSYS2022 Lemma 4), so the wanted/unwanted boundary is kept
+#: well below the top.
+ARPACK_K: int = 6
+
+#: ARPACK relative accuracy of the Ritz values.
+ARPACK_TOL: float = 1e-12
+
+#: ARPACK restart limit per run (typical runs need well under 200).
+ARPACK_MAXITER: int = 600
+
+#: :func:`closed_loop_sequence_growth` tracks the whole product (applied to the
+#: identity) when the augmented dimension is at most this, else a random block.
+GROWTH_FULL_MAX: int = 600
+
+#: Number of random orthonormal vectors tracked by
+#: :func:`closed_loop_sequence_growth` above :data:`GROWTH_FULL_MAX`.
+GROWTH_BLOCK: int = 8
 
 
 # ---------------------------------------------------------------------------
@@ -298,10 +369,17 @@ def delay_split(P: ArrayLike, delays: ArrayLike, tau: int) -> list[np.ndarray]:
     """
     P_arr = _as_square("P", P)
     d = _as_delays(P_arr, delays)
+    tau = _check_delay_range(P_arr, d, tau)
+    edge = P_arr != 0
+    return [np.where(edge & (d == r), P_arr, 0.0) for r in range(tau + 1)]
+
+
+def _check_delay_range(P: np.ndarray, d: np.ndarray, tau: int) -> int:
+    """Check ``tau >= 0`` and every edge delay in ``0..tau``; return ``int(tau)``."""
     tau = int(tau)
     if tau < 0:
         raise ValueError(f"tau must be >= 0, got {tau}")
-    edge = P_arr != 0
+    edge = P != 0
     bad = edge & ((d < 0) | (d > tau))
     if np.any(bad):
         i, j = (int(v) for v in np.argwhere(bad)[0])
@@ -309,7 +387,7 @@ def delay_split(P: ArrayLike, delays: ArrayLike, tau: int) -> list[np.ndarray]:
             f"delay of edge {j}->{i} is delays[{i},{j}]={int(d[i, j])}, "
             f"outside the allowed range 0..{tau}"
         )
-    return [np.where(edge & (d == r), P_arr, 0.0) for r in range(tau + 1)]
+    return tau
 
 
 def augmented_closed_loop(
@@ -388,6 +466,11 @@ def spectral_radius(M: ArrayLike) -> float:
     -------
     float
         The spectral radius (0.0 for an empty matrix).
+
+    Notes
+    -----
+    Up to :data:`DENSE_SIZE_THRESHOLD` rows, OpenBLAS runs single-threaded during
+    the call (see :func:`_single_threaded_blas`).
     """
     arr = np.asarray(M, dtype=float)
     if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
@@ -396,16 +479,439 @@ def spectral_radius(M: ArrayLike) -> float:
         return 0.0
     if not np.all(np.isfinite(arr)):
         return float("inf")
+    if arr.shape[0] <= DENSE_SIZE_THRESHOLD:
+        # small LAPACK problems gain nothing from BLAS threads, and lose 10x or
+        # more when the machine is loaded (OpenBLAS threads spin)
+        with _single_threaded_blas():
+            return float(np.max(np.abs(np.linalg.eigvals(arr))))
     return float(np.max(np.abs(np.linalg.eigvals(arr))))
 
 
-def _delayed_rho(G: np.ndarray, P: np.ndarray, A_pow: np.ndarray) -> float:
-    """``rho(G (P kron A_pow))`` with overflow mapped to ``inf``."""
-    if not np.all(np.isfinite(A_pow)):
-        return float("inf")
+# ---------------------------------------------------------------------------
+# structured (matrix-free) spectral radius
+# ---------------------------------------------------------------------------
+
+#: Methods accepted by the spectral-radius functions.
+_METHODS = ("auto", "dense", "structured")
+
+#: Set to False to leave the BLAS thread count alone while ARPACK runs.
+LIMIT_BLAS_THREADS: bool = True
+
+
+def _check_method(method: str) -> str:
+    if method not in _METHODS:
+        raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
+    return method
+
+
+def _gain_blocks(L: Sequence[ArrayLike], C_list: list[np.ndarray]) -> np.ndarray:
+    """Return the ``(N, n, n)`` stack of the blocks ``I - L_i C_i`` of ``I - K D_C-bar``."""
+    L_list = _as_gains(L, C_list)
+    n = C_list[0].shape[1]
+    return np.stack([np.eye(n) - Li @ Ci for Li, Ci in zip(L_list, C_list, strict=True)])
+
+
+def _delay_blocks(A: np.ndarray, depth: int, compensated: bool) -> np.ndarray:
+    """``(depth, n, n)`` stack of ``B_r = A^(r+1)`` (compensated) or ``A`` (not); may overflow."""
+    n = A.shape[0]
+    B = np.empty((depth, n, n))
+    B[0] = A
     with np.errstate(over="ignore", invalid="ignore"):
-        M = G @ np.kron(P, A_pow)
-    return spectral_radius(M)
+        for r in range(1, depth):
+            B[r] = B[r - 1] @ A if compensated else A
+    return B
+
+
+class _FirstRow:
+    """Matrix-free first block row ``[M_0, ..., M_(R-1)]``, ``M_r = G (P_r kron B_r)``.
+
+    ``G = blockdiag(G_i)`` with ``G_i = I - L_i C_i``, ``P_r`` the entries of ``P`` on the
+    edges with ``index == r``. Two representations, chosen by a flop count per vector:
+
+    * ``"bsr"``: the row as a sparse matrix of ``nnz(P)`` dense ``n x n`` blocks
+      ``p_ij G_i B_(r_ij)`` (each edge lies in exactly one ``P_r``), applied as CSR;
+      ``nnz(P) n^2`` flops and storage.
+    * ``"factored"``: ``G vec(B_r X_r P_r^T)`` with ``X_r`` the ``(n, N)`` reshape of
+      block ``r``, ``P_r`` sparse; ``nnz(P) n + (#r + 1) N n^2`` flops, used for dense ``P``.
+
+    ``block_edges = (src, dst)`` lists the (possibly) non-zero ``n x n`` blocks of the
+    first row as edges of the block graph of the companion matrix, whose node
+    ``s N + j`` is agent ``j``'s slot ``s``: ``(j, r_ij) -> (i, 0)``.
+    """
+
+    def __init__(
+        self,
+        G: np.ndarray,
+        P: np.ndarray,
+        index: np.ndarray,
+        B: np.ndarray,
+        kind: str = "auto",
+    ) -> None:
+        N, n = G.shape[0], G.shape[1]
+        self.N, self.n, self.R = N, n, B.shape[0]
+        self.Nn = N * n
+        rows, cols = np.nonzero(P)
+        r_edge = index[rows, cols].astype(np.int64)
+        used = np.unique(r_edge)
+        self.nnz = rows.size
+        bsr_cost = self.nnz * n * n
+        fact_cost = self.nnz * n + (used.size + 1) * N * n * n
+        if kind == "auto":
+            kind = "bsr" if bsr_cost <= 2 * fact_cost else "factored"
+        if kind not in ("bsr", "factored"):
+            raise ValueError(f"unknown first-row representation {kind!r}")
+        self.kind = kind
+        with np.errstate(over="ignore", invalid="ignore"):
+            if kind == "bsr":
+                block_col = r_edge * N + cols
+                order = np.lexsort((block_col, rows))
+                rows, cols, r_edge, block_col = (
+                    rows[order],
+                    cols[order],
+                    r_edge[order],
+                    block_col[order],
+                )
+                data = P[rows, cols][:, None, None] * (G[rows] @ B[r_edge])
+                indptr = np.searchsorted(rows, np.arange(N + 1))
+                self.finite = bool(np.all(np.isfinite(data)))
+                self._S = sp.bsr_matrix(
+                    (data, block_col, indptr), shape=(self.Nn, self.Nn * self.R)
+                ).tocsr()
+                self._S.eliminate_zeros()
+                self.is_zero = self._S.nnz == 0
+                live = np.any(data != 0, axis=(1, 2))
+                self.block_edges = (r_edge[live] * N + cols[live], rows[live])
+            else:
+                self._parts = []
+                for r in used:
+                    mask = np.zeros(P.shape, dtype=bool)
+                    sel = r_edge == r
+                    mask[rows[sel], cols[sel]] = True
+                    self._parts.append((int(r), sp.csr_matrix(np.where(mask, P, 0.0)), B[r]))
+                self._G = G
+                self.finite = bool(np.all(np.isfinite(B[used])) and np.all(np.isfinite(G)))
+                self.is_zero = self.nnz == 0 or not np.any(G) or not np.any(B[used])
+                self.block_edges = (r_edge * N + cols, rows)
+
+    def apply(self, X: np.ndarray) -> np.ndarray:
+        """Return the first block row times ``X`` (shape ``(R N n, m)``), shape ``(N n, m)``."""
+        if self.kind == "bsr":
+            return np.asarray(self._S @ X)
+        N, n, Nn = self.N, self.n, self.Nn
+        m = X.shape[1]
+        Y = np.zeros((N, n, m), dtype=np.result_type(X.dtype, float))
+        for r, Pr, Br in self._parts:
+            W = (Pr @ X[r * Nn : (r + 1) * Nn].reshape(N, n * m)).reshape(N, n, m)
+            Y += np.matmul(Br, W)
+        return np.matmul(self._G, Y).reshape(Nn, m)
+
+    def companion_apply(self, X: np.ndarray) -> np.ndarray:
+        """Apply the block companion matrix (first row, identity shift below) to ``X``."""
+        X = np.asarray(X)
+        vec = X.ndim == 1
+        X2 = X.reshape(self.Nn * self.R, -1)
+        Y = np.empty(X2.shape, dtype=np.result_type(X2.dtype, float))
+        Y[: self.Nn] = self.apply(X2)
+        Y[self.Nn :] = X2[: -self.Nn]
+        return Y.ravel() if vec else Y
+
+
+@lru_cache(maxsize=1)
+def _openblas_thread_setters() -> tuple[Callable[[int], int], ...]:
+    """``openblas_set_num_threads_local`` of every OpenBLAS already loaded (Linux only)."""
+    setters: list[Callable[[int], int]] = []
+    try:
+        with open("/proc/self/maps", encoding="utf-8", errors="replace") as fh:
+            paths = {line.split()[-1] for line in fh if "openblas" in line.lower()}
+    except OSError:
+        return ()
+    for path in sorted(paths):
+        try:
+            lib = ctypes.CDLL(path, mode=getattr(os, "RTLD_NOLOAD", 0) | os.RTLD_LOCAL)
+            fn = lib.openblas_set_num_threads_local
+        except (OSError, AttributeError):
+            continue
+        fn.restype = ctypes.c_int
+        fn.argtypes = [ctypes.c_int]
+        setters.append(fn)
+    return tuple(setters)
+
+
+@contextmanager
+def _single_threaded_blas() -> Iterator[None]:
+    """Run OpenBLAS single-threaded inside the block, restoring the previous count after.
+
+    ARPACK's work is many small BLAS-2 calls (``D x ncv`` Gram-Schmidt); threading
+    them gains nothing, and on a loaded machine OpenBLAS's spinning threads made the
+    structured method 5-50x slower. The setting is process-wide while it lasts.
+    """
+    previous: list[tuple[Callable[[int], int], int]] = []
+    try:
+        if LIMIT_BLAS_THREADS:
+            for fn in _openblas_thread_setters():
+                previous.append((fn, int(fn(1))))
+        yield
+    finally:
+        for fn, count in reversed(previous):
+            fn(count)
+
+
+def _cyclic_class(row: _FirstRow) -> tuple[int, np.ndarray]:
+    """Cyclic index ``p`` of the companion matrix's block graph and one colour class.
+
+    Colour the block graph (nodes ``(agent, slot)``; edges ``(j, s-1) -> (j, s)`` of
+    the identity shift and ``row.block_edges``) by potentials along a spanning forest
+    of the undirected graph, ``c(v) = c(u) + 1`` along each edge ``u -> v``; ``p`` is
+    the gcd over all edges of ``c(u) + 1 - c(v)``. Then ``c mod p`` is consistent on
+    every edge, so with ``W = diag(omega^c)``, ``omega = exp(2 pi i / p)``,
+    ``W M W^-1 = omega M``: the spectrum is invariant under rotation by ``2 pi / p``,
+    ``M^p`` maps each colour class into itself and the non-zero eigenvalues of ``M``
+    are the ``p``-th roots of those of ``M^p`` on any single class (for ``lambda != 0``
+    an eigenvector has a non-zero part in every class of its weak component).
+    ``p = 0`` means the block graph has no cycle: ``M`` is nilpotent.
+
+    Returns
+    -------
+    (p, nodes)
+        ``p`` and the state indices (into the augmented vector) of the smallest
+        colour class; ``nodes`` is everything when ``p <= 1``.
+    """
+    N, n, R = row.N, row.n, row.R
+    V = N * R
+    src, dst = row.block_edges
+    shift_src = np.arange(N * (R - 1))
+    src = np.concatenate([src, shift_src])
+    dst = np.concatenate([dst, shift_src + N])
+    everything = np.arange(row.Nn * R)
+    if src.size == 0:
+        return 0, everything
+    adj = sp.csr_matrix((np.ones(src.size), (src, dst)), shape=(V, V))
+    n_comp, labels = connected_components(adj, directed=True, connection="weak")
+    pot = np.zeros(V, dtype=np.int64)
+    seen = np.zeros(n_comp, dtype=bool)
+    for root in range(V):
+        if seen[labels[root]]:
+            continue
+        seen[labels[root]] = True
+        order, pred = breadth_first_order(adj, root, directed=False, return_predecessors=True)
+        child = order[1:]
+        parent = pred[child]
+        forward = np.asarray(adj[parent, child]).ravel() != 0  # edge parent -> child
+        step = np.where(forward, 1, -1)
+        for v, u, d in zip(child.tolist(), parent.tolist(), step.tolist(), strict=True):
+            pot[v] = pot[u] + d
+    p = int(np.gcd.reduce(np.abs(pot[src] + 1 - pot[dst])))
+    if p <= 1:
+        return p, everything
+    colour = np.mod(pot, p)
+    sizes = np.bincount(colour, minlength=p)
+    c = int(np.argmin(np.where(sizes > 0, sizes, V + 1)))
+    block_nodes = np.flatnonzero(colour == c)
+    # block node s N + j holds the states (s N + j) n .. (s N + j) n + n - 1
+    return p, (block_nodes[:, None] * n + np.arange(n)[None, :]).ravel()
+
+
+def _companion_rho(row: _FirstRow, what: str) -> float:
+    """Spectral radius of ``row``'s block companion matrix ``M`` (structured).
+
+    Uses the cyclic reduction of :func:`_cyclic_class` (``rho(M) = rho(M^p on one
+    colour class)^(1/p)``; this removes the ``p``-fold ties of equal moduli that keep
+    ARPACK from converging), then :func:`_arpack_rho`.
+    """
+    if not row.finite:
+        return float("inf")
+    if row.is_zero:
+        return 0.0  # nilpotent block companion matrix
+    p, nodes = _cyclic_class(row)
+    if p == 0:
+        return 0.0
+    if p == 1:
+        return _arpack_rho(row.companion_apply, row.Nn * row.R, what)
+    D = row.Nn * row.R
+
+    def apply(X: np.ndarray) -> np.ndarray:
+        X = np.asarray(X)
+        vec = X.ndim == 1
+        X2 = X.reshape(nodes.size, -1)
+        Z = np.zeros((D, X2.shape[1]), dtype=np.result_type(X2.dtype, float))
+        Z[nodes] = X2
+        for _ in range(p):
+            Z = row.companion_apply(Z)
+        Y = Z[nodes]
+        return Y.ravel() if vec else Y
+
+    return _arpack_rho(apply, nodes.size, f"{what} (cyclic index {p})") ** (1.0 / p)
+
+
+def _arpack_rho(
+    apply: Callable[[np.ndarray], np.ndarray],
+    D: int,
+    what: str,
+    *,
+    k: int = ARPACK_K,
+    tol: float = ARPACK_TOL,
+    seed: int = 0,
+) -> float:
+    """Largest eigenvalue modulus of the ``D x D`` operator ``apply`` by ARPACK (``which="LM"``).
+
+    Up to two ARPACK runs (different random start vectors, the second with a larger
+    Krylov space), each accepted only if it converged and the residual of its top
+    Ritz pair, recomputed with the operator, is at most ``1e-8 max(|lambda|,
+    ||M x|| / ||x||)``. If both fail: dense eigenvalues of the operator up to
+    :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning), else RuntimeError.
+    """
+    if D <= k + 2:  # ARPACK needs k < D - 1
+        return _dense_operator_rho(apply, D)
+    op = LinearOperator((D, D), matvec=apply, matmat=apply, dtype=float)
+    rng = np.random.default_rng(seed)
+    x = rng.standard_normal(D)
+    norm_est = max(1.0, float(np.linalg.norm(apply(x)) / np.linalg.norm(x)))
+    failures: list[str] = []
+    for ncv in (max(2 * k + 1, 40), max(4 * k + 1, 100)):
+        ncv = min(ncv, D)
+        v0 = rng.standard_normal(D)
+        try:
+            with _single_threaded_blas(), warnings.catch_warnings():
+                warnings.simplefilter("ignore", np.exceptions.ComplexWarning)
+                vals, vecs = eigs(
+                    op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=ARPACK_MAXITER
+                )
+        except ArpackNoConvergence as exc:
+            failures.append(f"ncv={ncv}: no convergence ({len(exc.eigenvalues)} of {k} converged)")
+            continue
+        except ArpackError as exc:
+            failures.append(f"ncv={ncv}: {exc}")
+            continue
+        i = int(np.argmax(np.abs(vals)))
+        lam, v = complex(vals[i]), vecs[:, i]
+        res = float(np.linalg.norm(apply(v) - lam * v) / np.linalg.norm(v))
+        if np.isfinite(res) and res <= 1e-8 * max(abs(lam), norm_est):
+            return float(np.max(np.abs(vals)))
+        failures.append(f"ncv={ncv}: top Ritz pair residual {res:.3g} for |lambda|={abs(lam):.6g}")
+    reason = "; ".join(failures)
+    if D <= DENSE_FALLBACK_MAX:
+        warnings.warn(
+            f"ARPACK failed for the {what} (dimension {D}): {reason}; "
+            "falling back to dense eigenvalues",
+            RuntimeWarning,
+            stacklevel=4,
+        )
+        return _dense_operator_rho(apply, D)
+    raise RuntimeError(
+        f"ARPACK could not compute the spectral radius of the {what} "
+        f"(dimension {D}): {reason}. Use method='dense' if it fits in memory."
+    )
+
+
+def _dense_operator_rho(apply: Callable[[np.ndarray], np.ndarray], D: int) -> float:
+    """Spectral radius of the operator ``apply`` by dense eigenvalues of ``apply(I_D)``."""
+    return spectral_radius(apply(np.eye(D)))
+
+
+def _block_rho(G: np.ndarray, P: np.ndarray, B: np.ndarray, method: str = "auto") -> float:
+    """``rho(blockdiag(G_i) (P kron B))`` with overflow mapped to ``inf``.
+
+    Dense eigenvalues if ``method == "dense"`` or (``"auto"`` and ``N n`` is at most
+    :data:`DENSE_SIZE_THRESHOLD`), else ARPACK on the structured operator.
+    """
+    if not np.all(np.isfinite(B)):
+        return float("inf")
+    N, n = G.shape[0], G.shape[1]
+    if method == "dense" or (method == "auto" and N * n <= DENSE_SIZE_THRESHOLD):
+        with np.errstate(over="ignore", invalid="ignore"):
+            return spectral_radius(_block_diag(list(G)) @ np.kron(P, B))
+    row = _FirstRow(G, P, np.zeros(P.shape, dtype=np.int64), B[None])
+    return _companion_rho(row, "matrix (I - K D)(P kron B)")
+
+
+# ---------------------------------------------------------------------------
+# spectral radii and the paper's bounds
+# ---------------------------------------------------------------------------
+
+
+def delay_free_spectral_radius(
+    P: ArrayLike,
+    A: ArrayLike,
+    C: Sequence[ArrayLike],
+    L: Sequence[ArrayLike],
+    method: str = "auto",
+) -> float:
+    """Return rho(A-hat) of the delay-free closed loop (LCSYS2022 eq. 12).
+
+    Parameters
+    ----------
+    P, A, C, L
+        As in :func:`delay_free_closed_loop`.
+    method : {"auto", "dense", "structured"}, default "auto"
+        ``"dense"``: ``numpy.linalg.eigvals`` of the ``(N n, N n)`` matrix;
+        ``"structured"``: ARPACK on the block-sparse operator; ``"auto"``: dense
+        when ``N n <=`` :data:`DENSE_SIZE_THRESHOLD`.
+
+    Returns
+    -------
+    float
+        ``rho((I - K D_C-bar)(P kron A))``.
+    """
+    P_arr, A_arr, C_list = _check_system(P, A, C)
+    return _block_rho(_gain_blocks(L, C_list), P_arr, A_arr, _check_method(method))
+
+
+def augmented_spectral_radius(
+    P: ArrayLike,
+    A: ArrayLike,
+    C: Sequence[ArrayLike],
+    L: Sequence[ArrayLike],
+    delays: ArrayLike,
+    tau: int | None = None,
+    compensated: bool = True,
+    method: str = "auto",
+) -> float:
+    """Return the spectral radius of the augmented closed loop of :func:`augmented_closed_loop`.
+
+    The matrix is block companion with first block row ``[M_0, ..., M_tau]``,
+    ``M_r = (I - K D_C-bar)(P_r kron B_r)``, ``B_r = A^(r+1)`` (compensated,
+    LCSYS2022 eq. 9) or ``A`` (uncompensated, delay-tolerant eq. 11); its eigenvalues
+    are the roots of ``det(lambda^(tau+1) I - sum_r lambda^(tau-r) M_r)``.
+
+    Parameters
+    ----------
+    P, A, C, L, delays, tau, compensated
+        As in :func:`augmented_closed_loop`.
+    method : {"auto", "dense", "structured"}, default "auto"
+        ``"dense"``: ``max |numpy.linalg.eigvals|`` of the full
+        ``(N n (tau+1))``-square matrix from :func:`augmented_closed_loop`.
+        ``"structured"``: ARPACK (``scipy.sparse.linalg.eigs``, ``which="LM"``,
+        ``k =`` :data:`ARPACK_K`, ``tol =`` :data:`ARPACK_TOL`) on a matrix-free
+        companion operator. Its first block row is kept as ``nnz(P)`` blocks
+        ``p_ij (I - L_i C_i) B_(r_ij)`` (block-sparse), or for dense ``P`` applied as
+        ``(I - K D) vec(B_r X_r P_r^T)``; the identity shift is a copy. Trailing
+        empty delay slots (``r`` above the largest edge delay) only add zero
+        eigenvalues and are dropped. If ARPACK fails, dense eigenvalues are used up to
+        :data:`DENSE_FALLBACK_MAX` (RuntimeWarning), else RuntimeError.
+        ``"auto"``: dense when ``N n (tau+1) <=`` :data:`DENSE_SIZE_THRESHOLD`.
+
+    Returns
+    -------
+    float
+        ``rho`` of the augmented closed loop; ``inf`` if ``A^(r+1)`` overflows.
+    """
+    P_arr, A_arr, C_list = _check_system(P, A, C)
+    _check_method(method)
+    d = _as_delays(P_arr, delays)
+    if tau is None:
+        tau = _max_edge_delay(P_arr, d)
+    tau = _check_delay_range(P_arr, d, tau)
+    G = _gain_blocks(L, C_list)
+    N, n = P_arr.shape[0], A_arr.shape[0]
+    if method == "dense" or (method == "auto" and N * n * (tau + 1) <= DENSE_SIZE_THRESHOLD):
+        with np.errstate(over="ignore", invalid="ignore"):
+            M = augmented_closed_loop(P_arr, A_arr, C_list, L, d, tau, compensated)
+        return spectral_radius(M)
+    index = np.where(P_arr != 0, d, 0)
+    depth = _max_edge_delay(P_arr, d) + 1
+    B = _delay_blocks(A_arr, depth, compensated)
+    row = _FirstRow(G, P_arr, index, B)
+    return _companion_rho(row, "augmented closed loop")
 
 
 def delay_bound_lcsys(
@@ -431,16 +937,48 @@ def delay_bound_lcsys(
     float
         The bound; it equals the exact spectral radius of the augmented closed
         loop when every link, self-loops included, has delay ``tau`` (Lemma 4).
+        For ``tau = 0`` it is ``rho(A-hat)``.
     """
     P_arr, A_arr, C_list = _check_system(P, A, C)
     tau = int(tau)
     if tau < 0:
         raise ValueError(f"tau must be >= 0, got {tau}")
-    G = np.eye(P_arr.shape[0] * A_arr.shape[0]) - gain_product(L, C_list)
-    with np.errstate(over="ignore", invalid="ignore"):
-        A_pow = np.linalg.matrix_power(A_arr, tau + 1)
-    rho = _delayed_rho(G, P_arr, A_pow)
+    rho = _lcsys_rho(P_arr, A_arr, _gain_blocks(L, C_list), tau)
     return float(rho ** (1.0 / (tau + 1)))
+
+
+def _lcsys_rho(P: np.ndarray, A: np.ndarray, G: np.ndarray, tau: int) -> float:
+    """``rho((I - K D_C-bar)(P kron A^(tau+1)))`` (Theorem 1's quantity)."""
+    with np.errstate(over="ignore", invalid="ignore"):
+        A_pow = np.linalg.matrix_power(A, tau + 1)
+    return _block_rho(G, P, A_pow)
+
+
+def delay_bound_tolerant(
+    P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike], L: Sequence[ArrayLike], tau: int
+) -> float:
+    """Return the delay-tolerant paper's bound rho(A-hat)^(1/(tau+1)) (its Theorem 1, Lemma 5).
+
+    ``A-hat = (I - K D_C-bar)(P kron A)`` is the delay-free closed loop. The paper
+    claims ``rho`` of the uncompensated augmented closed loop (its eq. 11) is at most
+    this value for delays bounded by ``tau``; for ``tau = 0`` it is ``rho(A-hat)``.
+
+    Parameters
+    ----------
+    P, A, C, L
+        As in :func:`delay_free_closed_loop`.
+    tau : int
+        Delay bound ``tau >= 0``.
+
+    Returns
+    -------
+    float
+        ``rho(A-hat) ** (1 / (tau + 1))``.
+    """
+    tau = int(tau)
+    if tau < 0:
+        raise ValueError(f"tau must be >= 0, got {tau}")
+    return float(delay_free_spectral_radius(P, A, C, L) ** (1.0 / (tau + 1)))
 
 
 def tau_star(
@@ -454,7 +992,10 @@ def tau_star(
 
     Scans ``tau = 0, 1, ..., tau_max`` and returns the last ``tau`` of the
     initial run for which ``rho((I - K D_C-bar)(P kron A^(tau+1))) < 1``
-    (i.e. the first failing ``tau`` minus one).
+    (i.e. the first failing ``tau`` minus one). This is
+    ``tau_star_report(...).contiguous``; the scan stops at the first failure. When
+    ``A`` has negative or complex unstable eigenvalues the condition need not be
+    monotone in ``tau``; :func:`tau_star_report` lists the isolated passing values.
 
     Parameters
     ----------
@@ -480,12 +1021,316 @@ def tau_star(
     tau_max = int(tau_max)
     if tau_max < 0:
         raise ValueError(f"tau_max must be >= 0, got {tau_max}")
-    G = np.eye(P_arr.shape[0] * A_arr.shape[0]) - gain_product(L, C_list)
+    G = _gain_blocks(L, C_list)
     A_pow = A_arr.copy()
     for tau in range(tau_max + 1):
         if tau > 0:
             with np.errstate(over="ignore", invalid="ignore"):
                 A_pow = A_pow @ A_arr
-        if not _delayed_rho(G, P_arr, A_pow) < 1.0:
+        if not _block_rho(G, P_arr, A_pow) < 1.0:
             return tau - 1 if tau > 0 else None
     return tau_max
+
+
+@dataclass(frozen=True)
+class TauStar:
+    """Theorem 1's condition ``rho((I - K D_C-bar)(P kron A^(tau+1))) < 1`` over ``tau``.
+
+    Attributes
+    ----------
+    contiguous : int or None
+        Largest ``tau`` such that every ``tau' <= tau`` passes (Theorem 1's tau*,
+        what :func:`tau_star` returns); ``None`` if ``tau = 0`` fails.
+    isolated : tuple of int
+        Passing ``tau`` above ``contiguous + 1`` (up to ``tau_max``): the condition is
+        not monotone in ``tau`` when ``A`` has negative or complex unstable
+        eigenvalues. Theorem 1 as stated covers only ``tau <= contiguous``; for an
+        isolated ``tau`` the eq. (26) bound is below 1 at that ``tau`` only.
+    values : tuple of float
+        ``rho((I - K D_C-bar)(P kron A^(tau+1)))`` for ``tau = 0, ..., tau_max``
+        (``inf`` once ``A^(tau+1)`` overflows).
+    """
+
+    contiguous: int | None
+    isolated: tuple[int, ...]
+    values: tuple[float, ...]
+
+    @property
+    def tau_max(self) -> int:
+        """Largest ``tau`` scanned."""
+        return len(self.values) - 1
+
+    @property
+    def passing(self) -> tuple[int, ...]:
+        """Every ``tau`` in ``0..tau_max`` whose value is below 1."""
+        return tuple(t for t, v in enumerate(self.values) if v < 1.0)
+
+    @property
+    def monotone(self) -> bool:
+        """Whether ``values`` is non-decreasing in ``tau``."""
+        v = np.asarray(self.values)
+        return bool(np.all(v[1:] >= v[:-1]))
+
+
+def tau_star_report(
+    P: ArrayLike,
+    A: ArrayLike,
+    C: Sequence[ArrayLike],
+    L: Sequence[ArrayLike],
+    tau_max: int = DEFAULT_TAU_MAX,
+    method: str = "auto",
+) -> TauStar:
+    """Scan Theorem 1's condition over ``tau = 0..tau_max`` without assuming monotonicity.
+
+    Parameters
+    ----------
+    P, A, C, L
+        As in :func:`tau_star`.
+    tau_max : int, default DEFAULT_TAU_MAX
+        Largest ``tau`` scanned.
+    method : {"auto", "dense", "structured"}, default "auto"
+        How each ``(N n)``-square spectral radius is computed, see
+        :func:`delay_free_spectral_radius`.
+
+    Returns
+    -------
+    TauStar
+        ``values[tau] = rho((I - K D_C-bar)(P kron A^(tau+1)))``, the contiguous
+        tau* and the isolated passing ``tau``.
+    """
+    P_arr, A_arr, C_list = _check_system(P, A, C)
+    _check_method(method)
+    tau_max = int(tau_max)
+    if tau_max < 0:
+        raise ValueError(f"tau_max must be >= 0, got {tau_max}")
+    G = _gain_blocks(L, C_list)
+    values: list[float] = []
+    A_pow = A_arr.copy()
+    for tau in range(tau_max + 1):
+        if tau > 0:
+            with np.errstate(over="ignore", invalid="ignore"):
+                A_pow = A_pow @ A_arr
+        values.append(_block_rho(G, P_arr, A_pow, method))
+    passing = [v < 1.0 for v in values]
+    contiguous = None
+    for tau, ok in enumerate(passing):
+        if not ok:
+            break
+        contiguous = tau
+    start = (contiguous + 2) if contiguous is not None else 1
+    isolated = tuple(t for t in range(start, tau_max + 1) if passing[t])
+    return TauStar(contiguous=contiguous, isolated=isolated, values=tuple(values))
+
+
+# ---------------------------------------------------------------------------
+# convergence time and decay rate (LCSYS2022 Lemma 2, eq. 14; delay-tolerant eq. 17)
+# ---------------------------------------------------------------------------
+
+
+def _check_rho(rho: float) -> float:
+    rho = float(rho)
+    if math.isnan(rho) or rho < 0:
+        raise ValueError(f"a spectral radius must be >= 0, got {rho}")
+    return rho
+
+
+def convergence_time_order(rho: float) -> float:
+    """Return ``1 / (1 - rho)``, the order of the convergence time (LCSYS2022 Lemma 2).
+
+    Lemma 2: the error dynamics with spectral radius ``rho`` converge in time
+    ``Theta(1 / (1 - rho))``. ``rho`` is ``rho(A-hat)`` for the delay-free loop
+    (eq. 12) or the augmented closed loop's spectral radius for eq. (10).
+
+    Parameters
+    ----------
+    rho : float
+        Spectral radius, ``>= 0``.
+
+    Returns
+    -------
+    float
+        ``1 / (1 - rho)``; ``inf`` if ``rho >= 1`` (no convergence).
+    """
+    rho = _check_rho(rho)
+    return 1.0 / (1.0 - rho) if rho < 1.0 else math.inf
+
+
+def decay_rate(rho: float, tau: int) -> float | None:
+    """Return ``1 - rho^(1/(tau+1))``, the form of LCSYS2022 eq. (14) and delay-tolerant eq. (17).
+
+    Parameters
+    ----------
+    rho : float
+        Spectral radius, ``>= 0``: ``rho((I - K D_C-bar)(P kron A^(tau+1)))`` for
+        eq. (14), ``rho(A-hat)`` for eq. (17).
+    tau : int
+        Delay bound ``tau >= 0``.
+
+    Returns
+    -------
+    float or None
+        The rate, in ``(0, 1]``; ``None`` if ``rho >= 1`` (the expression is not a
+        decay rate: no decay is guaranteed).
+    """
+    rho = _check_rho(rho)
+    tau = int(tau)
+    if tau < 0:
+        raise ValueError(f"tau must be >= 0, got {tau}")
+    return 1.0 - rho ** (1.0 / (tau + 1)) if rho < 1.0 else None
+
+
+def decay_rate_lcsys(
+    P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike], L: Sequence[ArrayLike], tau: int
+) -> float | None:
+    """Return LCSYS2022 eq. (14), ``1 - rho((I - K D_C-bar)(P kron A^(tau+1)))^(1/(tau+1))``.
+
+    The geometric decay rate of the error (10) for homogeneous delays ``tau``
+    (``1 -`` :func:`delay_bound_lcsys`). ``None`` if the spectral radius is ``>= 1``
+    (``tau`` above Theorem 1's condition).
+    """
+    P_arr, A_arr, C_list = _check_system(P, A, C)
+    tau = int(tau)
+    if tau < 0:
+        raise ValueError(f"tau must be >= 0, got {tau}")
+    return decay_rate(_lcsys_rho(P_arr, A_arr, _gain_blocks(L, C_list), tau), tau)
+
+
+def decay_rate_tolerant(
+    P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike], L: Sequence[ArrayLike], tau: int
+) -> float | None:
+    """Return delay-tolerant eq. (17), ``1 - rho(A-hat)^(1/(tau+1))``.
+
+    The paper's best-case decay rate of its uncompensated error (13) for delays
+    bounded by ``tau`` (``1 -`` :func:`delay_bound_tolerant`). ``None`` if
+    ``rho(A-hat) >= 1``.
+    """
+    return decay_rate(delay_free_spectral_radius(P, A, C, L), tau)
+
+
+def convergence_time_delay_free(
+    P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike], L: Sequence[ArrayLike]
+) -> float:
+    """Return ``1 / (1 - rho(A-hat))`` (Lemma 2, delay-free error eq. 12); ``inf`` if unstable."""
+    return convergence_time_order(delay_free_spectral_radius(P, A, C, L))
+
+
+def convergence_time_augmented(
+    P: ArrayLike,
+    A: ArrayLike,
+    C: Sequence[ArrayLike],
+    L: Sequence[ArrayLike],
+    delays: ArrayLike,
+    tau: int | None = None,
+    compensated: bool = True,
+    method: str = "auto",
+) -> float:
+    """Return ``1 / (1 - rho)`` of the augmented closed loop (Lemma 2, eq. 10); ``inf`` if unstable.
+
+    Arguments as in :func:`augmented_spectral_radius`.
+    """
+    return convergence_time_order(
+        augmented_spectral_radius(P, A, C, L, delays, tau, compensated, method)
+    )
+
+
+# ---------------------------------------------------------------------------
+# time-varying delays
+# ---------------------------------------------------------------------------
+
+
+def closed_loop_sequence_growth(
+    P: ArrayLike,
+    A: ArrayLike,
+    C: Sequence[ArrayLike],
+    L: Sequence[ArrayLike],
+    delay_patterns: Sequence[ArrayLike],
+    tau: int,
+    compensated: bool = True,
+    *,
+    full_max: int = GROWTH_FULL_MAX,
+    block: int = GROWTH_BLOCK,
+    seed: int = 0,
+) -> float:
+    """Return the realised growth rate ``(1/k) log ||A-hat[k] ... A-hat[1]||_2``.
+
+    ``A-hat[s]`` is the augmented closed loop (:func:`augmented_closed_loop`, depth
+    ``tau``) of ``delay_patterns[s-1]``, applied matrix-free. The product is never
+    formed by multiplying the factors out: each step applies ``A-hat[s]`` to the
+    running block ``Q``, divides ``Q`` by its Frobenius norm and accumulates the log
+    of that norm; at the end ``log ||Q||_2`` is added, so the result is exact up to
+    rounding and cannot overflow.
+
+    * Augmented dimension ``D = N n (tau+1) <= full_max``: ``Q`` starts as ``I_D``,
+      the value is ``(1/k) log ||A-hat[k] ... A-hat[1]||_2`` itself.
+    * Larger ``D``: ``Q`` starts as ``block`` random orthonormal vectors ``V``
+      (``numpy.random.default_rng(seed)``) and the value is
+      ``(1/k) log ||A-hat[k] ... A-hat[1] V||_2``, a lower bound on the full value
+      that differs from it by ``O(1/k)`` for generic ``V`` (same asymptotic rate).
+
+    For a constant pattern the value tends to ``log rho`` of its augmented matrix
+    (Gelfand's formula).
+
+    Parameters
+    ----------
+    P, A, C, L, compensated
+        As in :func:`augmented_closed_loop`.
+    delay_patterns : sequence of array_like of int, shape (N, N)
+        Effective delays at steps ``1..k``; edge delays in ``0..tau``.
+    tau : int
+        Augmentation depth shared by all steps.
+    full_max, block, seed : int
+        See above.
+
+    Returns
+    -------
+    float
+        The growth rate; ``-inf`` if the product is exactly zero, ``inf`` if
+        ``A^(tau+1)`` overflows.
+    """
+    P_arr, A_arr, C_list = _check_system(P, A, C)
+    tau = int(tau)
+    if tau < 0:
+        raise ValueError(f"tau must be >= 0, got {tau}")
+    patterns = list(delay_patterns)
+    if not patterns:
+        raise ValueError("delay_patterns must contain at least one step")
+    G = _gain_blocks(L, C_list)
+    N, n = P_arr.shape[0], A_arr.shape[0]
+    D = N * n * (tau + 1)
+    B = _delay_blocks(A_arr, tau + 1, compensated)
+    if not np.all(np.isfinite(B)):
+        return math.inf
+    edge = P_arr != 0
+    if D <= int(full_max):
+        Q = np.eye(D)
+    else:
+        block = int(block)
+        if block < 1:
+            raise ValueError(f"block must be >= 1, got {block}")
+        rng = np.random.default_rng(seed)
+        Q = np.linalg.qr(rng.standard_normal((D, min(block, D))))[0]
+    rows: dict[bytes, _FirstRow] = {}
+    log_norm = 0.0
+    for s, pattern in enumerate(patterns):
+        try:
+            d = _as_delays(P_arr, pattern)
+            _check_delay_range(P_arr, d, tau)
+        except ValueError as exc:
+            raise ValueError(f"delay_patterns[{s}]: {exc}") from None
+        index = np.where(edge, d, 0)
+        key = index.tobytes()
+        row = rows.get(key)
+        if row is None:
+            if len(rows) >= 256:
+                rows.clear()
+            row = rows[key] = _FirstRow(G, P_arr, index, B)
+        with np.errstate(over="ignore", invalid="ignore"):
+            Q = row.companion_apply(Q)
+            scale = float(np.linalg.norm(Q))
+        if scale == 0.0:
+            return -math.inf
+        if not math.isfinite(scale):
+            return math.inf
+        Q /= scale
+        log_norm += math.log(scale)
+    return (log_norm + math.log(float(np.linalg.norm(Q, 2)))) / len(patterns)

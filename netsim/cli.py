@@ -103,7 +103,11 @@ def build_parser() -> argparse.ArgumentParser:
             "a bound that the exact value violates is flagged with both numbers."
         ),
     )
-    analyze.add_argument("scenario", help="built-in scenario name or TOML file")
+    analyze.add_argument("scenario", help="built-in scenario name, TOML file, or an MCAP trace "
+                         "(FILE.mcap: the analytics are recomputed from the trace alone: "
+                         "delay-free rho, exact rho of each delay pattern seen, the bounds at "
+                         "the observed maximum delay, the realised growth rate and the "
+                         "empirical decay rate of the error, each with a verdict)")
     analyze.add_argument("--tau-max", type=int, default=30,
                          help="largest homogeneous delay analysed (default 30)")
     analyze.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -120,6 +124,35 @@ def build_parser() -> argparse.ArgumentParser:
     )
     insp.add_argument("trace", help="an MCAP file written by netsim")
     insp.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    replay = sub.add_parser(
+        "replay",
+        help="rebuild A-hat[k] from a trace's delays and rerun the error recursion",
+        description=(
+            "Rebuild each step's augmented closed-loop matrix A-hat[k] from the effective "
+            "delays recorded in TRACE, rerun e_k = A-hat[k] e_{k-1} + eta_k with the noise "
+            "recorded in the trace, and report the largest deviation from the recorded "
+            "errors: with the exact eta_k from the estimator's equations (floating-point "
+            "round-off for the compensating estimator) and with the paper's eta_k "
+            "(LCSYS2022 eq. 11), saying why they differ."
+        ),
+    )
+    replay.add_argument("trace", help="an MCAP file written by netsim")
+    replay.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    plot = sub.add_parser(
+        "plot",
+        help="PNG of MSE over time, delay histogram and spectral radius vs bounds",
+        description=(
+            "Plot one or more traces (e.g. the estimators of one run) into one PNG: MSE "
+            "over time per estimator (log scale), a delay histogram, and the exact "
+            "spectral radius of the augmented closed loop versus the papers' bounds."
+        ),
+    )
+    plot.add_argument("traces", nargs="+", metavar="TRACE", help="MCAP files written by netsim")
+    plot.add_argument("-o", "--output", required=True, metavar="FILE.png", help="PNG to write")
+    plot.add_argument("--json", action="store_true",
+                      help="print {\"output\": FILE.png, ...} as JSON on stdout")
 
     scen = sub.add_parser("scenarios", help="list the built-in scenarios",
                           description="List the built-in scenarios with their descriptions.")
@@ -373,6 +406,11 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
     if args.tau_max < 0:
         raise CommandError(f"--tau-max must be a non-negative integer, got {args.tau_max}")
+    if args.scenario.endswith(".mcap"):
+        from traces.analysis import analyze_trace
+
+        report = analyze_trace(_read(args.scenario))
+        return _emit(args, report.to_dict(), report.format_text())
     scenario = _load(args.scenario)
     try:
         gains = scenario_gains(scenario)
@@ -423,6 +461,45 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
                  "(A^(r+1) - A) x_{k-1-r}.")
     sys.stdout.write("\n".join(lines) + "\n")
     return 0
+
+
+def _read(path: str):
+    from traces.reader import TraceError, read_trace
+
+    try:
+        return read_trace(path)
+    except TraceError as exc:
+        raise CommandError(str(exc)) from None
+
+
+def _emit(args: argparse.Namespace, data: dict[str, Any], text: str) -> int:
+    if args.json:
+        json.dump(data, sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(text.rstrip("\n") + "\n")
+    return 0
+
+
+def _cmd_replay(args: argparse.Namespace) -> int:
+    from traces.replay import replay_trace
+
+    report = replay_trace(_read(args.trace))
+    return _emit(args, report.to_dict(), report.format_text())
+
+
+def _cmd_plot(args: argparse.Namespace) -> int:
+    from traces.plot import plot_traces
+
+    if not args.output.lower().endswith(".png"):
+        raise CommandError(f"-o {args.output}: the output must be a .png file")
+    traces = [_read(path) for path in args.traces]
+    try:
+        path = plot_traces(traces, args.output)
+    except OSError as exc:
+        raise CommandError(f"cannot write {args.output}: {exc.strerror}") from None
+    data = {"output": str(path), "traces": list(args.traces)}
+    return _emit(args, data, f"wrote {path}")
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
@@ -478,6 +555,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "design": _cmd_design,
         "analyze": _cmd_analyze,
         "inspect": _cmd_inspect,
+        "replay": _cmd_replay,
+        "plot": _cmd_plot,
         "scenarios": _cmd_scenarios,
     }
     try:

@@ -1,0 +1,304 @@
+#!/usr/bin/env python
+"""Spectral radius of the augmented closed loop: structured (ARPACK) vs dense eigvals.
+
+For each total size ``D = N n (tau+1)`` (default 1,000, 5,000 and 20,000, with
+``n = 5`` states and ``tau = 9``, so N = 20, 100, 400 agents) the script builds one
+instance:
+
+* a random digraph: self-loops, a directed ring (strong connectivity) and
+  ``--in-degree - 1`` further random in-neighbours per agent; random
+  row-stochastic weights;
+* a random ``n x n`` system matrix scaled to spectral radius 1.02 (unstable);
+* one output per agent, ``C_i`` a random row of ``I_n``, gain ``L_i = 0.3 C_i^T``;
+* heterogeneous delays uniform in ``0..tau`` on the links (self-loops 0), with one
+  link at ``tau`` so the augmentation depth is exactly ``tau + 1``;
+
+and computes the spectral radius of the compensated augmented closed loop
+(LCSYS2022 eq. 10) in one run:
+
+* **structured**: ``models.augmented.augmented_spectral_radius(...,
+  method="structured")`` (matrix-free companion operator, ARPACK), best of
+  ``--repeat`` wall times (``time.perf_counter``), in this process;
+* **dense**: ``numpy.linalg.eigvals`` of the dense ``D x D`` matrix from
+  ``augmented_closed_loop``, in a child process (so it can be stopped after
+  ``--dense-timeout`` seconds), timed around ``eigvals`` only; once with the
+  default BLAS threading and once with ``OPENBLAS_NUM_THREADS=1``
+  (``--dense-threads``). On a loaded machine threaded OpenBLAS can be many times
+  slower than single-threaded; the ratio uses the faster of the two. Dense is
+  skipped above ``--dense-max`` (default 5,000) unless ``--force-dense``.
+
+Reported per size: the times, ``ratio = dense / structured`` and
+``|rho_dense - rho_structured|``; the goal line checks ratio >= 100 and agreement
+<= 1e-8 at D = 5,000.
+
+Usage::
+
+    python benchmarks/spectral_radius.py                  # D = 1000, 5000, 20000
+    python benchmarks/spectral_radius.py --sizes 1000,5000 --dense-threads single
+    python benchmarks/spectral_radius.py --force-dense    # also dense at 20000 (hours, ~10 GB)
+    python benchmarks/spectral_radius.py --json > rho.json
+
+Progress goes to stderr; stdout holds the table (or, with ``--json``, exactly one
+JSON object and no table).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import subprocess
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+GOAL_SIZE = 5000
+GOAL_RATIO = 100.0
+GOAL_AGREEMENT = 1e-8
+
+
+def log(msg: str) -> None:
+    print(msg, file=sys.stderr, flush=True)
+
+
+def build_instance(N: int, n: int, tau: int, in_degree: int, seed: int):
+    """Random instance (see the module docstring); returns P, A, C, L, delays."""
+    rng = np.random.default_rng([seed, N, n, tau])
+    mask = np.eye(N, dtype=bool)
+    mask[np.arange(N), (np.arange(N) - 1) % N] = True  # ring i-1 -> i
+    for i in range(N):
+        extra = rng.choice(N, size=min(max(in_degree - 1, 0), N), replace=False)
+        mask[i, extra] = True
+    W = mask * rng.uniform(0.2, 1.0, (N, N))
+    P = W / W.sum(axis=1, keepdims=True)
+    A = rng.standard_normal((n, n))
+    A *= 1.02 / np.max(np.abs(np.linalg.eigvals(A)))
+    C = [np.eye(n)[[int(rng.integers(n))]] for _ in range(N)]
+    L = [0.3 * Ci.T for Ci in C]
+    delays = rng.integers(0, tau + 1, (N, N))
+    np.fill_diagonal(delays, 0)
+    delays[0, N - 1] = tau  # the ring link N-1 -> 0 carries the maximum delay
+    return P, A, C, L, delays
+
+
+def dense_worker(spec: dict[str, Any]) -> dict[str, Any]:
+    """Child-process body: dense eigvals of the augmented closed loop."""
+    from models.augmented import augmented_closed_loop
+
+    P, A, C, L, delays = build_instance(
+        spec["N"], spec["n"], spec["tau"], spec["in_degree"], spec["seed"]
+    )
+    t0 = time.perf_counter()
+    M = augmented_closed_loop(P, A, C, L, delays, spec["tau"], compensated=True)
+    t1 = time.perf_counter()
+    ev = np.linalg.eigvals(M)
+    t2 = time.perf_counter()
+    return {"rho": float(np.max(np.abs(ev))), "build_s": t1 - t0, "eigvals_s": t2 - t1}
+
+
+def run_dense(spec: dict[str, Any], threads: str, timeout: float) -> dict[str, Any]:
+    """Run :func:`dense_worker` in a child process; ``threads`` is "default" or "single"."""
+    env = dict(os.environ)
+    if threads == "single":
+        for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+            env[var] = "1"
+    cmd = [sys.executable, os.path.abspath(__file__), "--_dense-worker", json.dumps(spec)]
+    try:
+        out = subprocess.run(
+            cmd, env=env, capture_output=True, text=True, timeout=timeout, check=False
+        )
+    except subprocess.TimeoutExpired:
+        return {"status": "timeout", "timeout_s": timeout}
+    if out.returncode != 0:
+        return {"status": "error", "stderr": out.stderr[-2000:]}
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    result["status"] = "ok"
+    return result
+
+
+def run_structured(spec: dict[str, Any], repeat: int) -> dict[str, Any]:
+    import models.augmented as aug
+
+    P, A, C, L, delays = build_instance(
+        spec["N"], spec["n"], spec["tau"], spec["in_degree"], spec["seed"]
+    )
+    times, rho = [], None
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        value = aug.augmented_spectral_radius(
+            P, A, C, L, delays, spec["tau"], compensated=True, method="structured"
+        )
+        times.append(time.perf_counter() - t0)
+        if rho is not None and value != rho:
+            log(f"  note: structured value changed between repeats ({rho!r} -> {value!r})")
+        rho = value
+    # diagnostics (not timed): operator representation and cyclic index
+    G = aug._gain_blocks(L, aug._as_outputs(C))
+    row = aug._FirstRow(
+        G, P, np.where(P != 0, delays, 0), aug._delay_blocks(A, spec["tau"] + 1, True)
+    )
+    p, _ = aug._cyclic_class(row)
+    return {
+        "rho": rho,
+        "best_s": min(times),
+        "times_s": times,
+        "operator": row.kind,
+        "cyclic_index": p,
+        "first_row_nnz": int(row._S.nnz) if row.kind == "bsr" else None,
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(
+        description="Structured (ARPACK) vs dense spectral radius of the augmented closed loop.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+        epilog=__doc__.split("Usage::")[1] if __doc__ else None,
+    )
+    ap.add_argument(
+        "--sizes",
+        default="1000,5000,20000",
+        help="comma-separated total sizes N n (tau+1); each must be divisible by n (tau+1)",
+    )
+    ap.add_argument("--n", type=int, default=5, help="states per agent (default 5)")
+    ap.add_argument("--tau", type=int, default=9, help="maximum delay (default 9)")
+    ap.add_argument("--in-degree", type=int, default=3, help="in-neighbours per agent (3)")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--repeat", type=int, default=3, help="structured timing: best of (3)")
+    ap.add_argument(
+        "--dense-max",
+        type=int,
+        default=5000,
+        help="skip dense above this size unless --force-dense (default 5000)",
+    )
+    ap.add_argument("--force-dense", action="store_true", help="run dense at every size")
+    ap.add_argument(
+        "--dense-threads",
+        choices=("both", "default", "single"),
+        default="both",
+        help="BLAS threading for dense: default, single (OPENBLAS_NUM_THREADS=1) or both",
+    )
+    ap.add_argument(
+        "--dense-timeout",
+        type=float,
+        default=600.0,
+        help="seconds before a dense child process is stopped (default 600)",
+    )
+    ap.add_argument("--json", action="store_true", help="print one JSON object, no table")
+    ap.add_argument("--_dense-worker", dest="dense_worker", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+
+    if args.dense_worker is not None:
+        print(json.dumps(dense_worker(json.loads(args.dense_worker))))
+        return 0
+
+    sizes = [int(s) for s in args.sizes.split(",") if s.strip()]
+    per_agent = args.n * (args.tau + 1)
+    for size in sizes:
+        if size % per_agent:
+            ap.error(f"size {size} is not divisible by n (tau+1) = {per_agent}")
+    threads = ["single", "default"] if args.dense_threads == "both" else [args.dense_threads]
+
+    results: list[dict[str, Any]] = []
+    load_start = os.getloadavg()
+    for size in sizes:
+        spec = {
+            "N": size // per_agent,
+            "n": args.n,
+            "tau": args.tau,
+            "in_degree": args.in_degree,
+            "seed": args.seed,
+        }
+        log(f"D={size} (N={spec['N']}, n={args.n}, tau={args.tau}): structured ...")
+        st = run_structured(spec, args.repeat)
+        log(f"  structured rho={st['rho']:.15g} best {st['best_s']:.3f} s")
+        dense: dict[str, Any] = {}
+        if size <= args.dense_max or args.force_dense:
+            for th in threads:
+                log(f"  dense ({th} BLAS threads) ...")
+                dense[th] = run_dense(spec, th, args.dense_timeout)
+                d = dense[th]
+                if d["status"] == "ok":
+                    log(f"  dense {th}: rho={d['rho']:.15g} eigvals {d['eigvals_s']:.2f} s")
+                else:
+                    log(f"  dense {th}: {d['status']}")
+        else:
+            log("  dense skipped (above --dense-max; --force-dense to run it)")
+        ok = {th: d for th, d in dense.items() if d["status"] == "ok"}
+        row: dict[str, Any] = {"size": size, **spec, "structured": st, "dense": dense}
+        if ok:
+            best_th = min(ok, key=lambda th: ok[th]["eigvals_s"])
+            row["dense_best"] = best_th
+            row["ratio"] = ok[best_th]["eigvals_s"] / st["best_s"]
+            row["abs_diff"] = max(abs(d["rho"] - st["rho"]) for d in ok.values())
+        results.append(row)
+
+    goal = next((r for r in results if r["size"] == GOAL_SIZE and "ratio" in r), None)
+    summary: dict[str, Any] = {
+        "machine": {
+            "cpu_count": os.cpu_count(),
+            "platform": platform.platform(),
+            "python": platform.python_version(),
+            "numpy": np.__version__,
+            "loadavg_start": load_start,
+            "loadavg_end": os.getloadavg(),
+        },
+        "config": {k: v for k, v in vars(args).items() if k != "dense_worker"},
+        "results": results,
+        "goal": None
+        if goal is None
+        else {
+            "size": GOAL_SIZE,
+            "ratio": goal["ratio"],
+            "abs_diff": goal["abs_diff"],
+            "met": bool(goal["ratio"] >= GOAL_RATIO and goal["abs_diff"] <= GOAL_AGREEMENT),
+        },
+    }
+    if args.json:
+        print(json.dumps(summary, indent=2))
+        return 0
+
+    def fmt_dense(d: dict[str, Any] | None) -> str:
+        if d is None:
+            return "-"
+        if d["status"] != "ok":
+            return d["status"]
+        return f"{d['eigvals_s']:.2f}"
+
+    head = (
+        f"{'D':>6} {'N':>4} {'n':>2} {'tau':>3} {'op':>8} {'p':>2} {'struct s':>9} "
+        f"{'dense s (1 thr)':>15} {'dense s (default)':>17} {'ratio':>8} {'|drho|':>9} "
+        f"{'rho':>18}"
+    )
+    print(head)
+    print("-" * len(head))
+    for r in results:
+        st = r["structured"]
+        ratio = f"{r['ratio']:.0f}x" if "ratio" in r else "-"
+        diff = f"{r['abs_diff']:.1e}" if "abs_diff" in r else "-"
+        print(
+            f"{r['size']:>6} {r['N']:>4} {r['n']:>2} {r['tau']:>3} {st['operator']:>8} "
+            f"{st['cyclic_index']:>2} {st['best_s']:>9.3f} "
+            f"{fmt_dense(r['dense'].get('single')):>15} "
+            f"{fmt_dense(r['dense'].get('default')):>17} {ratio:>8} {diff:>9} "
+            f"{st['rho']:>18.15f}"
+        )
+    m = summary["machine"]
+    print(
+        f"\n{m['cpu_count']} CPUs; load average {m['loadavg_start'][0]:.2f} at start, "
+        f"{m['loadavg_end'][0]:.2f} at end. ratio = fastest dense eigvals / best structured."
+    )
+    if summary["goal"] is not None:
+        g = summary["goal"]
+        verdict = "MET" if g["met"] else "NOT MET"
+        print(
+            f"goal at D={GOAL_SIZE}: ratio {g['ratio']:.0f}x (>= {GOAL_RATIO:.0f}x), "
+            f"|drho| {g['abs_diff']:.1e} (<= {GOAL_AGREEMENT:g}): {verdict}"
+        )
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,258 @@
+"""One PNG summarising traces: MSE, delays, spectral radius versus the papers' bounds.
+
+:func:`plot_traces` draws three panels (matplotlib, Agg backend, no screen needed):
+
+1. the network MSE (1/N) sum_i ||x_k - x-hat^i_k||^2 over time, one line per trace
+   (labelled by family and trial), log scale;
+2. delay histograms: the ``delay_steps`` d of every delivered message (all links, all
+   traces; usable at s + 1 + d) and, per consensus trace, the effective delays
+   r_ij[k] >= 0 its agents used (own-estimate substitutions counted in the legend);
+3. spectral radius versus delay for homogeneous delays tau = 0..max(tau_obs, tau*+2)
+   (every link delayed by tau, self-loops 0): the exact rho of the compensating
+   estimator's augmented closed loop (LCSYS2022 eq. 9-10; also the uncompensated one's,
+   delay-tolerant eq. 11, dashed) against the eq. (26) bound
+   rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)) and the delay-tolerant bound
+   rho(A-hat)^(1/(tau+1)); a horizontal line at 1, a vertical line at the observed
+   maximum delay tau_obs (and a dotted one at tau*), and a marker per consensus trace
+   at the exact rho of its realised (last-step) delay pattern.
+
+This module imports ``models`` (``models.augmented``), never ``netsim`` or ``simpy``.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Sequence
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from models.augmented import (  # noqa: E402
+    augmented_spectral_radius,
+    delay_bound_lcsys,
+    delay_bound_tolerant,
+    tau_star,
+)
+from traces.reader import NOT_USED, Trace  # noqa: E402
+from traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system  # noqa: E402
+
+__all__ = ["plot_traces", "homogeneous_rho", "TAU_PLOT_MAX"]
+
+#: Largest homogeneous delay drawn in the spectral panel (the augmented matrices grow
+#: as N n (tau+1)).
+TAU_PLOT_MAX = 40
+
+
+#: Colour of the i-th trace in every panel; the spectral curves use other colours.
+_TRACE_COLOURS = ("tab:blue", "tab:orange", "tab:green", "tab:cyan", "tab:pink", "tab:gray",
+                  "gold", "navy")
+
+
+def _colour(index: int) -> str:
+    return _TRACE_COLOURS[index % len(_TRACE_COLOURS)]
+
+
+def _label(trace: Trace) -> str:
+    trial = "?" if trace.trial is None else trace.trial
+    return f"{trace.family or '?'} trial {trial}"
+
+
+def homogeneous_rho(system: TraceSystem, tau: int, compensated: bool) -> float:
+    """Exact rho of the augmented closed loop with every link delayed by ``tau``
+    (self-loops 0), by ``models.augmented.augmented_spectral_radius``."""
+    N = system.n_agents
+    delays = np.where((system.P != 0) & ~np.eye(N, dtype=bool), int(tau), 0)
+    with np.errstate(over="ignore", invalid="ignore"):
+        return float(augmented_spectral_radius(system.P, system.A, system.C, system.L,
+                                               delays, tau=int(tau),
+                                               compensated=compensated))
+
+
+def _effective_delays(trace: Trace, system: TraceSystem | None) -> tuple[np.ndarray, int]:
+    """(r >= 0 used on the graph's edges at k >= 1, number of substitutions)."""
+    D = trace.effective_delays()
+    if system is None or D.shape[0] < 2 or D.shape[1:] != system.P.shape:
+        return np.zeros(0, dtype=int), 0
+    N = system.n_agents
+    edge = (system.P != 0) & ~np.eye(N, dtype=bool)
+    vals = D[1:][np.broadcast_to(edge, D[1:].shape)]
+    return vals[vals >= 0].astype(int), int(np.sum(vals == -1))
+
+
+def _link_delays(trace: Trace) -> list[int]:
+    return [int(m.delay_steps) for (j, i) in trace.links
+            for m in trace.link_events(j, i, "delivered")]
+
+
+def _mse_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
+    drawn = 0
+    for index, trace in enumerate(traces):
+        sq = trace.squared_errors()
+        if sq.size == 0:
+            continue
+        with np.errstate(invalid="ignore"):
+            rows = np.any(np.isfinite(sq), axis=1)
+            mse = np.full(sq.shape[0], np.nan)
+            mse[rows] = np.nanmean(sq[rows], axis=1)
+        mse = np.where(mse > 0, mse, np.nan)
+        if not np.any(np.isfinite(mse)):
+            continue
+        ax.plot(np.arange(len(mse)), mse, lw=1.3, color=_colour(index), label=_label(trace))
+        drawn += 1
+    ax.set_yscale("log")
+    ax.set_xlabel("step k")
+    ax.set_ylabel(r"network MSE  $N^{-1}\sum_i \|x_k - \hat{x}^i_k\|^2$")
+    ax.set_title("Network mean-squared error")
+    ax.grid(True, which="both", alpha=0.3)
+    if drawn:
+        ax.legend(fontsize=8)
+    else:
+        ax.text(0.5, 0.5, "no errors recorded", ha="center", va="center",
+                transform=ax.transAxes)
+
+
+def _delay_panel(ax: plt.Axes, traces: Sequence[Trace],
+                 systems: list[TraceSystem | None]) -> int | None:
+    """Draw the histograms; return tau_obs (max effective delay of consensus traces)."""
+    groups: list[tuple[str, np.ndarray, str]] = []
+    link = np.array([d for t in traces for d in _link_delays(t)], dtype=int)
+    if link.size:
+        groups.append((f"link delay d, delivered messages, all traces ({link.size})", link,
+                       "0.45"))
+    tau_obs: int | None = None
+    for index, (trace, system) in enumerate(zip(traces, systems, strict=True)):
+        if trace.family not in REPLAY_FAMILIES:
+            continue
+        vals, subs = _effective_delays(trace, system)
+        if vals.size:
+            tau_obs = max(tau_obs or 0, int(vals.max()))
+            extra = f", {subs} substituted" if subs else ""
+            groups.append((f"effective r used, {_label(trace)} ({vals.size}{extra})", vals,
+                           _colour(index)))
+    if tau_obs is None and link.size:
+        tau_obs = int(link.max())
+    if not groups:
+        ax.text(0.5, 0.5, "no delays recorded", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_title("Delays")
+        return tau_obs
+    top = max(int(v.max()) for _, v, _ in groups)
+    bins = np.arange(top + 1)
+    width = 0.8 / len(groups)
+    for g, (name, vals, colour) in enumerate(groups):
+        frac = np.bincount(vals, minlength=top + 1)[: top + 1] / vals.size
+        ax.bar(bins - 0.4 + width * (g + 0.5), frac, width=width, color=colour, label=name)
+    ax.set_xticks(bins)
+    ax.set_xlabel("delay (steps)")
+    ax.set_ylabel("fraction of messages / of uses")
+    ax.set_title("Delay histograms")
+    ax.grid(True, axis="y", alpha=0.3)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=1)
+    return tau_obs
+
+
+def _spectral_panel(ax: plt.Axes, traces: Sequence[Trace],
+                    systems: list[TraceSystem | None], tau_obs: int | None,
+                    tau_range: int | None) -> None:
+    index = next((i for i, s in enumerate(systems) if s is not None), None)
+    if index is None:
+        ax.text(0.5, 0.5, "no P, A, C_i, L_i in the traces", ha="center", va="center",
+                transform=ax.transAxes)
+        ax.set_title("Spectral radius vs delay")
+        return
+    system = systems[index]
+    assert system is not None
+    P, A, C, L = system.P, system.A, system.C, system.L
+    star = tau_star(P, A, C, L, tau_max=TAU_PLOT_MAX)
+    if tau_range is None:
+        hi = max(tau_obs or 0, (star if star is not None else 0) + 2)
+        tau_range = min(hi, TAU_PLOT_MAX)
+    taus = np.arange(int(tau_range) + 1)
+    exact_c = [homogeneous_rho(system, int(t), True) for t in taus]
+    exact_u = [homogeneous_rho(system, int(t), False) for t in taus]
+    with np.errstate(over="ignore", invalid="ignore"):
+        eq26 = [float(delay_bound_lcsys(P, A, C, L, int(t))) for t in taus]
+    tolerant = [float(delay_bound_tolerant(P, A, C, L, int(t))) for t in taus]
+    ax.plot(taus, exact_c, "o-", color="tab:purple", lw=1.8, ms=4,
+            label="exact rho, compensated (eq. 9-10)")
+    ax.plot(taus, exact_u, "s--", color="tab:olive", lw=1.2, ms=3,
+            label="exact rho, uncompensated (delay-tol. eq. 11)")
+    ax.plot(taus, eq26, "^-", color="tab:red", lw=1.4, ms=4,
+            label=r"LCSYS2022 eq. (26): $\rho((I-KD)(P\otimes A^{\tau+1}))^{1/(\tau+1)}$")
+    ax.plot(taus, tolerant, "v-", color="tab:brown", lw=1.4, ms=4,
+            label=r"delay-tolerant: $\rho(\hat{A})^{1/(\tau+1)}$")
+    ax.axhline(1.0, color="k", lw=1.0, label="rho = 1")
+    if tau_obs is not None:
+        ax.axvline(tau_obs, color="0.35", lw=1.2, ls="-.", label=f"tau_obs = {tau_obs}")
+    if star is not None and star <= taus[-1]:
+        ax.axvline(star, color="tab:red", lw=1.0, ls=":", label=f"tau* (Theorem 1) = {star}")
+    markers = "DPX*hp"
+    m = 0
+    for index, (trace, sys_) in enumerate(zip(traces, systems, strict=True)):
+        if sys_ is None or trace.family not in REPLAY_FAMILIES:
+            continue
+        D = trace.effective_delays()
+        if D.shape[0] < 2 or D.shape[1:] != sys_.P.shape or np.any(D[-1] == -1):
+            continue
+        edge = (sys_.P != 0) & ~np.eye(sys_.n_agents, dtype=bool)
+        if np.any(edge & (D[-1] == NOT_USED)):
+            continue
+        P_eff, r_eff = effective_pattern(sys_.P, D[-1])
+        rho = float(augmented_spectral_radius(P_eff, sys_.A, sys_.C, sys_.L, r_eff,
+                                              compensated=REPLAY_FAMILIES[trace.family]))
+        depth = int(r_eff[edge].max()) if np.any(edge) else 0
+        ax.plot([depth], [rho], markers[m % len(markers)], ms=10, mec="k",
+                color=_colour(index), label=f"realised last-step pattern, {_label(trace)}")
+        m += 1
+    ax.set_xlabel(r"homogeneous delay $\tau$ (steps, every link)")
+    ax.set_ylabel("spectral radius")
+    ax.set_title("Spectral radius vs delay and the papers' bounds")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
+
+
+def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
+                title: str | None = None, tau_range: int | None = None) -> Path:
+    """Write one PNG with the three panels (see the module docstring).
+
+    Parameters
+    ----------
+    traces : sequence of Trace
+        Read with :func:`traces.reader.read_trace`; the spectral panel uses the matrices
+        of the first trace that has P, A, C_i and L_i.
+    path : str or os.PathLike
+        The PNG file to write (parent directories must exist).
+    title : str, optional
+        Figure title (default: the scenario name of the first trace).
+    tau_range : int, optional
+        Largest homogeneous delay of the spectral panel (default max(tau_obs, tau*+2),
+        at most TAU_PLOT_MAX).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    traces = list(traces)
+    if not traces:
+        raise ValueError("plot_traces needs at least one trace")
+    systems = [trace_system(t)[0] for t in traces]
+    fig, axes = plt.subplots(1, 3, figsize=(20, 8), dpi=100)
+    try:
+        _mse_panel(axes[0], traces)
+        tau_obs = _delay_panel(axes[1], traces, systems)
+        _spectral_panel(axes[2], traces, systems, tau_obs, tau_range)
+        if title is None:
+            name = traces[0].scenario.get("name", "")
+            title = f"{name}: {len(traces)} trace(s)" if name else f"{len(traces)} trace(s)"
+        fig.suptitle(title, fontsize=13)
+        fig.tight_layout(rect=(0, 0, 1, 0.97))
+        out = Path(path)
+        fig.savefig(out, format="png")
+    finally:
+        plt.close(fig)
+    return out

@@ -69,6 +69,8 @@ class KernelObserver(Protocol):
     def on_plant(self, k: int, state: np.ndarray, measurements: Sequence[np.ndarray]) -> None: ...
     def on_sent(self, message: Message) -> None: ...
     def on_delivered(self, message: Message, accepted: bool) -> None: ...
+    def on_dropped(self, message: Message, reason: str = "", drop_time: float | None = None
+                   ) -> None: ...
     def on_update(
         self, agent: int, k: int, estimate: np.ndarray, delays: dict[int, int]
     ) -> None: ...
@@ -113,8 +115,9 @@ class TrialResult:
         estimate was not used at that step.
     diverged_at : int or None
         First step at which an agent's error exceeded the threshold or was not finite.
-    messages_sent, messages_delivered, messages_discarded : int
-        Counts over all links (discarded: stale on arrival, freshest rule).
+    messages_sent, messages_delivered, messages_discarded, messages_dropped : int
+        Counts over all links (discarded: stale on arrival, freshest rule; dropped:
+        lost by the link).
     messages : list of Message
         Every delivered message, in delivery order (when recorded).
     """
@@ -129,6 +132,7 @@ class TrialResult:
     messages_delivered: int
     messages_discarded: int
     messages: list[Message] = field(default_factory=list)
+    messages_dropped: int = 0
 
 
 class Simulation:
@@ -152,6 +156,10 @@ class Simulation:
         Keep every delivered message.
     observer : KernelObserver, optional
         Receives every event (trace recording).
+    availability : callable(sender, receiver, step) -> bool, optional
+        Whether link (sender -> receiver) is up at a sending step (time-varying
+        topologies, link schedules). A message sent on a down link is dropped, counted
+        and reported to the observer.
     """
 
     def __init__(
@@ -166,6 +174,7 @@ class Simulation:
         record_delays: bool = True,
         record_messages: bool = False,
         observer: KernelObserver | None = None,
+        availability: Callable[[int, int, int], bool] | None = None,
     ) -> None:
         self.env = simpy.Environment()
         self.plant = plant
@@ -183,6 +192,8 @@ class Simulation:
             links = []
             for r in spec.out_neighbours:
                 link = Link(self.env, i, int(r), delay_model, self._deliver, self.sample_period)
+                link.availability = availability
+                link.on_drop = self._dropped
                 if observer is not None:
                     link.on_send = observer.on_sent
                 self.links[(i, int(r))] = link
@@ -190,6 +201,10 @@ class Simulation:
             self._out_links.append(links)
         self._messages: list[Message] = []
         self._discarded = 0
+
+    def _dropped(self, message: Message, reason: str) -> None:
+        if self.observer is not None and hasattr(self.observer, "on_dropped"):
+            self.observer.on_dropped(message, reason, self.env.now * self.sample_period)
 
     def _deliver(self, message: Message) -> None:
         estimator = self.agents[message.receiver].estimator
@@ -292,6 +307,7 @@ class Simulation:
             diverged_at=shared["diverged_at"],
             messages_sent=sum(link.sent for link in self.links.values()),
             messages_delivered=sum(link.delivered for link in self.links.values()),
+            messages_dropped=sum(link.dropped for link in self.links.values()),
             messages_discarded=self._discarded,
             messages=self._messages,
         )

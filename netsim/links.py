@@ -84,7 +84,8 @@ class Link:
 
     __slots__ = (
         "env", "sender", "receiver", "delay_model", "_deliver",
-        "sample_period", "sent", "delivered", "_sequence", "on_send",
+        "sample_period", "sent", "delivered", "dropped", "_sequence", "on_send", "on_drop",
+        "availability",
     )
 
     def __init__(
@@ -104,8 +105,14 @@ class Link:
         self.sample_period = sample_period
         self.sent = 0
         self.delivered = 0
+        self.dropped = 0
         self._sequence = 0
         self.on_send: Callable[[Message], None] | None = None
+        #: Called as on_drop(message, reason) for every message the link loses.
+        self.on_drop: Callable[[Message, str], None] | None = None
+        #: availability(sender, receiver, step) -> bool: whether the link is up at the
+        #: sending step (time-varying topologies, outages); None: always up.
+        self.availability: Callable[[int, int, int], bool] | None = None
 
     def send(self, step: int, payload: np.ndarray) -> Message:
         """Send the payload time-stamped ``step``; schedule its delivery."""
@@ -126,11 +133,22 @@ class Link:
         )
         self._sequence += 1
         self.sent += 1
-        event = Delivery(self.env, wait, message)
-        event.callbacks.append(self._arrive)
         if self.on_send is not None:
             self.on_send(message)
+        if self.availability is not None and not self.availability(
+            self.sender, self.receiver, step
+        ):
+            self.drop(message, "link down")
+            return message
+        event = Delivery(self.env, wait, message)
+        event.callbacks.append(self._arrive)
         return message
+
+    def drop(self, message: Message, reason: str) -> None:
+        """Count a lost message and report it (drops are never silent)."""
+        self.dropped += 1
+        if self.on_drop is not None:
+            self.on_drop(message, reason)
 
     def _arrive(self, event: simpy.events.Event) -> None:
         self.delivered += 1

@@ -30,7 +30,13 @@ blocks, ``p_ij (I - L_i C_i) B_(r_ij)``. :func:`augmented_spectral_radius` appli
 the companion matrix matrix-free (that block-sparse first row, or the factored form
 ``(I - K D) vec(B_r X P_r^T)`` when ``P`` is dense) and runs ARPACK
 (``scipy.sparse.linalg.eigs``) for the largest-magnitude eigenvalues; it never builds
-an ``Nn x Nn`` dense block.
+an ``Nn x Nn`` dense block. Two exact reductions keep ARPACK fast and convergent: a
+cyclic (periodic) block graph of index ``p`` makes the spectrum invariant under
+rotation by ``2 pi / p`` (``p``-fold ties of the largest modulus; e.g. all links with
+the same delay, LCSYS2022 Lemma 4), so ARPACK runs on ``M^p`` restricted to one
+colour class; and the first ARPACK run works on a power ``M^q``, since ARPACK's own
+work per step costs more than a sparse product. Every result is residual-checked;
+failures fall back to dense eigenvalues (small) or raise.
 
 Only numpy and scipy are used; nothing is imported from the rest of the project.
 """
@@ -40,6 +46,7 @@ from __future__ import annotations
 import ctypes
 import math
 import os
+import threading
 import warnings
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -55,12 +62,14 @@ from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator
 __all__ = [
     "ARPACK_K",
     "ARPACK_MAXITER",
+    "ARPACK_POWER",
     "ARPACK_TOL",
     "DEFAULT_TAU_MAX",
     "DENSE_FALLBACK_MAX",
     "DENSE_SIZE_THRESHOLD",
     "GROWTH_BLOCK",
     "GROWTH_FULL_MAX",
+    "LIMIT_BLAS_THREADS",
     "TauStar",
     "augmented_closed_loop",
     "augmented_consensus",
@@ -108,6 +117,10 @@ ARPACK_TOL: float = 1e-12
 
 #: ARPACK restart limit per run (typical runs need well under 200).
 ARPACK_MAXITER: int = 600
+
+#: The first ARPACK run works on ``M^ARPACK_POWER`` (fewer, equally informative ARPACK
+#: steps; ``rho(M) = rho(M^q)^(1/q)``), see :func:`_arpack_rho`.
+ARPACK_POWER: int = 8
 
 #: :func:`closed_loop_sequence_growth` tracks the whole product (applied to the
 #: identity) when the augmented dimension is at most this, else a random block.
@@ -574,9 +587,9 @@ class _FirstRow:
                 data = P[rows, cols][:, None, None] * (G[rows] @ B[r_edge])
                 indptr = np.searchsorted(rows, np.arange(N + 1))
                 self.finite = bool(np.all(np.isfinite(data)))
-                self._S = sp.bsr_matrix(
-                    (data, block_col, indptr), shape=(self.Nn, self.Nn * self.R)
-                ).tocsr()
+                self._S = sp.csr_array(
+                    sp.bsr_array((data, block_col, indptr), shape=(self.Nn, self.Nn * self.R))
+                )
                 self._S.eliminate_zeros()
                 self.is_zero = self._S.nnz == 0
                 live = np.any(data != 0, axis=(1, 2))
@@ -587,33 +600,44 @@ class _FirstRow:
                     mask = np.zeros(P.shape, dtype=bool)
                     sel = r_edge == r
                     mask[rows[sel], cols[sel]] = True
-                    self._parts.append((int(r), sp.csr_matrix(np.where(mask, P, 0.0)), B[r]))
+                    self._parts.append((int(r), sp.csr_array(np.where(mask, P, 0.0)), B[r]))
                 self._G = G
                 self.finite = bool(np.all(np.isfinite(B[used])) and np.all(np.isfinite(G)))
                 self.is_zero = self.nnz == 0 or not np.any(G) or not np.any(B[used])
                 self.block_edges = (r_edge * N + cols, rows)
 
     def apply(self, X: np.ndarray) -> np.ndarray:
-        """Return the first block row times ``X`` (shape ``(R N n, m)``), shape ``(N n, m)``."""
+        """Return the first block row times ``X`` (shape ``(R N n,)`` or ``(R N n, m)``)."""
         if self.kind == "bsr":
-            return np.asarray(self._S @ X)
+            return self._S @ X
         N, n, Nn = self.N, self.n, self.Nn
-        m = X.shape[1]
+        X2 = X.reshape(Nn * self.R, -1)
+        m = X2.shape[1]
         Y = np.zeros((N, n, m), dtype=np.result_type(X.dtype, float))
         for r, Pr, Br in self._parts:
-            W = (Pr @ X[r * Nn : (r + 1) * Nn].reshape(N, n * m)).reshape(N, n, m)
+            W = (Pr @ X2[r * Nn : (r + 1) * Nn].reshape(N, n * m)).reshape(N, n, m)
             Y += np.matmul(Br, W)
-        return np.matmul(self._G, Y).reshape(Nn, m)
+        Y = np.matmul(self._G, Y)
+        return Y.reshape(Nn) if X.ndim == 1 else Y.reshape(Nn, m)
+
+    def companion_power(self, X: np.ndarray, q: int = 1) -> np.ndarray:
+        """Apply ``M^q`` (``M`` the block companion matrix) to ``X``, shape ``(R N n[, m])``.
+
+        ``M`` shifts the blocks down and puts the first row's product on top, so
+        ``M^q x`` is computed in one buffer of ``q + R`` blocks holding
+        ``(y_q, ..., y_1, x_0, ..., x_(R-1))``, ``y_t = row (y_(t-1), ...)``: no shift copies.
+        """
+        X = np.asarray(X)
+        Nn, R = self.Nn, self.R
+        buf = np.empty(((q + R) * Nn, *X.shape[1:]), dtype=np.result_type(X.dtype, float))
+        buf[q * Nn :] = X
+        for t in range(q - 1, -1, -1):
+            buf[t * Nn : (t + 1) * Nn] = self.apply(buf[(t + 1) * Nn : (t + 1 + R) * Nn])
+        return buf[: R * Nn]
 
     def companion_apply(self, X: np.ndarray) -> np.ndarray:
         """Apply the block companion matrix (first row, identity shift below) to ``X``."""
-        X = np.asarray(X)
-        vec = X.ndim == 1
-        X2 = X.reshape(self.Nn * self.R, -1)
-        Y = np.empty(X2.shape, dtype=np.result_type(X2.dtype, float))
-        Y[: self.Nn] = self.apply(X2)
-        Y[self.Nn :] = X2[: -self.Nn]
-        return Y.ravel() if vec else Y
+        return self.companion_power(X, 1)
 
 
 @lru_cache(maxsize=1)
@@ -637,23 +661,36 @@ def _openblas_thread_setters() -> tuple[Callable[[int], int], ...]:
     return tuple(setters)
 
 
+# nesting depth of _single_threaded_blas over all threads, and the counts to restore
+_blas_limit_lock = threading.Lock()
+_blas_limit_depth = 0
+_blas_saved_counts: list[tuple[Callable[[int], int], int]] = []
+
+
 @contextmanager
 def _single_threaded_blas() -> Iterator[None]:
     """Run OpenBLAS single-threaded inside the block, restoring the previous count after.
 
     ARPACK's work is many small BLAS-2 calls (``D x ncv`` Gram-Schmidt); threading
     them gains nothing, and on a loaded machine OpenBLAS's spinning threads made the
-    structured method 5-50x slower. The setting is process-wide while it lasts.
+    structured method 5-50x slower. The setting is process-wide while it lasts: the
+    first of nested or concurrent entries (any thread) saves the thread counts and
+    the last exit restores them.
     """
-    previous: list[tuple[Callable[[int], int], int]] = []
+    global _blas_limit_depth
+    with _blas_limit_lock:
+        if _blas_limit_depth == 0 and LIMIT_BLAS_THREADS:
+            _blas_saved_counts[:] = [(fn, int(fn(1))) for fn in _openblas_thread_setters()]
+        _blas_limit_depth += 1
     try:
-        if LIMIT_BLAS_THREADS:
-            for fn in _openblas_thread_setters():
-                previous.append((fn, int(fn(1))))
         yield
     finally:
-        for fn, count in reversed(previous):
-            fn(count)
+        with _blas_limit_lock:
+            _blas_limit_depth -= 1
+            if _blas_limit_depth == 0:
+                for fn, count in reversed(_blas_saved_counts):
+                    fn(count)
+                _blas_saved_counts.clear()
 
 
 def _cyclic_class(row: _FirstRow) -> tuple[int, np.ndarray]:
@@ -716,7 +753,7 @@ def _companion_rho(row: _FirstRow, what: str) -> float:
 
     Uses the cyclic reduction of :func:`_cyclic_class` (``rho(M) = rho(M^p on one
     colour class)^(1/p)``; this removes the ``p``-fold ties of equal moduli that keep
-    ARPACK from converging), then :func:`_arpack_rho`.
+    ARPACK from converging), then :func:`_arpack_rho` on a power of that operator.
     """
     if not row.finite:
         return float("inf")
@@ -725,69 +762,87 @@ def _companion_rho(row: _FirstRow, what: str) -> float:
     p, nodes = _cyclic_class(row)
     if p == 0:
         return 0.0
-    if p == 1:
-        return _arpack_rho(row.companion_apply, row.Nn * row.R, what)
     D = row.Nn * row.R
 
-    def apply(X: np.ndarray) -> np.ndarray:
-        X = np.asarray(X)
-        vec = X.ndim == 1
-        X2 = X.reshape(nodes.size, -1)
-        Z = np.zeros((D, X2.shape[1]), dtype=np.result_type(X2.dtype, float))
-        Z[nodes] = X2
-        for _ in range(p):
-            Z = row.companion_apply(Z)
-        Y = Z[nodes]
-        return Y.ravel() if vec else Y
+    def power(q: int) -> Callable[[np.ndarray], np.ndarray]:
+        steps = p * q
+        if p == 1:
+            return lambda X: row.companion_power(X, steps)
 
-    return _arpack_rho(apply, nodes.size, f"{what} (cyclic index {p})") ** (1.0 / p)
+        def apply_class(X: np.ndarray) -> np.ndarray:
+            X = np.asarray(X)
+            vec = X.ndim == 1
+            X2 = X.reshape(nodes.size, -1)
+            Z = np.zeros((D, X2.shape[1]), dtype=np.result_type(X2.dtype, float))
+            Z[nodes] = X2
+            Y = row.companion_power(Z, steps)[nodes]
+            return Y.ravel() if vec else Y
+
+        return apply_class
+
+    label = what if p == 1 else f"{what} (cyclic index {p})"
+    q = max(1, round(ARPACK_POWER / p))
+    return _arpack_rho(power, nodes.size, label, q) ** (1.0 / p)
 
 
 def _arpack_rho(
-    apply: Callable[[np.ndarray], np.ndarray],
+    power: Callable[[int], Callable[[np.ndarray], np.ndarray]],
     D: int,
     what: str,
+    q: int,
     *,
     k: int = ARPACK_K,
     tol: float = ARPACK_TOL,
     seed: int = 0,
 ) -> float:
-    """Largest eigenvalue modulus of the ``D x D`` operator ``apply`` by ARPACK (``which="LM"``).
+    """Spectral radius of a ``D x D`` operator ``M`` by ARPACK (``which="LM"``).
 
-    Up to two ARPACK runs (different random start vectors, the second with a larger
-    Krylov space), each accepted only if it converged and the residual of its top
-    Ritz pair, recomputed with the operator, is at most ``1e-8 max(|lambda|,
-    ||M x|| / ||x||)``. If both fail: dense eigenvalues of the operator up to
+    ``power(j)`` returns a function applying ``M^j`` to a vector or a ``(D, m)``
+    block. ARPACK's cost per step (Gram-Schmidt against ``ncv`` vectors of length
+    ``D``) is several times that of one sparse application of ``M``, so the first run
+    works on ``M^q`` (the same ``k`` largest moduli, raised to the power ``q``, and
+    ``q`` times fewer ARPACK steps) and returns ``max |mu|^(1/q)``. The second run,
+    only if the first fails, uses ``M`` itself with a larger Krylov space and another
+    random start vector. A run is accepted only if ARPACK converged and the residual
+    of its top Ritz pair, recomputed with the operator, is at most ``1e-8 max(|mu|,
+    ||M^j x|| / ||x||)``. If both fail: dense eigenvalues of ``M`` up to
     :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning), else RuntimeError.
     """
     if D <= k + 2:  # ARPACK needs k < D - 1
-        return _dense_operator_rho(apply, D)
-    op = LinearOperator((D, D), matvec=apply, matmat=apply, dtype=float)
+        return _dense_operator_rho(power(1), D)
     rng = np.random.default_rng(seed)
-    x = rng.standard_normal(D)
-    norm_est = max(1.0, float(np.linalg.norm(apply(x)) / np.linalg.norm(x)))
     failures: list[str] = []
-    for ncv in (max(2 * k + 1, 40), max(4 * k + 1, 100)):
+    attempts = [(q, max(2 * k + 1, 40))]
+    attempts.append((1, max(4 * k + 1, 100)))
+    for j, ncv in attempts:
+        apply = power(j)
+        op = LinearOperator((D, D), matvec=apply, matmat=apply, dtype=float)
         ncv = min(ncv, D)
         v0 = rng.standard_normal(D)
+        label = f"M^{j}, ncv={ncv}"
         try:
-            with _single_threaded_blas(), warnings.catch_warnings():
-                warnings.simplefilter("ignore", np.exceptions.ComplexWarning)
+            with _single_threaded_blas():
+                with np.errstate(over="ignore", invalid="ignore"):
+                    norm_est = float(np.linalg.norm(apply(v0)) / np.linalg.norm(v0))
+                if not math.isfinite(norm_est):
+                    failures.append(f"{label}: the operator overflows")
+                    continue
                 vals, vecs = eigs(
                     op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=ARPACK_MAXITER
                 )
         except ArpackNoConvergence as exc:
-            failures.append(f"ncv={ncv}: no convergence ({len(exc.eigenvalues)} of {k} converged)")
+            failures.append(f"{label}: no convergence ({len(exc.eigenvalues)} of {k} converged)")
             continue
-        except ArpackError as exc:
-            failures.append(f"ncv={ncv}: {exc}")
+        except (ArpackError, ValueError) as exc:
+            failures.append(f"{label}: {exc}")
             continue
         i = int(np.argmax(np.abs(vals)))
-        lam, v = complex(vals[i]), vecs[:, i]
-        res = float(np.linalg.norm(apply(v) - lam * v) / np.linalg.norm(v))
-        if np.isfinite(res) and res <= 1e-8 * max(abs(lam), norm_est):
-            return float(np.max(np.abs(vals)))
-        failures.append(f"ncv={ncv}: top Ritz pair residual {res:.3g} for |lambda|={abs(lam):.6g}")
+        mu, v = complex(vals[i]), vecs[:, i]
+        with np.errstate(over="ignore", invalid="ignore"):
+            res = float(np.linalg.norm(apply(v) - mu * v) / np.linalg.norm(v))
+        if math.isfinite(res) and res <= 1e-8 * max(abs(mu), norm_est):
+            return float(np.max(np.abs(vals))) ** (1.0 / j)
+        failures.append(f"{label}: top Ritz pair residual {res:.3g} for |mu|={abs(mu):.6g}")
     reason = "; ".join(failures)
     if D <= DENSE_FALLBACK_MAX:
         warnings.warn(
@@ -796,7 +851,7 @@ def _arpack_rho(
             RuntimeWarning,
             stacklevel=4,
         )
-        return _dense_operator_rho(apply, D)
+        return _dense_operator_rho(power(1), D)
     raise RuntimeError(
         f"ARPACK could not compute the spectral radius of the {what} "
         f"(dimension {D}): {reason}. Use method='dense' if it fits in memory."
@@ -937,7 +992,12 @@ def delay_bound_lcsys(
     float
         The bound; it equals the exact spectral radius of the augmented closed
         loop when every link, self-loops included, has delay ``tau`` (Lemma 4).
-        For ``tau = 0`` it is ``rho(A-hat)``.
+        For ``tau = 0`` it is ``rho(A-hat)``. For heterogeneous delays it is *not* an
+        upper bound in general (the paper's Lemma 5 generalises from the homogeneous
+        case without proof): e.g. ``N = 2``, ``n = 1``, ``A = -1.5``,
+        ``P = [[0.7, 0.3], [0.7, 0.3]]``, ``L = (1.8, -1.0)``, ``C_i = 1``, link
+        ``1 -> 0`` delayed by 1: bound 0.3, exact 1.258. Compare with
+        :func:`augmented_spectral_radius`.
     """
     P_arr, A_arr, C_list = _check_system(P, A, C)
     tau = int(tau)
@@ -962,6 +1022,8 @@ def delay_bound_tolerant(
     ``A-hat = (I - K D_C-bar)(P kron A)`` is the delay-free closed loop. The paper
     claims ``rho`` of the uncompensated augmented closed loop (its eq. 11) is at most
     this value for delays bounded by ``tau``; for ``tau = 0`` it is ``rho(A-hat)``.
+    The claim does not hold in general for heterogeneous delays: in the example of
+    :func:`delay_bound_lcsys`, ``rho(A-hat) = 0.06``, bound 0.245, exact 1.206.
 
     Parameters
     ----------

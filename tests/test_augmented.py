@@ -1,4 +1,7 @@
-"""Tests for models.augmented against independent facts (LCSYS2022 eqs. 2-12, Lemma 4)."""
+"""Tests for models.augmented against independent facts.
+
+LCSYS2022 eqs. 2-3, 9-14, 26, Theorem 1, Lemmas 2-4 (Lemma 5 only where it holds);
+delay-tolerant paper eqs. 11, 17, Theorem 1 (and a counterexample to its bound)."""
 
 from __future__ import annotations
 
@@ -6,16 +9,29 @@ import numpy as np
 import pytest
 from scipy.linalg import block_diag
 
+import models.augmented as aug
 from models.augmented import (
+    TauStar,
     augmented_closed_loop,
     augmented_consensus,
+    augmented_spectral_radius,
+    closed_loop_sequence_growth,
+    convergence_time_augmented,
+    convergence_time_delay_free,
+    convergence_time_order,
+    decay_rate,
+    decay_rate_lcsys,
+    decay_rate_tolerant,
     delay_bound_lcsys,
+    delay_bound_tolerant,
     delay_free_closed_loop,
+    delay_free_spectral_radius,
     delay_split,
     gain_product,
     output_gain_matrix,
     spectral_radius,
     tau_star,
+    tau_star_report,
 )
 
 N_AGENTS, N_STATES = 4, 6
@@ -318,3 +334,508 @@ def test_tau_star_edge_cases():
     assert tau_star(P, A, C, zero) is None  # unstable open loop fails at tau=0
     A_stable = 0.5 * A / np.max(np.abs(np.linalg.eigvals(A)))
     assert tau_star(P, A_stable, C, zero, tau_max=15) == 15  # never fails
+
+
+# ---------------------------------------------------------------------------
+# random instances for the structured analytics
+# ---------------------------------------------------------------------------
+
+
+def random_instance(
+    seed, N, n, tau, *, dense_P=False, homogeneous=False, cycle=False, bipartite=False
+):
+    """Random (P, A, C, L, delays): row-stochastic P (self-loops unless ``homogeneous``,
+    ``cycle`` or ``bipartite``), unstable A (rho in 1.0..1.15), 1-2 outputs per agent,
+    small gains, heterogeneous delays in 0..tau with tau attained (all links at tau
+    if ``homogeneous``; even delays if ``bipartite``)."""
+    rng = np.random.default_rng(seed)
+    if cycle:  # pure directed cycle, no self-loops: spectrum invariant under rotations
+        mask = np.roll(np.eye(N, dtype=bool), 1, axis=1)
+    elif bipartite:  # links only between agents of different parity, even delays:
+        # every cycle of the block graph has even length, spectrum symmetric under -1
+        parity = np.arange(N) % 2
+        mask = (parity[:, None] != parity[None, :]) & (rng.random((N, N)) < 0.5)
+        mask |= np.roll(np.eye(N, dtype=bool), 1, axis=1)
+    elif dense_P:
+        mask = np.ones((N, N), dtype=bool)
+    else:
+        mask = (rng.random((N, N)) < 2.5 / N) | np.roll(np.eye(N, dtype=bool), 1, axis=1)
+        mask |= np.eye(N, dtype=bool)
+    if homogeneous:
+        np.fill_diagonal(mask, False)
+        mask |= np.roll(np.eye(N, dtype=bool), 1, axis=1)
+    P = stoch(rng, mask.astype(float))
+    A = rng.standard_normal((n, n))
+    A *= rng.uniform(1.0, 1.15) / np.max(np.abs(np.linalg.eigvals(A)))
+    C = [rng.standard_normal((int(rng.integers(1, 3)), n)) for _ in range(N)]
+    L = [rng.uniform(0.1, 0.6) * Ci.T / np.sum(Ci**2) for Ci in C]
+    if homogeneous:
+        delays = np.full((N, N), tau)
+    else:
+        delays = rng.integers(0, tau + 1, (N, N))
+        if bipartite:
+            delays -= delays % 2
+        edge_i, edge_j = np.nonzero(mask & ~np.eye(N, dtype=bool))
+        delays[edge_i[0], edge_j[0]] = tau  # tau is attained on some link
+    np.fill_diagonal(delays, 0)
+    return P, A, C, L, delays
+
+
+# ---------------------------------------------------------------------------
+# P-bar and LCSYS2022 Lemma 4
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_Pbar_first_rows_sum_like_P(seed):
+    """Rows 1..N of P-bar sum to the row sums of P (any weights, stochastic or not);
+    the identity rows below sum to 1."""
+    rng = np.random.default_rng(100 + seed)
+    N, tau = int(rng.integers(3, 8)), int(rng.integers(1, 6))
+    P = rng.standard_normal((N, N)) * (rng.random((N, N)) < 0.6)
+    np.fill_diagonal(P, rng.uniform(0.1, 1.0, N))
+    delays = rng.integers(0, tau + 1, (N, N))
+    np.fill_diagonal(delays, 0)
+    Pbar = augmented_consensus(delay_split(P, delays, tau))
+    np.testing.assert_allclose(Pbar[:N].sum(axis=1), P.sum(axis=1), atol=1e-13)
+    np.testing.assert_allclose(Pbar[N:].sum(axis=1), np.ones(N * tau), atol=0)
+
+
+@pytest.mark.parametrize(("N", "n_blocks", "i"), [(2, 3, 1), (3, 4, 2), (2, 5, 5), (4, 3, 3)])
+def test_lemma4_characteristic_polynomial(N, n_blocks, i):
+    """LCSYS2022 Lemma 4: the block matrix with A_i as the only block of the first block
+    row (block position i, 1-based) and identities below has characteristic polynomial
+    q(lam) = lam^(N(n-i)) p(lam^i), p that of A_i. Checked at random complex points
+    and through the eigenvalues (n = number of blocks)."""
+    rng = np.random.default_rng(N * 100 + n_blocks * 10 + i)
+    Ai = rng.standard_normal((N, N))
+    blocks = [np.zeros((N, N)) for _ in range(n_blocks)]
+    blocks[i - 1] = Ai
+    Abar = augmented_consensus(blocks)
+    assert Abar.shape == (N * n_blocks,) * 2
+    for lam in rng.standard_normal(5) + 1j * rng.standard_normal(5):
+        q = np.linalg.det(lam * np.eye(N * n_blocks) - Abar)
+        expected = lam ** (N * (n_blocks - i)) * np.linalg.det(lam**i * np.eye(N) - Ai)
+        assert q == pytest.approx(expected, rel=1e-9, abs=1e-12)
+    # coefficients: q = x^(N(n-i)) p(x^i)
+    p = np.poly(Ai)
+    q_expected = np.zeros(N * n_blocks + 1)
+    q_expected[::i][: N + 1] = p
+    np.testing.assert_allclose(np.poly(Abar).real, q_expected, atol=1e-6)
+
+
+def test_lemma3_kronecker_eigenvalues():
+    """LCSYS2022 Lemma 3: eig(P kron A) = {lambda_i mu_j}; so rho(P kron A) = rho(A) for
+    row-stochastic P (Remark 2)."""
+    rng = np.random.default_rng(7)
+    P, A = rng.standard_normal((4, 4)), rng.standard_normal((3, 3))
+    products = np.outer(np.linalg.eigvals(P), np.linalg.eigvals(A)).ravel()
+    eig = np.linalg.eigvals(np.kron(P, A))
+    dist = np.abs(eig[:, None] - products[None, :])
+    assert np.max(np.min(dist, axis=1)) < 1e-9 and np.max(np.min(dist, axis=0)) < 1e-9
+    S = stoch(rng, np.ones((4, 4)))
+    assert spectral_radius(np.kron(S, A)) == pytest.approx(spectral_radius(A), rel=1e-12)
+
+
+# ---------------------------------------------------------------------------
+# structured spectral radius
+# ---------------------------------------------------------------------------
+
+STRUCTURED_CASES = [
+    # (seed, N, n, tau, kwargs)
+    (0, 5, 3, 1, {}),
+    (1, 6, 4, 3, {}),
+    (2, 8, 3, 6, {}),
+    (3, 4, 5, 10, {}),
+    (4, 7, 2, 10, {}),
+    (5, 12, 3, 4, {"dense_P": True}),  # factored operator
+    (6, 6, 3, 8, {"dense_P": True}),
+    (7, 5, 3, 4, {"homogeneous": True}),  # (tau+1)-fold equal moduli (Lemma 4)
+    (8, 9, 2, 3, {"cycle": True}),  # rotational symmetry of the block graph
+    (9, 16, 2, 2, {"cycle": True}),
+    (10, 10, 3, 4, {"bipartite": True}),  # cyclic index 2, ARPACK on one colour class
+]
+
+
+@pytest.mark.parametrize("compensated", [True, False])
+@pytest.mark.parametrize(("seed", "N", "n", "tau", "kw"), STRUCTURED_CASES)
+def test_structured_spectral_radius_matches_dense(seed, N, n, tau, kw, compensated):
+    P, A, C, L, delays = random_instance(seed, N, n, tau, **kw)
+    dense = augmented_spectral_radius(P, A, C, L, delays, tau, compensated, method="dense")
+    expected = spectral_radius(augmented_closed_loop(P, A, C, L, delays, tau, compensated))
+    assert dense == expected
+    structured = augmented_spectral_radius(
+        P, A, C, L, delays, tau, compensated, method="structured"
+    )
+    assert abs(structured - dense) <= 1e-8
+    # below the threshold, auto is the dense computation
+    assert augmented_spectral_radius(P, A, C, L, delays, tau, compensated) == dense
+    # padding with unused delay slots changes nothing
+    padded = augmented_spectral_radius(
+        P, A, C, L, delays, tau + 2, compensated, method="structured"
+    )
+    assert abs(padded - dense) <= 1e-8
+
+
+def test_structured_operator_matches_dense_matrix():
+    """Both first-row representations (block-sparse and factored) apply exactly the
+    companion matrix of augmented_closed_loop, and M^q by the buffered recursion."""
+    rng = np.random.default_rng(11)
+    kinds = set()
+    for dense_P in (False, True):
+        P, A, C, L, delays = random_instance(11, 8, 3, 4, dense_P=dense_P)
+        for comp in (True, False):
+            M = augmented_closed_loop(P, A, C, L, delays, 4, comp)
+            G = aug._gain_blocks(L, aug._as_outputs(C))
+            B = aug._delay_blocks(A, 5, comp)
+            X = rng.standard_normal((M.shape[0], 3))
+            for kind in ("bsr", "factored", "auto"):
+                row = aug._FirstRow(G, P, np.where(P != 0, delays, 0), B, kind=kind)
+                kinds.add(row.kind)
+                np.testing.assert_allclose(row.companion_apply(X), M @ X, atol=1e-12)
+                np.testing.assert_allclose(row.companion_apply(X[:, 0]), M @ X[:, 0], atol=1e-12)
+                np.testing.assert_allclose(
+                    row.companion_power(X, 7), np.linalg.matrix_power(M, 7) @ X, rtol=1e-10
+                )
+    assert kinds == {"bsr", "factored"}
+    # the automatic choice: block-sparse for sparse P, factored for dense P
+    for dense_P, kind in ((False, "bsr"), (True, "factored")):
+        P, A, C, L, delays = random_instance(12, 60, 3, 4, dense_P=dense_P)
+        G = aug._gain_blocks(L, aug._as_outputs(C))
+        row = aug._FirstRow(G, P, np.where(P != 0, delays, 0), aug._delay_blocks(A, 5, True))
+        assert row.kind == kind
+
+
+def test_cyclic_index_of_block_graph():
+    """A directed ring without self-loops, all delays 0: block graph is one cycle of
+    length N, so p = N; with delays, p = sum over the ring of (r + 1)."""
+    P, A, C, L, _ = random_instance(8, 5, 2, 0, cycle=True)
+    G = aug._gain_blocks(L, aug._as_outputs(C))
+    zero = np.zeros((5, 5), dtype=int)
+    row = aug._FirstRow(G, P, zero, aug._delay_blocks(A, 1, True))
+    assert aug._cyclic_class(row)[0] == 5
+    d = np.where(P != 0, np.array([0, 1, 2, 0, 1])[:, None], 0)
+    row = aug._FirstRow(G, P, d, aug._delay_blocks(A, 3, True))
+    assert aug._cyclic_class(row)[0] == 5 + 4
+    # a self-loop (delay 0) gives p = 1
+    P2 = stoch(np.random.default_rng(0), (P != 0) + np.eye(5))
+    row = aug._FirstRow(G, P2, np.zeros((5, 5), dtype=int), aug._delay_blocks(A, 1, True))
+    assert aug._cyclic_class(row)[0] == 1
+
+
+def test_structured_nilpotent_and_overflow():
+    rng = np.random.default_rng(3)
+    N, n = 5, 4
+    P = stoch(rng, np.ones((N, N)))
+    delays = rng.integers(0, 3, (N, N))
+    np.fill_diagonal(delays, 0)
+    C = [np.eye(n)[[0]] for _ in range(N)]
+    L = [0.5 * Ci.T for Ci in C]
+    # nilpotent A: every M_r is strictly upper triangular in the state index, the
+    # augmented matrix is nilpotent with long Jordan chains; eigenvalue 0 is then only
+    # determined to about eps^(1/m), by dense eigvals and ARPACK alike
+    shift = np.diag(np.ones(n - 1), 1)
+    for comp in (True, False):
+        assert augmented_spectral_radius(P, shift, C, L, delays, 2, comp, "structured") < 1e-2
+        assert augmented_spectral_radius(P, shift, C, L, delays, 2, comp, "dense") < 1e-2
+    # all gains I - L_i C_i = 0: the first block row vanishes, rho = 0 exactly
+    eye = [np.eye(n) for _ in range(N)]
+    A1 = shift + np.eye(n)
+    assert augmented_spectral_radius(P, A1, eye, eye, delays, 2, True, "structured") == 0
+    huge = 1e200 * np.eye(n)
+    assert augmented_spectral_radius(P, huge, C, L, delays, 2, method="structured") == np.inf
+    assert augmented_spectral_radius(P, huge, C, L, delays, 2, method="dense") == np.inf
+
+
+def test_structured_failure_is_never_silent(monkeypatch):
+    """ARPACK not converging, or returning a Ritz pair that is not an eigenpair, gives
+    the dense value with a RuntimeWarning (small sizes) or a RuntimeError."""
+    from scipy.sparse.linalg import ArpackNoConvergence, eigs
+
+    P, A, C, L, delays = random_instance(2, 8, 3, 6)
+    dense = augmented_spectral_radius(P, A, C, L, delays, method="dense")
+
+    def no_convergence(*args, **kwargs):
+        raise ArpackNoConvergence("ARPACK error -1: No convergence", np.array([]), None)
+
+    def garbage(*args, **kwargs):
+        vals, vecs = eigs(*args, **kwargs)
+        return 1.5 * vals, vecs
+
+    for fake in (no_convergence, garbage):
+        monkeypatch.setattr(aug, "eigs", fake)
+        with pytest.warns(RuntimeWarning, match="ARPACK failed.*falling back to dense"):
+            value = augmented_spectral_radius(P, A, C, L, delays, method="structured")
+        assert value == pytest.approx(dense, abs=1e-10)
+        with monkeypatch.context() as m:
+            m.setattr(aug, "DENSE_FALLBACK_MAX", 10)
+            with pytest.raises(RuntimeError, match="ARPACK could not compute"):
+                augmented_spectral_radius(P, A, C, L, delays, method="structured")
+
+
+def test_structured_above_threshold_uses_arpack(monkeypatch):
+    """``auto`` switches to the structured method above DENSE_SIZE_THRESHOLD."""
+    P, A, C, L, delays = random_instance(1, 6, 4, 3)
+    dense = augmented_spectral_radius(P, A, C, L, delays, method="dense")
+    calls = []
+    original = aug._companion_rho
+    monkeypatch.setattr(aug, "_companion_rho", lambda *a: calls.append(1) or original(*a))
+    monkeypatch.setattr(aug, "DENSE_SIZE_THRESHOLD", 10)
+    assert augmented_spectral_radius(P, A, C, L, delays) == pytest.approx(dense, abs=1e-8)
+    assert delay_free_spectral_radius(P, A, C, L) == pytest.approx(
+        spectral_radius(delay_free_closed_loop(P, A, C, L)), abs=1e-8
+    )
+    assert delay_bound_lcsys(P, A, C, L, 3) == pytest.approx(_bound_rho(P, A, C, L, 3) ** 0.25)
+    assert len(calls) == 3
+
+
+def test_method_validation():
+    P, A, C = example()
+    L = random_gains(np.random.default_rng(0), C)
+    zero = np.zeros((4, 4), dtype=int)
+    with pytest.raises(ValueError, match="method"):
+        augmented_spectral_radius(P, A, C, L, zero, method="arpack")
+    with pytest.raises(ValueError, match="outside"):
+        augmented_spectral_radius(P, A, C, L, np.full((4, 4), 3) - 3 * np.eye(4, dtype=int), 1)
+
+
+# ---------------------------------------------------------------------------
+# tau = 0 reduces to the delay-free quantities
+# ---------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_tau_zero_reduces_to_delay_free(seed):
+    P, A, C, L, _ = random_instance(20 + seed, 5, 3, 0)
+    Ahat = delay_free_closed_loop(P, A, C, L)
+    rho = spectral_radius(Ahat)
+    zero = np.zeros(P.shape, dtype=int)
+    for comp in (True, False):
+        np.testing.assert_allclose(
+            augmented_closed_loop(P, A, C, L, zero, 0, comp), Ahat, atol=1e-14
+        )
+        for method in ("dense", "structured", "auto"):
+            assert augmented_spectral_radius(P, A, C, L, zero, 0, comp, method) == pytest.approx(
+                rho, abs=1e-10
+            )
+    assert delay_free_spectral_radius(P, A, C, L) == pytest.approx(rho, rel=1e-13)
+    assert delay_bound_lcsys(P, A, C, L, 0) == pytest.approx(rho, rel=1e-12)
+    assert delay_bound_tolerant(P, A, C, L, 0) == pytest.approx(rho, rel=1e-12)
+    report = tau_star_report(P, A, C, L, tau_max=0)
+    assert report.values == (pytest.approx(rho, rel=1e-12),)
+    assert report.values[0] == pytest.approx(
+        spectral_radius((np.eye(15) - gain_product(L, C)) @ np.kron(P, A)), rel=1e-12
+    )
+    assert report.contiguous == (0 if rho < 1 else None)
+    assert report.isolated == ()
+    for rate in (decay_rate_lcsys(P, A, C, L, 0), decay_rate_tolerant(P, A, C, L, 0)):
+        if rho < 1:
+            assert rate == pytest.approx(1 - rho, rel=1e-12)
+        else:
+            assert rate is None
+    assert convergence_time_augmented(P, A, C, L, zero) == pytest.approx(
+        convergence_time_delay_free(P, A, C, L)
+    )
+    # the growth of one step is log ||A-hat||_2
+    g = closed_loop_sequence_growth(P, A, C, L, [zero], 0)
+    assert g == pytest.approx(np.log(np.linalg.norm(Ahat, 2)), rel=1e-12)
+
+
+# ---------------------------------------------------------------------------
+# bounds, tau* report and convergence orders
+# ---------------------------------------------------------------------------
+
+
+def test_delay_bound_tolerant_and_decay_rates():
+    P, A, C = example()
+    L = [0.9 * Ci.T for Ci in C]
+    rho = spectral_radius(delay_free_closed_loop(P, A, C, L))
+    assert rho < 1
+    for tau in (1, 4, 9):
+        assert delay_bound_tolerant(P, A, C, L, tau) == pytest.approx(rho ** (1 / (tau + 1)))
+        assert decay_rate_tolerant(P, A, C, L, tau) == pytest.approx(1 - rho ** (1 / (tau + 1)))
+        lc = delay_bound_lcsys(P, A, C, L, tau)
+        rate = decay_rate_lcsys(P, A, C, L, tau)
+        assert (rate is None) == (lc >= 1)
+        if rate is not None:
+            assert rate == pytest.approx(1 - lc, rel=1e-12)
+    # longer delays decay more slowly (eq. 17)
+    rates = [decay_rate_tolerant(P, A, C, L, t) for t in range(6)]
+    assert all(a > b for a, b in zip(rates, rates[1:], strict=False))
+    # beyond tau*, eq. (14) has no decay rate
+    ts = tau_star(P, A, C, L, tau_max=60)
+    assert decay_rate_lcsys(P, A, C, L, ts) is not None
+    assert decay_rate_lcsys(P, A, C, L, ts + 1) is None
+
+
+def test_convergence_time_order():
+    assert convergence_time_order(0.0) == 1.0
+    assert convergence_time_order(0.9) == pytest.approx(10.0)
+    assert convergence_time_order(1.0) == np.inf
+    assert convergence_time_order(1.3) == np.inf
+    assert decay_rate(0.81, 1) == pytest.approx(0.1)
+    assert decay_rate(0.0, 3) == 1.0
+    assert decay_rate(1.0, 3) is None
+    assert decay_rate(np.inf, 0) is None
+    for bad in (-0.1, np.nan):
+        with pytest.raises(ValueError):
+            convergence_time_order(bad)
+        with pytest.raises(ValueError):
+            decay_rate(bad, 1)
+    with pytest.raises(ValueError, match="tau"):
+        decay_rate(0.5, -1)
+
+
+def test_tau_star_report_matches_tau_star():
+    P, A, C = example()
+    L = [0.9 * Ci.T for Ci in C]
+    report = tau_star_report(P, A, C, L, tau_max=40)
+    assert isinstance(report, TauStar)
+    assert report.tau_max == 40 and len(report.values) == 41
+    assert report.contiguous == tau_star(P, A, C, L, tau_max=40)
+    for t in (0, 5, 17):
+        assert report.values[t] == pytest.approx(_bound_rho(P, A, C, L, t), rel=1e-12)
+    assert report.passing[: report.contiguous + 1] == tuple(range(report.contiguous + 1))
+    with pytest.raises(AttributeError):
+        report.contiguous = 3  # frozen
+    # a Schur-stable A never fails; an unstable open loop fails at tau = 0
+    A_stable = 0.5 * A / np.max(np.abs(np.linalg.eigvals(A)))
+    assert tau_star_report(P, A_stable, C, L, tau_max=12).contiguous == 12
+    zero = [np.zeros((6, 1)) for _ in C]
+    rep = tau_star_report(P, A, C, zero, tau_max=5)
+    assert rep.contiguous is None and rep.isolated == () and rep.passing == ()
+
+
+def non_monotone_instance():
+    """A has eigenvalue -1.05 (the sign of A^(tau+1) alternates with tau) and the stable
+    complex pair 0.95 exp(+-0.33 i); N = 2 agents, one output each."""
+    c, s = 0.95 * np.cos(0.33), 0.95 * np.sin(0.33)
+    A = np.array([[-1.05, 0.4, 0.4], [0.0, c, -s], [0.0, s, c]])
+    P = np.array([[0.38, 0.62], [0.71, 0.29]])
+    C = [np.array([[0.9, -0.4, -0.4]]), np.array([[-0.3, -0.9, -0.9]])]
+    L = [np.array([[0.3], [-0.9], [0.1]]), np.array([[0.9], [-0.6], [-0.8]])]
+    return P, A, C, L
+
+
+def test_tau_star_report_non_monotone():
+    P, A, C, L = non_monotone_instance()
+    eig = np.linalg.eigvals(A)
+    assert np.min(eig.real) == pytest.approx(-1.05) and np.sum(np.abs(eig.imag) > 0) == 2
+    report = tau_star_report(P, A, C, L, tau_max=12)
+    v = np.array(report.values)
+    for t in range(13):
+        assert v[t] == pytest.approx(_bound_rho(P, A, C, L, t), rel=1e-12)
+    assert not report.monotone
+    # pass (0), fail (1), pass (2), fail (3), pass (4), fail (5), pass (6), fail from 7
+    assert report.contiguous == 0 == tau_star(P, A, C, L, tau_max=12)
+    assert report.isolated == (2, 4, 6)
+    assert report.passing == (0, 2, 4, 6)
+    assert np.all(v[[0, 2, 4, 6]] < 0.92) and np.all(v[[1, 3, 5]] > 1.3)
+    # Lemma 4: with every link (self-loops included) delayed by tau the exact
+    # augmented spectral radius is values[tau]^(1/(tau+1)), so tau = 2 really is stable
+    # although tau = 1 is not
+    G = np.eye(6) - gain_product(L, C)
+    for tau in (1, 2, 3, 4):
+        Ahom = augmented_consensus(
+            [np.zeros((6, 6))] * tau + [G @ np.kron(P, np.linalg.matrix_power(A, tau + 1))]
+        )
+        rho_hom = spectral_radius(Ahom)
+        assert rho_hom == pytest.approx(v[tau] ** (1 / (tau + 1)), rel=1e-9)
+        assert (rho_hom < 1) == (v[tau] < 1)
+
+
+def test_paper_bounds_fail_for_heterogeneous_delays():
+    """Scalar counterexample (N = 2, n = 1) to LCSYS2022 eq. (26) and to the
+    delay-tolerant paper's rho(A-hat)^(1/(tau+1)) as bounds for heterogeneous delays:
+    only the link 1 -> 0 is delayed (by 1). Checked against the roots of
+    det(lam^2 I - lam M_0 - M_1) formed by hand."""
+    a = -1.5
+    P = np.array([[0.7, 0.3], [0.7, 0.3]])
+    A = np.array([[a]])
+    C = [np.eye(1), np.eye(1)]
+    L = [np.array([[1.8]]), np.array([[-1.0]])]
+    G = np.diag([1 - 1.8, 1 + 1.0])
+    delays = np.array([[0, 1], [0, 0]])
+    P0, P1 = np.array([[0.7, 0.0], [0.7, 0.3]]), np.array([[0.0, 0.3], [0.0, 0.0]])
+
+    def rho_by_hand(M0, M1):
+        # det of the 2x2 polynomial matrix lam^2 I - lam M0 - M1 (coefficients, high first)
+        Q = [
+            [np.array([1.0 if i == j else 0.0, -M0[i, j], -M1[i, j]]) for j in range(2)]
+            for i in range(2)
+        ]
+        det = np.polysub(np.polymul(Q[0][0], Q[1][1]), np.polymul(Q[0][1], Q[1][0]))
+        return np.max(np.abs(np.roots(det)))
+
+    rho0 = spectral_radius(delay_free_closed_loop(P, A, C, L))
+    assert rho0 == pytest.approx(0.06)  # rank one: a (0.7 (-0.8) + 0.3 (2.0))
+    assert delay_bound_lcsys(P, A, C, L, 1) == pytest.approx(0.3)  # sqrt(a^2 0.04)
+    assert delay_bound_tolerant(P, A, C, L, 1) == pytest.approx(0.06**0.5)
+    comp = augmented_spectral_radius(P, A, C, L, delays, compensated=True)
+    unc = augmented_spectral_radius(P, A, C, L, delays, compensated=False)
+    assert comp == pytest.approx(rho_by_hand(G @ P0 * a, G @ P1 * a**2), rel=1e-12)
+    assert unc == pytest.approx(rho_by_hand(G @ P0 * a, G @ P1 * a), rel=1e-12)
+    assert comp > 1.25 and unc > 1.2  # unstable although both "bounds" are < 1
+
+
+# ---------------------------------------------------------------------------
+# time-varying delays: growth rate of the product
+# ---------------------------------------------------------------------------
+
+
+def test_sequence_growth_exact_for_short_products():
+    rng = np.random.default_rng(30)
+    P, A, C, L, _ = random_instance(30, 4, 3, 2)
+    tau = 2
+    pats = []
+    for _ in range(3):
+        d = rng.integers(0, tau + 1, P.shape)
+        np.fill_diagonal(d, 0)
+        pats.append(d)
+    for comp in (True, False):
+        Ms = [augmented_closed_loop(P, A, C, L, d, tau, comp) for d in pats]
+        prod = Ms[2] @ Ms[1] @ Ms[0]
+        g = closed_loop_sequence_growth(P, A, C, L, pats, tau, comp)
+        assert g == pytest.approx(np.log(np.linalg.norm(prod, 2)) / 3, rel=1e-10)
+    with pytest.raises(ValueError, match="at least one"):
+        closed_loop_sequence_growth(P, A, C, L, [], tau)
+    bad = pats[0].copy()
+    bad[P != 0] = tau + 1
+    np.fill_diagonal(bad, 0)
+    with pytest.raises(ValueError, match=r"delay_patterns\[1\].*outside"):
+        closed_loop_sequence_growth(P, A, C, L, [pats[0], bad], tau)
+
+
+@pytest.mark.parametrize("compensated", [True, False])
+def test_sequence_growth_constant_pattern_tends_to_log_rho(compensated):
+    P, A, C, L, delays = random_instance(31, 4, 3, 3)
+    tau = 3
+    rho = augmented_spectral_radius(P, A, C, L, delays, tau, compensated, method="dense")
+    errors = []
+    for k in (25, 100, 400, 1600):
+        g = closed_loop_sequence_growth(P, A, C, L, [delays] * k, tau, compensated)
+        errors.append(abs(g - np.log(rho)))
+    assert errors[-1] < 5e-3
+    assert errors[-1] < errors[0] / 10
+    # Gelfand: (1/k) log ||M^k|| >= log rho for every k
+    g = closed_loop_sequence_growth(P, A, C, L, [delays] * 50, tau, compensated)
+    assert g >= np.log(rho) - 1e-12
+
+
+def test_sequence_growth_block_mode_tracks_full_mode():
+    """Above full_max the product is applied to random orthonormal vectors: a lower
+    bound that is within O(1/k) of the full value."""
+    rng = np.random.default_rng(32)
+    P, A, C, L, _ = random_instance(32, 5, 3, 3)
+    tau, k = 3, 300
+    pats = []
+    for _ in range(k):
+        d = rng.integers(0, tau + 1, P.shape)
+        np.fill_diagonal(d, 0)
+        pats.append(d)
+    full = closed_loop_sequence_growth(P, A, C, L, pats, tau)
+    block = closed_loop_sequence_growth(P, A, C, L, pats, tau, full_max=0, block=8, seed=1)
+    assert block <= full + 1e-12
+    assert full - block < 10 / k
+    one = closed_loop_sequence_growth(P, A, C, L, pats, tau, full_max=0, block=1, seed=2)
+    assert one <= full + 1e-12 and full - one < 20 / k

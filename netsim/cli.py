@@ -66,6 +66,9 @@ def build_parser() -> argparse.ArgumentParser:
                      help="record every run to MCAP: FILE.mcap for a single run, else one "
                      "file per estimator and trial, FILE.<estimator>.trial<k>.mcap")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    from netsim.aoi import add_aoi_arguments
+
+    add_aoi_arguments(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
     design = sub.add_parser(
@@ -216,6 +219,21 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _positive(args.trials, "--trials")
     if args.seed is not None and args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
+    from netsim.aoi import aoi_command, is_aoi_scenario
+
+    if is_aoi_scenario(args.scenario):
+        from estimators.aoi import GainDesignError as AoIDesignError
+
+        try:
+            data, text = aoi_command(args)
+        except AoIDesignError as exc:
+            raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
+                               EXIT_DESIGN_FAILED) from None
+        except ValueError as exc:
+            raise CommandError(f"scenario {args.scenario}: {exc}") from None
+        except OSError as exc:
+            raise CommandError(f"cannot write trace {args.trace}: {exc}") from None
+        return _emit(args, data, text)
     try:
         scenario = resolve_scenario(args.scenario)
         if args.tau is not None:
@@ -569,6 +587,10 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
         except ScenarioError as exc:  # a broken built-in is a bug: say so loudly
             raise CommandError(f"built-in scenario {name} is invalid: {exc}", 1) from None
         items.append({**scenario.summary(), "name": name, "source": f"builtin:{name}"})
+    from netsim.aoi import AOI_SCENARIOS, aoi_scenario
+
+    for name in AOI_SCENARIOS:
+        items.append({**aoi_scenario(name).summary(), "name": name, "source": f"builtin:{name}"})
     if args.json:
         json.dump({"scenarios": items}, sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -131,9 +131,15 @@ class InspectReport:
     totals: dict[str, int]
     network_mse: float
     matrices: list[str]
+    #: AoI traces: per agent, [first step all indices triggered, largest index after]
+    freshness: dict[int, list[int | None]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            "freshness": None if self.freshness is None else {
+                str(i): {"triggered_at": v[0], "max_index_after": v[1]}
+                for i, v in self.freshness.items()
+            },
             "path": self.path,
             "scenario": self.scenario,
             "family": self.family,
@@ -215,6 +221,11 @@ class InspectReport:
                     f"{_fmt(a.max_squared_error, 4, True):>12}"
                 )
             lines.append(f"  network mse {_fmt(self.network_mse, 4, True)}")
+        if self.freshness:
+            lines.append("age of information (AoI freshness index, largest over substates)")
+            for i, (first, worst) in self.freshness.items():
+                lines.append(f"  agent {i}: every index triggered from step {first}; "
+                             f"largest index after that {worst}")
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -335,7 +346,27 @@ def inspect_trace(trace: Trace) -> InspectReport:
         totals=totals,
         network_mse=float(np.mean(mses)) if mses else math.nan,
         matrices=sorted(trace.matrices, key=_topic_key),
+        freshness=_freshness_summary(trace),
     )
+
+
+def _freshness_summary(trace: Trace) -> dict[int, list[int | None]] | None:
+    if not any(t.endswith("/freshness") for t in trace.counts):
+        return None
+    ages = trace.freshness()
+    out: dict[int, list[int | None]] = {}
+    for i in trace.agents:
+        col = ages[:, i]
+        recorded = col >= -1
+        triggered = np.flatnonzero(recorded & (col >= 0))
+        # first step from which every later recorded index is triggered (no omega)
+        first = None
+        for k in triggered:
+            if np.all(col[k:][recorded[k:]] >= 0):
+                first = int(k)
+                break
+        out[i] = [first, None if first is None else int(col[first:][recorded[first:]].max())]
+    return out
 
 
 def _topic_key(name: str) -> tuple:

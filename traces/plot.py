@@ -99,10 +99,16 @@ def _mse_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
             rows = np.any(np.isfinite(sq), axis=1)
             mse = np.full(sq.shape[0], np.nan)
             mse[rows] = np.nanmean(sq[rows], axis=1)
-        mse = np.where(mse > 0, mse, np.nan)
+        exact_zero = mse == 0
+        positive = mse[np.isfinite(mse) & (mse > 0)]
+        # an estimator that is exact (e.g. AoI finite time) would vanish from a log
+        # axis: draw its zeros at a floor far below the smallest positive value
+        floor = (positive.min() if positive.size else 1.0) * 1e-6
+        mse = np.where(exact_zero, floor, np.where(mse > 0, mse, np.nan))
         if not np.any(np.isfinite(mse)):
             continue
-        ax.plot(np.arange(len(mse)), mse, lw=1.3, color=_colour(index), label=_label(trace))
+        label = _label(trace) + (" (0 drawn at floor)" if exact_zero.any() else "")
+        ax.plot(np.arange(len(mse)), mse, lw=1.3, color=_colour(index), label=label)
         drawn += 1
     ax.set_yscale("log")
     ax.set_xlabel("step k")
@@ -114,6 +120,23 @@ def _mse_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
     else:
         ax.text(0.5, 0.5, "no errors recorded", ha="center", va="center",
                 transform=ax.transAxes)
+
+
+def _freshness_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
+    """Largest freshness index (age of information) per AoI agent over time."""
+    for trace in traces:
+        ages = trace.freshness()
+        for i in trace.agents:
+            col = ages[:, i].astype(float)
+            col[col < -1] = np.nan  # not recorded
+            ax.step(np.arange(len(col)), col, where="post", lw=1.2,
+                    label=f"{_label(trace)}: agent {i}")
+    ax.axhline(-1, color="grey", lw=0.8, ls=":")
+    ax.set_xlabel("step k")
+    ax.set_ylabel("largest freshness index (-1 = omega, not yet triggered)")
+    ax.set_title("Age of information (AoI observer)")
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
 
 
 def _delay_panel(ax: plt.Axes, traces: Sequence[Trace],
@@ -241,11 +264,15 @@ def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
     if not traces:
         raise ValueError("plot_traces needs at least one trace")
     systems = [trace_system(t)[0] for t in traces]
-    fig, axes = plt.subplots(1, 3, figsize=(20, 8), dpi=100)
+    aoi = [t for t in traces if any(name.endswith("/freshness") for name in t.counts)]
+    panels = 4 if aoi else 3
+    fig, axes = plt.subplots(1, panels, figsize=(20 if panels == 3 else 26, 8), dpi=100)
     try:
         _mse_panel(axes[0], traces)
         tau_obs = _delay_panel(axes[1], traces, systems)
         _spectral_panel(axes[2], traces, systems, tau_obs, tau_range)
+        if aoi:
+            _freshness_panel(axes[3], aoi)
         if title is None:
             name = traces[0].scenario.get("name", "")
             title = f"{name}: {len(traces)} trace(s)" if name else f"{len(traces)} trace(s)"

@@ -241,6 +241,17 @@ class Trace:
                     out[msg.step, i, j] = r
         return out
 
+    def freshness(self) -> np.ndarray:
+        """Largest freshness index (age of information) of each AoI agent per step.
+
+        Shape (K+1, N), int: -1 where some substate still holds the dummy value
+        omega, -2 where nothing was recorded (not an AoI trace)."""
+        out = np.full((self._length(), self.n_agents), -2, dtype=np.int32)
+        for i in self.agents:
+            for msg in self.topic(f"/agent/{i}/freshness"):
+                out[msg.step, i] = msg.max_index
+        return out
+
     def link_events(self, sender: int, receiver: int, event: str | None = None) -> list[Any]:
         """MessageEvents of link sender -> receiver, optionally of one kind."""
         msgs = self.topic(f"/link/{sender}/{receiver}")

@@ -96,6 +96,7 @@ __all__ = [
     "link_topic",
     "estimate_topic",
     "update_topic",
+    "freshness_topic",
 ]
 
 #: Value of ``run.trace_format``; the reader accepts files whose format starts with
@@ -135,6 +136,10 @@ def estimate_topic(agent: int) -> str:
 
 def update_topic(agent: int) -> str:
     return f"/agent/{int(agent)}/update"
+
+
+def freshness_topic(agent: int) -> str:
+    return f"/agent/{int(agent)}/freshness"
 
 
 def trace_path(base: str | os.PathLike[str], family: str | None = None,
@@ -438,6 +443,27 @@ class TraceRecorder:
         self._write(update_topic(agent), "EstimatorUpdate",
                     c["EstimatorUpdate"](step=k, time=t, agent=agent, neighbours=neighbours,
                                          effective_delay=r, used_timestamp=used), ns, ns, k)
+
+    def on_freshness(self, agent: int, k: int, freshness: Any, adopted_from: Any,
+                     substate_dims: Any) -> None:
+        """Record an AoI agent's freshness indices (``/agent/<i>/freshness``).
+
+        ``freshness[j]`` is the age of agent i's information on substate j relative
+        to its source (-1 for the dummy value omega), ``adopted_from[j]`` the
+        neighbour whose estimate it adopted (-1: own update or open loop)."""
+        self._check_open()
+        agent, k = int(agent), int(k)
+        t = k * self.sample_period
+        ns = to_ns(t)
+        index = [int(v) for v in freshness]
+        dims = [int(d) for d in substate_dims]
+        live = [v for v, d in zip(index, dims, strict=False) if d > 0]
+        max_index = -1 if any(v < 0 for v in live) or not live else max(live)
+        self._write(freshness_topic(agent), "Freshness",
+                    self._classes["Freshness"](
+                        step=k, time=t, agent=agent, index=index,
+                        adopted_from=[int(v) for v in adopted_from], substate_dim=dims,
+                        max_index=max_index), ns, ns, k)
 
     def on_sent(self, message: Any) -> None:
         """Record a message leaving its sender (log_time = send time)."""

@@ -55,6 +55,15 @@ The equivalent ``.proto`` text (see :data:`PROTO_TEXT`)::
       repeated int32 effective_delay = 5;  // r_ij[k] = k - 1 - s_j; -1: own estimate substituted
       repeated int64 used_timestamp = 6;   // s_j used; -1 when substituted
     }
+    message Freshness {            // topic /agent/<i>/freshness (AoI observer)
+      uint64 step = 1;
+      double time = 2;
+      uint32 agent = 3;
+      repeated int32 index = 4;        // freshness index per substate, -1 = omega
+      repeated int32 adopted_from = 5; // neighbour adopted, -1 = own update / open loop
+      repeated uint32 substate_dim = 6;
+      int32 max_index = 7;             // over non-empty substates, -1 if any is omega
+    }
 
 Only the standard library and ``google.protobuf`` are used.
 """
@@ -132,6 +141,15 @@ MESSAGE_TYPES: dict[str, tuple[tuple[str, int, int], ...]] = {
         ("neighbours", _UINT32, _MANY),
         ("effective_delay", _INT32, _MANY),
         ("used_timestamp", _INT64, _MANY),
+    ),
+    "Freshness": (
+        ("step", _UINT64, _ONE),
+        ("time", _DOUBLE, _ONE),
+        ("agent", _UINT32, _ONE),
+        ("index", _INT32, _MANY),
+        ("adopted_from", _INT32, _MANY),
+        ("substate_dim", _UINT32, _MANY),
+        ("max_index", _INT32, _ONE),
     ),
 }
 

@@ -1,0 +1,749 @@
+"""Age-of-information ("freshness-index") distributed observer, aoi paper Section 4.
+
+Mitra, Richards, Bagchi, Sundaram, "Finite-time distributed state estimation over
+time-varying graphs: exploiting the age-of-information". The state is estimated in
+the coordinates z = T^T x of the Lemma 1 decomposition
+(:func:`models.decomposition.multi_sensor_decomposition`): substate z^(j) has node j
+as its source. Agent i keeps an estimate z-hat_i (all substates) and, per substate j,
+a freshness index tau_i^(j) in {omega} u N (here: ``OMEGA = -1``).
+
+Update of agent i from step k to k + 1 (N_i[k]: the agents i hears at step k):
+
+* substate j = i (source, eq. 7; tau_i^(i) = 0 always):
+  z_i^(i)[k+1] = (A_ii - L_i C_ii) z_i^(i)[k] + sum_{q<i} (A_iq - L_i C_iq) z_i^(q)[k]
+                 + L_i y_i[k];
+* substate j != i, with M = {l in N_i[k] : tau_l^(j)[k] != omega} (eq. 8):
+  - Case 1, tau_i^(j)[k] = omega: if M is non-empty, u = argmin_{l in M} tau_l^(j)[k],
+    tau_i^(j)[k+1] = tau_u^(j)[k] + 1 (eq. 9) and
+    z_i^(j)[k+1] = A_jj z_u^(j)[k] + sum_{q<j} A_jq z_i^(q)[k] (eq. 10); otherwise
+    tau stays omega (eq. 11) and z_i^(j)[k+1] = A_jj z_i^(j)[k] + sum_{q<j} A_jq
+    z_i^(q)[k] (eq. 12);
+  - Case 2, tau_i^(j)[k] != omega: F = {l in M : tau_l^(j)[k] < tau_i^(j)[k]} (eq. 13);
+    if F is non-empty, u = argmin_{l in F} tau_l^(j)[k] and (9), (10); otherwise
+    tau_i^(j)[k+1] = tau_i^(j)[k] + 1 (eq. 14) and (12).
+  - Ties ("picks any such one arbitrarily"): ``tie_rule`` = ``lowest`` (smallest
+    agent number, default), ``highest`` or ``random`` (seeded generator).
+
+Initialisation: tau_j^(j)[0] = 0, tau_i^(j)[0] = omega (i != j); z-hat_i[0] = T^T x0_mean
+(the common prior). Every agent's estimate of x is x-hat_i[k] = T z-hat_i[k].
+
+Timing in the event kernel (DESIGN.md: a message sent at step s with delay d is usable
+at step s + 1 + d). The paper's step k -> k + 1 update uses the neighbours' step-k
+values over the step-k graph G[k], and the source's measurement y_j[k]. Hosted in the
+kernel, :meth:`FreshnessObserver.step` at step k computes z-hat_i[k] from z-hat_i[k-1],
+from the messages sent at step k - 1 (the payload carries z-hat_l[k-1] and
+tau_l[k-1]; a link is up at step k - 1 iff it is in G[k-1], via the kernel's
+``availability``) and from the measurement y_i[k-1] stored at the previous step; then
+:meth:`outgoing` sends z-hat_i[k] and tau_i[k]. With d = 0 this is exactly the paper's
+recursion, step for step: the estimate reported at step k is the paper's x-hat_i[k], a
+one-step *predictor* (it uses measurements up to k - 1, so the measurement y_i[k] the
+kernel passes at step k is used at step k + 1). At step 0 every agent reports the prior.
+
+Delays (d > 0) are outside the paper. ``delayed="discard"`` (default) ignores a
+message that is not from the previous step (the kernel counts it as discarded): it is
+as if the link had been down when it was sent, and the paper's analysis applies to
+the graph sequence thinned accordingly. ``delayed="age"`` is an extension: a message
+sent at s with index tau is treated as a neighbour value at step k - 1 of age
+tau + (k - 1 - s), its substate propagated with A_jj and agent i's own lower-substate
+estimates over s..k-2 (the form of Lemma 4 with v(t) = i over the delay), so the
+freshness comparison and Lemma 4's identity still hold. With d = 0 both modes are
+identical.
+
+Baselines of the paper's Section 3 (:class:`NaiveConsensusObserver`): the same
+source update (7), but every non-source substate by consensus over N_i[k] u {i},
+z_i^(j)[k+1] = A_jj sum_l w_il[k] z_l^(j)[k] + sum_{q<j} A_jq z_i^(q)[k], with
+``weights="uniform"`` (w = 1/(|N_i[k]|+1)) or ``weights="tree"`` (all weight on the
+parent of i in a spanning tree of G[k] rooted at j; a node outside the tree runs open
+loop). For the Section 3 example (scalar, only node 1 measures, deadbeat L_1 = a)
+this is eq. (6) with x-hat_1[k] = x[k] for k >= 1.
+
+Gains (:func:`design_source_gains`): for Theorem 1, the eigenvalues of A_jj - L_j C_jj
+are placed distinct and real with spectral radius rho_j, rho_1 < ... < rho_N < rho
+(``scipy.signal.place_poles`` on the dual pair); for Corollary 1 (``deadbeat``) at zero
+by an orthogonal staircase recursion (:func:`deadbeat_gain`), nilpotency verified.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from models.decomposition import MultiSensorDecomposition, multi_sensor_decomposition
+
+__all__ = [
+    "OMEGA",
+    "GainDesignError",
+    "deadbeat_gain",
+    "rate_gain",
+    "nilpotency_index",
+    "transient_gain",
+    "SourceGains",
+    "design_source_gains",
+    "default_rates",
+    "AoIDesign",
+    "AoIMessage",
+    "FreshnessObserver",
+    "NaiveConsensusObserver",
+    "TIE_RULES",
+]
+
+#: The dummy value omega of a freshness index ("infinite delay": nothing heard yet).
+OMEGA = -1
+#: Tie rules of the argmin in Cases 1 and 2.
+TIE_RULES = ("lowest", "highest", "random")
+#: Relative tolerance of the nilpotency check of a deadbeat gain.
+NILPOTENCY_RTOL = 1e-8
+
+
+class GainDesignError(ValueError):
+    """A source gain could not be designed (unobservable block, misplaced poles)."""
+
+
+# -- gain design -------------------------------------------------------------------
+
+
+def _deadbeat_feedback(F: np.ndarray, G: np.ndarray, tol: float) -> np.ndarray:
+    """K (m x n) with F - G K nilpotent, (F, G) controllable (orthogonal staircase).
+
+    In coordinates x = U [x1; x2] with U^T G = [G1; 0] (G1 full row rank r), the
+    subsystem x2+ = F22 x2 + F21 x1 is controlled by x1: recursively pick K2 with
+    F22 - F21 K2 nilpotent, then choose u so that w1 = x1 + K2 x2 is zero after one
+    step. In (w1, x2) the closed loop is [[0, 0], [F21, F22 - F21 K2]]: nilpotent.
+    """
+    n, m = G.shape
+    if n == 0:
+        return np.zeros((m, 0))
+    U, s, Vt = np.linalg.svd(G, full_matrices=True)
+    r = int(np.sum(s > tol))
+    if r == 0:
+        raise GainDesignError("the pair is not observable (staircase step with no rank)")
+    G1_pinv = Vt[:r].T / s[:r]  # (m x r), G1 = diag(s) Vt[:r]
+    Ft = U.T @ F @ U
+    if r == n:
+        Kt = G1_pinv @ Ft
+    else:
+        F11, F12 = Ft[:r, :r], Ft[:r, r:]
+        F21, F22 = Ft[r:, :r], Ft[r:, r:]
+        K2 = _deadbeat_feedback(F22, F21, tol)
+        Kt = G1_pinv @ np.hstack([F11 + K2 @ F21, F12 + K2 @ F22])
+    return Kt @ U.T
+
+
+def nilpotency_index(M: np.ndarray, rtol: float = NILPOTENCY_RTOL,
+                     scale: float | None = None) -> int | None:
+    """Smallest p <= n with M^p = 0 numerically, None if there is none.
+
+    M^p counts as zero when ||M^p|| <= rtol ||M^(p-1)|| s, s = max(||M||, ``scale``),
+    the scale of the rounding error of the product M^(p-1) M; pass as ``scale`` the
+    size of the terms M was computed from (e.g. max(||A||, ||L|| ||C||) for M = A - L C,
+    whose exact zeros come out as rounding noise of that size). A test against
+    ||M||^p alone would accept a large transient ||M^p|| when ||M|| is large.
+    """
+    n = M.shape[0]
+    if n == 0:
+        return 0
+    norm = max(float(np.linalg.norm(M, 2)), 0.0 if scale is None else float(scale))
+    if norm == 0.0:
+        return 1
+    P = np.eye(n)
+    prev = 1.0
+    for p in range(1, n + 1):
+        P = P @ M
+        cur = float(np.linalg.norm(P, 2))
+        if cur <= rtol * prev * norm:
+            return p
+        prev = cur
+    return None
+
+
+def transient_gain(M: np.ndarray) -> float:
+    """max_{0 <= t <= n} ||M^t|| (1 for an empty matrix): how much the closed loop of a
+    source can amplify an error (and rounding) before it dies out."""
+    n = M.shape[0]
+    out, P = 1.0, np.eye(n)
+    for _ in range(n):
+        P = P @ M
+        out = max(out, float(np.linalg.norm(P, 2)))
+    return out
+
+
+def _product_scale(A: np.ndarray, L: np.ndarray, C: np.ndarray) -> float:
+    """max(||A||, ||L|| ||C||): the size of the terms of A - L C."""
+    if A.size == 0:
+        return 0.0
+    lc = float(np.linalg.norm(L, 2) * np.linalg.norm(C, 2)) if L.size and C.size else 0.0
+    return max(float(np.linalg.norm(A, 2)), lc)
+
+
+def _pair(A: ArrayLike, C: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
+    A = np.atleast_2d(np.asarray(A, dtype=float))
+    n = A.shape[0]
+    C = np.asarray(C, dtype=float)
+    if C.ndim != 2:
+        C = C.reshape(-1, n) if n else C.reshape(C.size, 0)
+    return A, C
+
+
+def deadbeat_gain(A: ArrayLike, C: ArrayLike, *, rtol: float = 1e-10) -> np.ndarray:
+    """L with A - L C nilpotent (all eigenvalues at 0; Corollary 1).
+
+    ``place_poles`` cannot place a pole with multiplicity above rank(C); this uses the
+    dual staircase recursion of :func:`_deadbeat_feedback` (orthogonal transforms and
+    a pseudo-inverse of a full-rank block per step), whose nilpotency index is the
+    observability index of (A, C). The result is verified numerically.
+
+    Raises
+    ------
+    GainDesignError
+        If (A, C) is not observable or the result is not nilpotent to tolerance.
+    """
+    A, C = _pair(A, C)
+    n = A.shape[0]
+    if n == 0:
+        return np.zeros((0, C.shape[0]))
+    scale = max(float(np.linalg.norm(A, 2)), float(np.linalg.norm(C, 2)) if C.size else 0.0,
+                np.finfo(float).tiny)
+    K = _deadbeat_feedback(A.T, C.T, rtol * scale)
+    L = K.T
+    if nilpotency_index(A - L @ C, scale=_product_scale(A, L, C)) is None:
+        raise GainDesignError(
+            f"deadbeat design is not nilpotent to tolerance: spectral radius of A - L C = "
+            f"{max(abs(np.linalg.eigvals(A - L @ C))):.3e}"
+        )
+    return L
+
+
+def rate_gain(A: ArrayLike, C: ArrayLike, rho: float,
+              poles: Sequence[float] | None = None) -> np.ndarray:
+    """L with A - L C having distinct real eigenvalues of spectral radius ``rho``
+    (Theorem 1's design), by ``scipy.signal.place_poles`` on (A^T, C^T).
+
+    Default poles: rho * (1 - 0.5 t / n), t = 0..n-1. C is first compressed to its row
+    space (place_poles needs an input matrix of full column rank).
+    """
+    from scipy.signal import place_poles
+
+    A, C = _pair(A, C)
+    n = A.shape[0]
+    if n == 0:
+        return np.zeros((0, C.shape[0]))
+    if not rho > 0:
+        raise GainDesignError(f"rate design needs rho > 0 (use deadbeat for 0), got {rho}")
+    if poles is None:
+        poles = [rho * (1.0 - 0.5 * t / n) for t in range(n)]
+    poles = np.asarray(poles, dtype=float)
+    if poles.shape != (n,) or len(set(poles.tolist())) != n:
+        raise GainDesignError(f"need {n} distinct poles, got {poles.tolist()}")
+    u, s, vt = np.linalg.svd(C, full_matrices=False)
+    scale = max(float(np.linalg.norm(A, 2)), float(s[0]) if s.size else 0.0)
+    r = int(np.sum(s > 1e-10 * scale))
+    if r == 0:
+        raise GainDesignError("the pair is not observable (C = 0)")
+    Cr = s[:r, None] * vt[:r]  # r x n, C = u[:, :r] Cr
+    try:
+        result = place_poles(A.T, Cr.T, poles)
+    except ValueError as exc:
+        raise GainDesignError(f"pole placement failed: {exc}") from None
+    Lr = result.gain_matrix.T  # n x r
+    L = Lr @ u[:, :r].T
+    got = np.sort(np.linalg.eigvals(A - L @ C).real)
+    if not np.allclose(got, np.sort(poles), rtol=1e-6, atol=1e-8 * max(1.0, scale)):
+        raise GainDesignError(f"poles placed at {got.tolist()}, wanted {sorted(poles)}")
+    return L
+
+
+def default_rates(rho: float, dims: Sequence[int]) -> tuple[float, ...]:
+    """rho_j for the non-empty substates in order, rho_1 < ... < rho_S < rho:
+    rho_j = rho (r + 1) / (S + 1) for the r-th non-empty substate (0 for empty ones)."""
+    sources = [j for j, d in enumerate(dims) if d > 0]
+    out = [0.0] * len(dims)
+    for r, j in enumerate(sources):
+        out[j] = rho * (r + 1) / (len(sources) + 1)
+    return tuple(out)
+
+
+@dataclass(frozen=True)
+class SourceGains:
+    """Output-injection gains L_j of the source nodes (eq. 7).
+
+    Attributes
+    ----------
+    L : tuple of numpy.ndarray
+        L_j (n_j x m_j) for every substate j (empty for n_j = 0).
+    method : str
+        ``deadbeat``, ``rate`` or ``given``.
+    rho : float or None
+        Requested convergence rate (``rate``), 0 for deadbeat.
+    rhos : tuple of float
+        rho_j, the spectral radius of A_jj - L_j C_jj.
+    nilpotency : tuple of (int or None)
+        Nilpotency index of A_jj - L_j C_jj (None if not nilpotent).
+    transients : tuple of float
+        max_t ||(A_jj - L_j C_jj)^t|| (:func:`transient_gain`).
+    """
+
+    L: tuple[np.ndarray, ...]
+    method: str
+    rho: float | None
+    rhos: tuple[float, ...]
+    nilpotency: tuple[int | None, ...]
+    transients: tuple[float, ...] = ()
+
+    @property
+    def conditioning(self) -> float:
+        """max_j max(1, ||L_j||) * transient_j: the factor by which rounding errors of
+        the source updates can be amplified (a deadbeat observer's floor is about
+        machine epsilon times this, relative to the state)."""
+        out = 1.0
+        for L, t in zip(self.L, self.transients, strict=False):
+            nl = float(np.linalg.norm(L, 2)) if L.size else 0.0
+            out = max(out, max(1.0, nl) * t)
+        return out
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "method": self.method,
+            "rho": self.rho,
+            "rhos": list(self.rhos),
+            "nilpotency_index": list(self.nilpotency),
+            "L_norms": [float(np.linalg.norm(L, 2)) if L.size else 0.0 for L in self.L],
+            "transient_gains": list(self.transients),
+            "conditioning": self.conditioning,
+        }
+
+
+def design_source_gains(
+    decomposition: MultiSensorDecomposition,
+    method: str = "deadbeat",
+    *,
+    rho: float | None = None,
+    rhos: Sequence[float] | None = None,
+    poles: Sequence[Sequence[float] | None] | None = None,
+    L: Sequence[ArrayLike] | None = None,
+) -> SourceGains:
+    """Design L_j for every source (Theorem 1: ``rate``; Corollary 1: ``deadbeat``).
+
+    Parameters
+    ----------
+    decomposition : MultiSensorDecomposition
+    method : str
+        ``deadbeat`` (eigenvalues of A_jj - L_j C_jj at 0), ``rate`` (distinct real,
+        spectral radius rho_j) or ``given`` (``L``).
+    rho : float
+        ``rate``: the desired convergence rate; rho_j from :func:`default_rates`
+        unless ``rhos`` is given (then it must be strictly increasing over the
+        non-empty substates and below rho).
+    poles : per substate, optional
+        ``rate``: explicit poles of substate j (overrides rho_j).
+    """
+    d = decomposition
+    N = d.n_sensors
+    Ls: list[np.ndarray] = []
+    if method == "given":
+        if L is None or len(L) != N:
+            raise GainDesignError(f"given gains: need {N} matrices L_j")
+        for j in range(N):
+            Lj = np.asarray(L[j], dtype=float).reshape(d.dims[j], d.C_bar[j].shape[0])
+            Ls.append(Lj)
+        rates = tuple(_spectral_radius(d.A_block(j, j) - Ls[j] @ d.C_block(j, j))
+                      for j in range(N))
+        rho_out = None
+    elif method == "deadbeat":
+        for j in range(N):
+            Ls.append(deadbeat_gain(d.A_block(j, j), d.C_block(j, j)))
+        rates = tuple(0.0 for _ in range(N))
+        rho_out = 0.0
+    elif method == "rate":
+        if rho is None or not 0 < rho:
+            raise GainDesignError(f"rate design needs rho > 0, got {rho}")
+        if rhos is None:
+            rhos = default_rates(rho, d.dims)
+        rhos = tuple(float(r) for r in rhos)
+        active = [rhos[j] for j in d.sources]
+        if any(b <= a for a, b in zip(active, active[1:], strict=False)) or (
+            active and max(active) >= rho
+        ):
+            raise GainDesignError(
+                f"Theorem 1 needs rho_1 < ... < rho_N < rho over the sources; got "
+                f"{active} with rho = {rho}"
+            )
+        for j in range(N):
+            pj = None if poles is None else poles[j]
+            if d.dims[j] == 0:
+                Ls.append(np.zeros((0, d.C_bar[j].shape[0])))
+            else:
+                Ls.append(rate_gain(d.A_block(j, j), d.C_block(j, j), rhos[j], pj))
+        rates = tuple(_spectral_radius(d.A_block(j, j) - Ls[j] @ d.C_block(j, j))
+                      for j in range(N))
+        rho_out = float(rho)
+    else:
+        raise GainDesignError(f"unknown gain method {method!r} (deadbeat, rate, given)")
+    closed = [d.A_block(j, j) - Ls[j] @ d.C_block(j, j) for j in range(N)]
+    nil = tuple(nilpotency_index(M, scale=_product_scale(d.A_block(j, j), Ls[j],
+                                                         d.C_block(j, j)))
+                for j, M in enumerate(closed))
+    return SourceGains(L=tuple(Ls), method=method, rho=rho_out, rhos=rates, nilpotency=nil,
+                       transients=tuple(transient_gain(M) for M in closed))
+
+
+def _spectral_radius(M: np.ndarray) -> float:
+    if M.size == 0:
+        return 0.0
+    return float(max(abs(np.linalg.eigvals(M))))
+
+
+# -- shared design -----------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class AoIDesign:
+    """Everything the agents share: the decomposition, the gains and the prior.
+
+    Build with :meth:`from_plant`. Per substate j, ``rows[j]`` is the block row
+    [A_j1 ... A_jj] of A-bar, ``lower[j]`` = [A_j1 ... A_j(j-1)], ``source_rows[j]`` =
+    [A_j1 - L_j C_j1, ..., A_jj - L_j C_jj] (eq. 7).
+    """
+
+    decomposition: MultiSensorDecomposition
+    gains: SourceGains
+    prior_z: np.ndarray
+    lower: tuple[np.ndarray, ...] = field(repr=False)
+    diag: tuple[np.ndarray, ...] = field(repr=False)
+    source_rows: tuple[np.ndarray, ...] = field(repr=False)
+
+    @classmethod
+    def build(cls, decomposition: MultiSensorDecomposition, gains: SourceGains,
+              prior_x: ArrayLike | None = None) -> AoIDesign:
+        d = decomposition
+        n = d.n_states
+        prior_x = np.zeros(n) if prior_x is None else np.asarray(prior_x, dtype=float)
+        o = d.offsets
+        lower, diag, rows = [], [], []
+        for j in range(d.n_sensors):
+            blk = d.block(j)
+            lower.append(d.A_bar[blk, : o[j]].copy())
+            diag.append(d.A_bar[blk, blk].copy())
+            rows.append(d.A_bar[blk, : o[j + 1]] - gains.L[j] @ d.C_bar[j][:, : o[j + 1]])
+        return cls(d, gains, d.to_z(prior_x), tuple(lower), tuple(diag), tuple(rows))
+
+    @classmethod
+    def from_plant(cls, A: ArrayLike, C: Sequence[ArrayLike], prior_x: ArrayLike | None = None,
+                   *, method: str = "deadbeat", rho: float | None = None,
+                   rhos: Sequence[float] | None = None, rtol: float | None = None
+                   ) -> AoIDesign:
+        """Decompose (A, C) (Lemma 1) and design the source gains."""
+        kwargs = {} if rtol is None else {"rtol": rtol}
+        d = multi_sensor_decomposition(A, C, **kwargs)
+        return cls.build(d, design_source_gains(d, method, rho=rho, rhos=rhos), prior_x)
+
+    @property
+    def n_agents(self) -> int:
+        return self.decomposition.n_sensors
+
+    @property
+    def n_states(self) -> int:
+        return self.decomposition.n_states
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"decomposition": self.decomposition.to_dict(), "gains": self.gains.to_dict()}
+
+
+class AoIMessage:
+    """Payload of agent l after step k: z-hat_l[k] and tau_l[k] (all substates).
+
+    ``numpy.asarray(message)`` gives the estimate in x coordinates, so a trace
+    recorder that stores payloads as float arrays records the transmitted estimate.
+    """
+
+    __slots__ = ("z", "freshness", "x")
+
+    def __init__(self, z: np.ndarray, freshness: np.ndarray, x: np.ndarray) -> None:
+        self.z = z
+        self.freshness = freshness
+        self.x = x
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        return self.x if dtype is None else self.x.astype(dtype)
+
+    def __repr__(self) -> str:
+        return f"AoIMessage(freshness={self.freshness.tolist()})"
+
+
+# -- agents --------------------------------------------------------------------------
+
+
+class _SubstateObserverBase:
+    """Shared state, message handling and source update (eq. 7) of agent i."""
+
+    family = "aoi"
+
+    def __init__(self, agent: int, design: AoIDesign, *, delayed: str = "discard",
+                 history: int = 64) -> None:
+        if delayed not in ("discard", "age"):
+            raise ValueError(f"delayed must be 'discard' or 'age', got {delayed!r}")
+        self.agent = int(agent)
+        self.design = design
+        self.delayed = delayed
+        d = design.decomposition
+        self._N = d.n_sensors
+        self._blocks = [d.block(j) for j in range(self._N)]
+        self._offsets = d.offsets
+        self._T = d.T
+        self._z = design.prior_z.copy()
+        self._estimate = d.to_x(self._z)
+        self._y_prev: np.ndarray | None = None
+        self._inbox: dict[int, tuple[int, AoIMessage]] = {}
+        self._history: deque[tuple[int, np.ndarray]] = deque(maxlen=max(1, int(history)))
+        self.last_step: int | None = None
+        #: Effective delay r = k - 1 - s of every neighbour message used at the last step.
+        self.last_delays: dict[int, int] = {}
+        #: Per substate, whose information the last update used: -1 own (source update
+        #: or open loop), else the neighbour adopted (or the tree parent / -2 for a
+        #: uniform-weight average in the naive baselines).
+        self.adopted_from = np.full(self._N, -1, dtype=np.int64)
+        self.discarded = 0
+
+    # -- kernel interface ---------------------------------------------------------
+    def message_arrived(self, sender: int, sent_step: int, payload: AoIMessage) -> bool:
+        """Store a neighbour's (z-hat, tau); False if it can never be used (stale)."""
+        ready = -1 if self.last_step is None else self.last_step  # next update: last + 1
+        current = self._inbox.get(sender)
+        if current is not None and sent_step <= current[0]:
+            self.discarded += 1
+            return False
+        if self.delayed == "discard" and sent_step != ready:
+            self.discarded += 1
+            return False
+        self._inbox[sender] = (int(sent_step), payload)
+        return True
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """x-hat_i[k] = T z-hat_i[k], shape (n,)."""
+        return self._estimate
+
+    @property
+    def z(self) -> np.ndarray:
+        """z-hat_i[k], shape (n,)."""
+        return self._z
+
+    def outgoing(self, step: int) -> AoIMessage:
+        """The payload sent after step k: z-hat_i[k], tau_i[k] (all omega for the naive
+        baselines, which keep no indices) and x-hat_i[k]."""
+        tau = getattr(self, "_tau", None)
+        tau = np.full(self._N, OMEGA, dtype=np.int64) if tau is None else tau.copy()
+        return AoIMessage(self._z.copy(), tau, self._estimate.copy())
+
+    def step(self, k: int, y: np.ndarray) -> np.ndarray:
+        """Report z-hat_i[k] (mapped to x): the prior at k = 0, else the update from
+        step k - 1 with the messages sent at k - 1 and y_i[k - 1]."""
+        k = int(k)
+        if self.last_step is not None and k != self.last_step + 1:
+            raise RuntimeError(f"agent {self.agent}: step {k} after step {self.last_step}")
+        if self.last_step is None:
+            self.last_delays = {}
+        else:
+            heard = self._heard(k)
+            self._update(k, heard)
+        self._history.append((k, self._z.copy()))
+        self._estimate = self._T @ self._z
+        self._y_prev = np.asarray(y, dtype=float).ravel().copy()
+        self.last_step = k
+        return self._estimate
+
+    # -- helpers ----------------------------------------------------------------------
+    def _heard(self, k: int) -> dict[int, tuple[int, AoIMessage]]:
+        """Messages usable at step k: sent at k - 1 (``discard``) or any (``age``)."""
+        if self.delayed == "discard":
+            out = {u: m for u, m in self._inbox.items() if m[0] == k - 1}
+            # messages from k - 1 are used once; drop everything older
+            self._inbox = dict(out)
+            return out
+        return {u: m for u, m in self._inbox.items() if m[0] <= k - 1}
+
+    def _source_update(self, j: int, z_old: np.ndarray) -> np.ndarray:
+        """Eq. (7) for the agent's own substate j = i."""
+        L = self.design.gains.L[j]
+        y = self._y_prev
+        out = self.design.source_rows[j] @ z_old[: self._offsets[j + 1]]
+        if L.size and y is not None and y.size:
+            out = out + L @ y
+        return out
+
+    def _lower(self, j: int, z: np.ndarray) -> np.ndarray:
+        return self.design.lower[j] @ z[: self._offsets[j]]
+
+    def _update(self, k: int, heard: dict[int, tuple[int, AoIMessage]]) -> None:
+        raise NotImplementedError
+
+
+class FreshnessObserver(_SubstateObserverBase):
+    """Agent i of the freshness-index observer (aoi paper eqs. 7-14).
+
+    Parameters
+    ----------
+    agent : int
+    design : AoIDesign
+    tie_rule : str
+        ``lowest`` | ``highest`` | ``random`` (argmin ties, "picks any such one").
+    rng : numpy.random.Generator, optional
+        For ``tie_rule="random"``.
+    delayed : str
+        ``discard`` (the paper: only the previous step's messages) or ``age`` (see the
+        module doc).
+
+    Attributes
+    ----------
+    freshness : numpy.ndarray of int, shape (N,)
+        tau_i^(j)[k] per substate j, ``OMEGA`` (-1) for omega.
+    """
+
+    family = "aoi"
+
+    def __init__(self, agent: int, design: AoIDesign, *, tie_rule: str = "lowest",
+                 rng: np.random.Generator | None = None, delayed: str = "discard",
+                 history: int = 64) -> None:
+        super().__init__(agent, design, delayed=delayed, history=history)
+        if tie_rule not in TIE_RULES:
+            raise ValueError(f"tie_rule must be one of {TIE_RULES}, got {tie_rule!r}")
+        if tie_rule == "random" and rng is None:
+            raise ValueError("tie_rule='random' needs rng")
+        self.tie_rule = tie_rule
+        self._rng = rng
+        self._tau = np.full(self._N, OMEGA, dtype=np.int64)
+        self._tau[self.agent] = 0
+
+    @property
+    def freshness(self) -> np.ndarray:
+        return self._tau
+
+    def _pick(self, candidates: list[int], ages: dict[int, int]) -> int:
+        best = min(ages[c] for c in candidates)
+        tied = sorted(c for c in candidates if ages[c] == best)
+        if len(tied) == 1 or self.tie_rule == "lowest":
+            return tied[0]
+        if self.tie_rule == "highest":
+            return tied[-1]
+        return tied[int(self._rng.integers(len(tied)))]
+
+    def _neighbour_value(self, k: int, j: int, sent: int, msg: AoIMessage,
+                         z_old: np.ndarray) -> tuple[int, np.ndarray]:
+        """(tau, z^(j)) of a neighbour message as a value at step k - 1."""
+        tau = int(msg.freshness[j])
+        zj = msg.z[self._blocks[j]]
+        lag = k - 1 - sent
+        if lag == 0 or tau == OMEGA:
+            return tau, zj
+        # delayed="age": propagate over s..k-2 with A_jj and own lower substates
+        # (Lemma 4's form with v(t) = i over the delay); too old for the history: omega
+        own = dict(self._history)
+        Ajj = self.design.diag[j]
+        for t in range(sent, k - 1):
+            zt = own.get(t)
+            if zt is None:
+                return OMEGA, zj
+            zj = Ajj @ zj + self._lower(j, zt)
+        return tau + lag, zj
+
+    def _update(self, k: int, heard: dict[int, tuple[int, AoIMessage]]) -> None:
+        z_old = self._z
+        z_new = np.empty_like(z_old)
+        tau_old = self._tau
+        tau_new = tau_old.copy()
+        adopted = np.full(self._N, -1, dtype=np.int64)
+        used: dict[int, int] = {}
+        for j in range(self._N):
+            blk = self._blocks[j]
+            if j == self.agent:
+                z_new[blk] = self._source_update(j, z_old)
+                tau_new[j] = 0
+                continue
+            values = {u: self._neighbour_value(k, j, s, m, z_old) for u, (s, m) in heard.items()
+                      if u != self.agent}
+            ages = {u: v[0] for u, v in values.items()}
+            M = [u for u, a in ages.items() if a != OMEGA]              # eq. (8)
+            if tau_old[j] == OMEGA:                                      # Case 1
+                candidates = M
+            else:                                                        # Case 2, eq. (13)
+                candidates = [u for u in M if ages[u] < tau_old[j]]
+            lower = self._lower(j, z_old)
+            if candidates:
+                u = self._pick(candidates, ages)
+                tau_new[j] = ages[u] + 1                                 # eq. (9)
+                z_new[blk] = self.design.diag[j] @ values[u][1] + lower  # eq. (10)
+                adopted[j] = u
+                used[u] = k - 1 - heard[u][0]
+            else:
+                tau_new[j] = OMEGA if tau_old[j] == OMEGA else tau_old[j] + 1  # (11), (14)
+                z_new[blk] = self.design.diag[j] @ z_old[blk] + lower    # eq. (12)
+        self._z = z_new
+        self._tau = tau_new
+        self.adopted_from = adopted
+        self.last_delays = used
+
+
+class NaiveConsensusObserver(_SubstateObserverBase):
+    """The naive baselines of the aoi paper's Section 3 (uniform or tree weights).
+
+    Parameters
+    ----------
+    agent : int
+    design : AoIDesign
+    weights : str
+        ``uniform``: w_il = 1 / (|N_i[k]| + 1) over N_i[k] u {i}; ``tree``: weight 1 on
+        ``parent(j, i, k)``, the parent of i in a spanning tree of G[k] rooted at the
+        source j (open loop when i has no parent or did not hear it).
+    parent : callable(j, i, k) -> int or None
+        Needed for ``tree`` (global knowledge of G[k]; see
+        :func:`models.topology.bfs_parents`).
+    """
+
+    def __init__(self, agent: int, design: AoIDesign, *, weights: str = "uniform",
+                 parent: Callable[[int, int, int], int | None] | None = None) -> None:
+        super().__init__(agent, design, delayed="discard")
+        if weights not in ("uniform", "tree"):
+            raise ValueError(f"weights must be 'uniform' or 'tree', got {weights!r}")
+        if weights == "tree" and parent is None:
+            raise ValueError("tree weights need parent(j, i, k)")
+        self.weights = weights
+        self.family = f"naive-{weights}"
+        self._parent = parent
+
+    def _update(self, k: int, heard: dict[int, tuple[int, AoIMessage]]) -> None:
+        z_old = self._z
+        z_new = np.empty_like(z_old)
+        adopted = np.full(self._N, -1, dtype=np.int64)
+        used: dict[int, int] = {}
+        others = sorted(u for u in heard if u != self.agent)
+        for j in range(self._N):
+            blk = self._blocks[j]
+            if j == self.agent:
+                z_new[blk] = self._source_update(j, z_old)
+                continue
+            lower = self._lower(j, z_old)
+            if self.weights == "uniform":
+                mix = z_old[blk].copy()
+                for u in others:
+                    mix = mix + heard[u][1].z[blk]
+                mix = mix / (len(others) + 1)
+                if others:
+                    adopted[j] = -2
+                    for u in others:
+                        used[u] = 0
+            else:
+                p = self._parent(j, self.agent, k - 1)
+                if p is not None and p in heard:
+                    mix = heard[p][1].z[blk]
+                    adopted[j] = p
+                    used[p] = 0
+                else:
+                    mix = z_old[blk]
+            z_new[blk] = self.design.diag[j] @ mix + lower
+        self._z = z_new
+        self.adopted_from = adopted
+        self.last_delays = used

@@ -6,6 +6,14 @@ realisation (heterogeneous delays use ``delays.seed``), the gains, and which
 estimators run. The run seed (``run.seed`` or ``--seed``) drives only the trial
 randomness: initial states, noise, and time-varying delays.
 
+An optional ``[links]`` table gives the links more than a delay: per-link delay
+distributions (uniform, geometric, shifted gamma / Pareto, empirical from a CSV, replay
+of a recorded trace) in asynchronous, synchronous or fixed mode, Bernoulli or
+Gilbert-Elliott loss, outages, finite buffers with a drop policy, and serialisation
+from a bandwidth and a message size; defaults for every link plus a ``per_link`` list
+(:mod:`models.linkmodels` defines each model; relative file paths are relative to the
+scenario file). Without it, links only delay, as ``[delays]`` says.
+
 Agents are numbered from 0. A link ``[j, i]`` means agent i receives from agent j.
 Every validation failure raises :class:`ScenarioError` naming the offending key.
 See ``models/scenarios/*.toml`` for the built-in scenarios and the README for the
@@ -17,6 +25,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from importlib import resources
 from pathlib import Path
@@ -33,6 +42,25 @@ from models.delays import (
     SynchronousRandomDelays,
     heterogeneous_delays,
     homogeneous_delays,
+)
+from models.linkmodels import (
+    BUFFER_POLICIES,
+    DELAY_DISTRIBUTIONS,
+    DELAY_MODES,
+    LOSS_MODELS,
+    BufferConfig,
+    ConstantDelay,
+    DelayConfig,
+    EmpiricalDelay,
+    GeometricDelay,
+    LinkConfig,
+    LinksSpec,
+    LossConfig,
+    ShiftedGamma,
+    ShiftedPareto,
+    UniformDelay,
+    load_latency_csv,
+    load_trace_replay,
 )
 from models.network import (
     NetworkError,
@@ -86,10 +114,15 @@ DEFAULTS: dict[str, Any] = {
     "delays.seed": 0,
     "delays.default": 0,
     "gains.method": "lmi",
+    "links.delay.mode": "asynchronous",
+    "links.buffer.policy": "drop-tail",
+    "links.buffer.policy (capacity tau+1)": "drop-oldest",
+    "links.seed": "delays.seed",
+    "links.message_size": "64 * n bits (n doubles)",
 }
 
 _SCHEMA: dict[str, set[str]] = {
-    "": {"name", "description", "run", "plant", "network", "delays", "gains"},
+    "": {"name", "description", "run", "plant", "network", "delays", "gains", "links"},
     "run": {
         "steps", "trials", "seed", "sample_period", "divergence_threshold",
         "steady_state_fraction", "estimators",
@@ -99,7 +132,28 @@ _SCHEMA: dict[str, set[str]] = {
                 "radius"},
     "delays": {"model", "tau", "links", "default", "seed"},
     "gains": {"method", "K"},
+    "links": {"delay", "loss", "buffer", "outages", "bandwidth", "message_size", "seed",
+              "bound", "per_link"},
 }
+#: Keys of one ``links.per_link`` entry.
+_LINK_KEYS = {"from", "to", "delay", "loss", "buffer", "outages", "bandwidth", "message_size"}
+#: Parameters of each delay distribution (besides ``distribution``, ``unit``, ``mode``).
+_DISTRIBUTION_KEYS: dict[str, tuple[set[str], set[str]]] = {
+    # name: (required, optional)
+    "constant": ({"value"}, set()),
+    "uniform": ({"low", "high"}, set()),
+    "geometric": ({"p"}, {"shift"}),
+    "gamma": ({"shape", "scale"}, {"shift"}),
+    "pareto": ({"alpha", "scale"}, {"shift"}),
+    "empirical": ({"file"}, {"scale"}),
+    "trace": ({"file"}, set()),
+}
+_DISTRIBUTION_UNITS = {
+    "constant": ("steps", "time"), "uniform": ("steps", "time"), "geometric": ("steps",),
+    "gamma": ("time",), "pareto": ("time",), "empirical": ("time", "steps"),
+}
+_LOSS_KEYS = {"none": set(), "bernoulli": {"p"},
+              "gilbert-elliott": {"p", "r", "loss_good", "loss_bad"}}
 
 
 class ScenarioError(ValueError):
@@ -160,6 +214,9 @@ class Scenario:
     sample_period, divergence_threshold, steady_state_fraction : float
     source : str
         File path or ``builtin:<name>``.
+    link_spec : LinksSpec or None
+        The ``[links]`` table: per-link delay distributions, losses, outages, buffers,
+        serialisation (None: links only delay, as ``[delays]`` says).
     """
 
     name: str
@@ -176,6 +233,7 @@ class Scenario:
     divergence_threshold: float
     steady_state_fraction: float
     source: str = ""
+    link_spec: LinksSpec | None = None
 
     @property
     def graph(self) -> nx.DiGraph:
@@ -200,10 +258,26 @@ class Scenario:
     def delay_bound(self) -> int:
         """The bound tau-bar the agents know: ``delays.tau`` for the models that have
         one (homogeneous, heterogeneous, synchronous, asynchronous), else the largest
-        per-link step delay."""
+        per-link step delay. With a ``[links]`` table that sets delays: ``links.bound``
+        if given, else the largest step delay of the links' distributions (their
+        99.9 % quantile for unbounded ones) and serialisation."""
+        if self.link_spec is not None and (self.link_spec.bound is not None
+                                           or self.link_spec.sets_delays):
+            return self._links_bound(self._base_delay_model(0))
         if self.delays.model in ("homogeneous", "heterogeneous", "synchronous", "asynchronous"):
             return int(self.delays.tau)
         return self.max_delay
+
+    def _links_bound(self, base: DelayModel) -> int:
+        spec = self.link_spec
+        if spec.bound is not None:
+            return int(spec.bound)
+        if spec.sets_delays:
+            return spec.max_delay(self.links, int(base.max_delay), self.sample_period,
+                                  self.plant.n_states)
+        if self.delays.model in ("homogeneous", "heterogeneous", "synchronous", "asynchronous"):
+            return int(self.delays.tau)
+        return int(base.max_delay)
 
     def with_tau(self, tau: int) -> Scenario:
         """Return a copy with delay bound ``tau`` (model ``none`` becomes homogeneous)."""
@@ -214,12 +288,29 @@ class Scenario:
             raise ScenarioError(
                 "delays.tau", f"cannot override tau of per-link '{model}' delays"
             )
+        if self.link_spec is not None and self.link_spec.sets_delays:
+            raise ScenarioError(
+                "delays.tau", "cannot override tau: the [links] table sets the link delays"
+            )
         if model == "none":
             model = "homogeneous"
         return replace(self, delays=replace(self.delays, model=model, tau=int(tau)))
 
     def delay_model(self, trial_seed: SeedLike) -> DelayModel:
-        """Build the delay model; random models draw from the trial's streams."""
+        """Build the delay model; random models draw from the trial's streams.
+
+        With a ``[links]`` table this is a :class:`models.linkmodels.NetworkLinks`
+        (a delay model whose ``link(j, i)`` gives the kernel each link's model).
+        """
+        base = self._base_delay_model(trial_seed)
+        if self.link_spec is None:
+            return base
+        return self.link_spec.build(
+            self.links, base, trial_seed, sample_period=self.sample_period,
+            tau=self._links_bound(base), n_states=self.plant.n_states,
+        )
+
+    def _base_delay_model(self, trial_seed: SeedLike) -> DelayModel:
         spec = self.delays
         links = self.links
         if spec.model == "none":
@@ -253,6 +344,8 @@ class Scenario:
                 "bound": self.delay_bound,
                 "max_delay": self.max_delay,
             },
+            **({"links": self.link_spec.describe(self.plant.n_states)}
+               if self.link_spec is not None else {}),
             "estimators": list(self.estimators),
             "steps": self.steps,
             "trials": self.trials,
@@ -506,6 +599,212 @@ def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelayS
     return DelaySpec(model, tau, per_link, default, seed)
 
 
+# -- [links] -----------------------------------------------------------------------
+
+
+def _table(value: Any, key: str, allowed: set[str]) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ScenarioError(key, f"expected a table, got {value!r}")
+    for k in value:
+        if k not in allowed:
+            close = difflib.get_close_matches(k, sorted(allowed), n=1)
+            hint = f" (did you mean '{close[0]}'?)" if close else ""
+            raise ScenarioError(f"{key}.{k}",
+                                f"unknown key{hint}; allowed: {', '.join(sorted(allowed))}")
+    return value
+
+
+def _choice(value: Any, key: str, options: Sequence[str]) -> str:
+    if value not in options:
+        raise ScenarioError(key, f"unknown value {value!r}; expected one of {', '.join(options)}")
+    return value
+
+
+def _probability(value: Any, key: str) -> float:
+    p = _number(value, key)
+    if not 0 <= p <= 1:
+        raise ScenarioError(key, f"must be in [0, 1], got {p:g}")
+    return p
+
+
+def _file(value: Any, key: str, base: Path) -> Path:
+    if not isinstance(value, str) or not value.strip():
+        raise ScenarioError(key, f"expected a file path, got {value!r}")
+    path = Path(value).expanduser()
+    return path if path.is_absolute() else base / path
+
+
+def _parse_link_delay(value: Any, key: str, base: Path) -> DelayConfig:
+    if not isinstance(value, dict):
+        raise ScenarioError(key, f"expected a table with a 'distribution', got {value!r}")
+    name = _choice(_require(value, "distribution", key), f"{key}.distribution",
+                   DELAY_DISTRIBUTIONS)
+    required, optional = _DISTRIBUTION_KEYS[name]
+    common = {"distribution"} if name == "trace" else {"distribution", "unit", "mode"}
+    table = _table(value, key, common | required | optional)
+    for k in sorted(required):
+        _require(table, k, key)
+    mode = _choice(table.get("mode", DEFAULTS["links.delay.mode"]), f"{key}.mode", DELAY_MODES)
+    if name == "trace":
+        path = _file(table["file"], f"{key}.file", base)
+        try:
+            replay = load_trace_replay(path)
+        except ValueError as exc:
+            raise ScenarioError(f"{key}.file", str(exc)) from None
+        return DelayConfig(replay, "asynchronous")
+    units = _DISTRIBUTION_UNITS[name]
+    unit = _choice(table.get("unit", units[0]), f"{key}.unit", units)
+
+    def num(k: str, default: float | None = None) -> float:
+        return _number(table.get(k, default), f"{key}.{k}")
+
+    try:
+        if name == "constant":
+            dist: Any = ConstantDelay(num("value"), unit)
+        elif name == "uniform":
+            dist = UniformDelay(num("low"), num("high"), unit)
+        elif name == "geometric":
+            shift = table.get("shift", 0)
+            dist = GeometricDelay(num("p"), _int(shift, f"{key}.shift", 0))
+        elif name == "gamma":
+            dist = ShiftedGamma(num("shape"), num("scale"), num("shift", 0.0))
+        elif name == "pareto":
+            dist = ShiftedPareto(num("alpha"), num("scale"), num("shift", 0.0))
+        else:
+            path = _file(table["file"], f"{key}.file", base)
+            dist = load_latency_csv(path, scale=num("scale", 1.0), unit=unit)
+    except ValueError as exc:
+        if isinstance(exc, ScenarioError):
+            raise
+        # name the parameter the message starts with, else the table
+        first = str(exc).split()[0] if str(exc) else ""
+        where = f"{key}.{first}" if first in required | optional else (
+            f"{key}.file" if name == "empirical" else key)
+        raise ScenarioError(where, str(exc)) from None
+    if isinstance(dist, EmpiricalDelay) and dist.values.size == 0:  # pragma: no cover
+        raise ScenarioError(f"{key}.file", "no values")
+    return DelayConfig(dist, mode)
+
+
+def _parse_loss(value: Any, key: str) -> LossConfig:
+    if not isinstance(value, dict):
+        raise ScenarioError(key, f"expected a table with a 'model', got {value!r}")
+    model = _choice(_require(value, "model", key), f"{key}.model", LOSS_MODELS)
+    table = _table(value, key, {"model"} | _LOSS_KEYS[model])
+    if model == "none":
+        return LossConfig("none")
+    p = _probability(_require(table, "p", key), f"{key}.p")
+    if model == "bernoulli":
+        return LossConfig("bernoulli", p=p)
+    r = _probability(_require(table, "r", key), f"{key}.r")
+    if p + r <= 0:
+        raise ScenarioError(f"{key}.r", "p + r must be > 0 (the chain must be able to move)")
+    good = _probability(table.get("loss_good", 0.0), f"{key}.loss_good")
+    bad = _probability(table.get("loss_bad", 1.0), f"{key}.loss_bad")
+    return LossConfig("gilbert-elliott", p=p, r=r, loss_good=good, loss_bad=bad)
+
+
+def _parse_buffer(value: Any, key: str) -> BufferConfig:
+    table = _table(value, key, {"capacity", "policy"})
+    capacity: int | str | None = None
+    if "capacity" in table:
+        raw = table["capacity"]
+        if raw == "tau+1":
+            capacity = "tau+1"
+        elif isinstance(raw, str):
+            raise ScenarioError(f"{key}.capacity", f"expected an integer >= 1 or 'tau+1', "
+                                f"got {raw!r}")
+        else:
+            capacity = _int(raw, f"{key}.capacity", 1)
+    default = (DEFAULTS["links.buffer.policy (capacity tau+1)"] if capacity == "tau+1"
+               else DEFAULTS["links.buffer.policy"])
+    policy = _choice(table.get("policy", default), f"{key}.policy", BUFFER_POLICIES)
+    if capacity is None and policy != "keep-latest":
+        raise ScenarioError(f"{key}.capacity", f"is missing (policy {policy!r} needs a "
+                            "capacity; only 'keep-latest' works without one)")
+    return BufferConfig(capacity, policy)
+
+
+def _parse_outages(value: Any, key: str) -> tuple[tuple[int, int], ...]:
+    if not isinstance(value, list):
+        raise ScenarioError(key, "expected a list of [start, end] step intervals")
+    out = []
+    for e, entry in enumerate(value):
+        k = f"{key}[{e}]"
+        if not (isinstance(entry, list) and len(entry) == 2):
+            raise ScenarioError(k, f"expected [start, end] (sending steps, end excluded), "
+                                f"got {entry!r}")
+        start, end = (_int(v, k, 0) for v in entry)
+        if end < start:
+            raise ScenarioError(k, f"end ({end}) must be >= start ({start})")
+        out.append((start, end))
+    return tuple(out)
+
+
+def _parse_link_settings(table: dict[str, Any], key: str, base: Path) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    if "delay" in table:
+        out["delay"] = _parse_link_delay(table["delay"], f"{key}delay", base)
+    if "loss" in table:
+        out["loss"] = _parse_loss(table["loss"], f"{key}loss")
+    if "buffer" in table:
+        out["buffer"] = _parse_buffer(table["buffer"], f"{key}buffer")
+    if "outages" in table:
+        out["outages"] = _parse_outages(table["outages"], f"{key}outages")
+    if "bandwidth" in table:
+        bw = _number(table["bandwidth"], f"{key}bandwidth")
+        if bw <= 0:
+            raise ScenarioError(f"{key}bandwidth", f"must be > 0 (bits per time unit), "
+                                f"got {bw:g}")
+        out["bandwidth"] = bw
+    if "message_size" in table:
+        size = _number(table["message_size"], f"{key}message_size")
+        if size < 0:
+            raise ScenarioError(f"{key}message_size", f"must be >= 0 (bits), got {size:g}")
+        out["message_size"] = size
+    return out
+
+
+def _check_trace_links(config: LinkConfig, links: Sequence[tuple[int, int]], key: str) -> None:
+    dist = config.delay.distribution if config.delay is not None else None
+    if dist is None or not hasattr(dist, "records"):
+        return
+    missing = [link for link in links if link not in dist.records]
+    if missing:
+        names = ", ".join(f"{j}->{i}" for j, i in missing)
+        raise ScenarioError(key, f"trace {dist.source} has no messages for link(s) {names}")
+
+
+def _parse_links(table: dict[str, Any], links: list[tuple[int, int]], delays: DelaySpec,
+                 base: Path) -> LinksSpec:
+    default = LinkConfig(**_parse_link_settings(table, "links.", base))
+    seed = _int(table.get("seed", delays.seed), "links.seed", 0)
+    bound = None
+    if "bound" in table:
+        bound = _int(table["bound"], "links.bound", 0)
+    raw = table.get("per_link", [])
+    if not isinstance(raw, list):
+        raise ScenarioError("links.per_link", "expected a list of tables with from, to and "
+                            "link settings")
+    link_set = set(links)
+    per_link: dict[tuple[int, int], LinkConfig] = {}
+    for e, entry in enumerate(raw):
+        key = f"links.per_link[{e}]"
+        entry = _table(entry, key, _LINK_KEYS)
+        link = (_int(_require(entry, "from", key), f"{key}.from", 0),
+                _int(_require(entry, "to", key), f"{key}.to", 0))
+        if link not in link_set:
+            raise ScenarioError(key, f"link {link[0]} -> {link[1]} is not in the network")
+        if link in per_link:
+            raise ScenarioError(key, f"link {link[0]} -> {link[1]} is listed twice")
+        settings = _parse_link_settings(entry, f"{key}.", base)
+        per_link[link] = default.merged(settings)
+        _check_trace_links(per_link[link], [link], f"{key}.delay.file")
+    _check_trace_links(default, [link for link in links if link not in per_link],
+                       "links.delay.file")
+    return LinksSpec(default, per_link, seed, bound)
+
+
 def _parse_gains(table: dict[str, Any], plant: LinearPlant) -> GainSpec:
     method = table.get("method", DEFAULTS["gains.method"])
     if method not in ("lmi", "given"):
@@ -540,6 +839,11 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
     P = _parse_network(_section(data, "network"), plant.n_sensors)
     links = sorted(graph_from_weights(P).edges)
     delays = _parse_delays(_section(data, "delays", required=False), links)
+    link_spec = None
+    if "links" in data:
+        link_spec = _parse_links(_section(data, "links"), links, delays,
+                                 Path(source).parent if source and not
+                                 source.startswith("builtin:") else Path.cwd())
     gains = _parse_gains(_section(data, "gains", required=False), plant)
     estimators = run.get("estimators", DEFAULTS["run.estimators"])
     if not isinstance(estimators, list) or not estimators:
@@ -577,6 +881,7 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         divergence_threshold=threshold,
         steady_state_fraction=fraction,
         source=source,
+        link_spec=link_spec,
     )
 
 

@@ -200,6 +200,9 @@ def build_parser() -> argparse.ArgumentParser:
                        help="random link delays in 0..d_i - 1, padded to d_i at the centre "
                        "(Remark 1; kernel engine)")
     f_run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    from netsim.bench import add_bench_parser
+
+    add_bench_parser(sub)
     return parser
 
 
@@ -628,6 +631,12 @@ def _cmd_fusion(args: argparse.Namespace) -> int:
     return _emit(args, result.to_dict(), result.format_text())
 
 
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from netsim.bench import cmd_bench
+
+    return cmd_bench(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``netsim`` command; returns the exit code."""
     parser = build_parser()
@@ -643,6 +652,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "replay": _cmd_replay,
         "plot": _cmd_plot,
         "fusion": _cmd_fusion,
+        "bench": _cmd_bench,
         "scenarios": _cmd_scenarios,
     }
     try:

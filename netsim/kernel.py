@@ -24,7 +24,7 @@ import simpy
 
 from models.delays import DelayModel
 from models.plant import LinearPlant
-from netsim.links import Link, Message
+from netsim.links import ConfiguredLink, Link, Message
 
 __all__ = [
     "KernelObserver",
@@ -120,6 +120,8 @@ class TrialResult:
         lost by the link).
     messages : list of Message
         Every delivered message, in delivery order (when recorded).
+    drop_reasons : dict of str -> int
+        Dropped messages by reason (see :mod:`netsim.links`); sums to messages_dropped.
     """
 
     states: np.ndarray
@@ -133,6 +135,7 @@ class TrialResult:
     messages_discarded: int
     messages: list[Message] = field(default_factory=list)
     messages_dropped: int = 0
+    drop_reasons: dict[str, int] = field(default_factory=dict)
 
 
 class Simulation:
@@ -143,7 +146,10 @@ class Simulation:
     plant : LinearPlant
     agents : sequence of AgentSpec
     delay_model : DelayModel
-        Delay of every link (j, i) for j in agent i's in-neighbours.
+        Delay of every link (j, i) for j in agent i's in-neighbours. A model with a
+        ``link(sender, receiver)`` method (:class:`models.linkmodels.NetworkLinks`, what
+        a scenario with a ``[links]`` table builds) also gives each link its
+        :class:`models.linkmodels.LinkModel` (own delays, loss, outages, buffer).
     plant_rng : numpy.random.Generator
         Stream for x_0, process and measurement noise.
     sample_period : float
@@ -160,6 +166,10 @@ class Simulation:
         Whether link (sender -> receiver) is up at a sending step (time-varying
         topologies, link schedules). A message sent on a down link is dropped, counted
         and reported to the observer.
+    link_models : mapping (sender, receiver) -> LinkModel, optional
+        Per-link models, taking precedence over the delay model's ``link()``. A link
+        whose model has no loss, outage or buffer is a plain :class:`Link` (with the
+        model's delays), so it costs nothing extra per message.
     """
 
     def __init__(
@@ -175,6 +185,7 @@ class Simulation:
         record_messages: bool = False,
         observer: KernelObserver | None = None,
         availability: Callable[[int, int, int], bool] | None = None,
+        link_models: Any = None,
     ) -> None:
         self.env = simpy.Environment()
         self.plant = plant
@@ -188,10 +199,23 @@ class Simulation:
         self.observer = observer
         self.links: dict[tuple[int, int], Link] = {}
         self._out_links: list[list[Link]] = []
+        per_link = getattr(delay_model, "link", None)
         for i, spec in enumerate(self.agents):
             links = []
             for r in spec.out_neighbours:
-                link = Link(self.env, i, int(r), delay_model, self._deliver, self.sample_period)
+                model = None
+                if link_models is not None:
+                    model = link_models.get((i, int(r)))
+                if model is None and per_link is not None:
+                    model = per_link(i, int(r))
+                delays = model.delay if model is not None and model.delay is not None \
+                    else delay_model
+                if model is not None and not model.trivial:
+                    link = ConfiguredLink(self.env, i, int(r), delays, self._deliver,
+                                          self.sample_period)
+                    link.configure(model)
+                else:
+                    link = Link(self.env, i, int(r), delays, self._deliver, self.sample_period)
                 link.availability = availability
                 link.on_drop = self._dropped
                 if observer is not None:
@@ -201,8 +225,10 @@ class Simulation:
             self._out_links.append(links)
         self._messages: list[Message] = []
         self._discarded = 0
+        self._drop_reasons: dict[str, int] = {}
 
     def _dropped(self, message: Message, reason: str) -> None:
+        self._drop_reasons[reason] = self._drop_reasons.get(reason, 0) + 1
         if self.observer is not None and hasattr(self.observer, "on_dropped"):
             self.observer.on_dropped(message, reason, self.env.now * self.sample_period)
 
@@ -310,4 +336,5 @@ class Simulation:
             messages_dropped=sum(link.dropped for link in self.links.values()),
             messages_discarded=self._discarded,
             messages=self._messages,
+            drop_reasons=dict(self._drop_reasons),
         )

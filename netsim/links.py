@@ -4,6 +4,20 @@ A link does not run a process per message: :meth:`Link.send` schedules one
 :class:`Delivery` event at the arrival time, with URGENT priority so that a message
 arriving exactly at a sampling instant is delivered before that instant's updates
 (DESIGN.md). The delivery's callback hands the message to the receiver.
+
+:class:`Link` is the plain link (delays only, plus the availability hook): its
+per-message path is one delay draw, one :class:`Message` and one scheduled event.
+:class:`ConfiguredLink` adds what a :class:`models.linkmodels.LinkModel` asks for:
+outages, losses and a finite buffer of in-flight messages with a drop policy
+(definitions in :mod:`models.linkmodels`). Only links that have such a model pay for
+it. A cancelled delivery (drop-oldest, keep-latest) is not removed from SimPy's queue:
+the message leaves the link's in-flight table, and the arrival callback ignores
+deliveries whose message is no longer in it.
+
+Drop reasons reported to ``on_drop`` (and traced): ``link down`` (availability),
+``outage``, the loss model's reason (``loss: bernoulli``, ``loss: gilbert-elliott
+(bad state)``, ..., ``trace: <recorded reason>``), ``buffer full (drop-tail)``,
+``buffer full (drop-oldest)`` and ``superseded (keep-latest)``.
 """
 
 from __future__ import annotations
@@ -17,7 +31,15 @@ from simpy.core import URGENT
 
 from models.delays import DelayModel, latency_to_steps
 
-__all__ = ["Message", "Delivery", "Link"]
+__all__ = [
+    "Message", "Delivery", "Link", "ConfiguredLink",
+    "REASON_LINK_DOWN", "REASON_DROP_TAIL", "REASON_DROP_OLDEST", "REASON_SUPERSEDED",
+]
+
+REASON_LINK_DOWN = "link down"
+REASON_DROP_TAIL = "buffer full (drop-tail)"
+REASON_DROP_OLDEST = "buffer full (drop-oldest)"
+REASON_SUPERSEDED = "superseded (keep-latest)"
 
 
 @dataclass(slots=True)
@@ -138,7 +160,7 @@ class Link:
         if self.availability is not None and not self.availability(
             self.sender, self.receiver, step
         ):
-            self.drop(message, "link down")
+            self.drop(message, REASON_LINK_DOWN)
             return message
         event = Delivery(self.env, wait, message)
         event.callbacks.append(self._arrive)
@@ -153,3 +175,87 @@ class Link:
     def _arrive(self, event: simpy.events.Event) -> None:
         self.delivered += 1
         self._deliver(event._value)
+
+
+class ConfiguredLink(Link):
+    """A :class:`Link` with outages, losses and a finite buffer (a ``LinkModel``).
+
+    Parameters are those of :class:`Link`; then call :meth:`configure`.
+
+    Attributes
+    ----------
+    in_flight : dict sequence -> Message
+        Messages accepted by the link and not yet delivered, in sending order.
+    """
+
+    __slots__ = ("loss", "outages", "capacity", "policy", "in_flight", "_newest_delivered")
+
+    def configure(self, model) -> None:
+        """Apply a :class:`models.linkmodels.LinkModel` (its delay model too, if set)."""
+        if model.delay is not None:
+            self.delay_model = model.delay
+        self.loss = model.loss
+        self.outages = model.outages if model.outages is not None and \
+            model.outages.intervals else None
+        self.capacity = model.buffer_capacity
+        self.policy = model.buffer_policy
+        self.in_flight: dict[int, Message] = {}
+        self._newest_delivered = -1
+
+    def send(self, step: int, payload: np.ndarray) -> Message:
+        """Send like :meth:`Link.send`, then apply outages, loss and the buffer policy."""
+        # the delay is drawn first, for every message (trace replay counts on it)
+        raw = self.delay_model.draw(self.sender, self.receiver, step)
+        ts = self.sample_period
+        if self.delay_model.unit == "steps":
+            d = int(raw)
+            wait = 1.0 + d
+        else:
+            d = latency_to_steps(float(raw), ts)
+            wait = float(raw) / ts
+        now = self.env.now
+        sequence = self._sequence
+        message = Message(
+            self.sender, self.receiver, step, sequence, payload,
+            now * ts, (now + wait) * ts, d,
+        )
+        self._sequence += 1
+        self.sent += 1
+        if self.on_send is not None:
+            self.on_send(message)
+        if self.availability is not None and not self.availability(
+            self.sender, self.receiver, step
+        ):
+            self.drop(message, REASON_LINK_DOWN)
+            return message
+        if self.outages is not None and self.outages.down(step):
+            self.drop(message, self.outages.reason)
+            return message
+        if self.loss is not None:
+            reason = self.loss.drop_reason(step, sequence)
+            if reason is not None:
+                self.drop(message, reason)
+                return message
+        in_flight = self.in_flight
+        if self.capacity is not None and len(in_flight) >= self.capacity:
+            if self.policy == "drop-tail":
+                self.drop(message, REASON_DROP_TAIL)
+                return message
+            oldest = next(iter(in_flight))
+            self.drop(in_flight.pop(oldest), REASON_DROP_OLDEST)
+        in_flight[sequence] = message
+        event = Delivery(self.env, wait, message)
+        event.callbacks.append(self._arrive)
+        return message
+
+    def _arrive(self, event: simpy.events.Event) -> None:
+        message = event._value
+        if self.in_flight.pop(message.sequence, None) is None:
+            return  # cancelled (dropped while in flight)
+        if self.policy == "keep-latest":
+            if message.sequence < self._newest_delivered:
+                self.drop(message, REASON_SUPERSEDED)
+                return
+            self._newest_delivered = message.sequence
+        self.delivered += 1
+        self._deliver(message)

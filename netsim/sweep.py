@@ -1,0 +1,519 @@
+"""Parameter sweeps on a local process pool or a Dask cluster, streamed and resumable.
+
+A sweep is a list of *cells*, each a dict of JSON-able parameters (:func:`grid` makes
+the Cartesian product of some axes), and a module-level function
+``fn(params, seed, context) -> dict`` that computes one cell. :func:`run_sweep` runs
+the cells
+
+* in this process (``executor="serial"``),
+* on a local :class:`concurrent.futures.ProcessPoolExecutor` (``"local"``, the
+  default, 2 workers, ``forkserver`` start method), or
+* on a Dask distributed cluster (``"dask"``: ``dask.distributed.Client(address)``;
+  the shared ``context`` is scattered to the workers once),
+
+and streams every finished cell, as it finishes, into a JSON-lines results file
+(one row per cell, appended and flushed immediately) and optionally a CSV file, with
+a tqdm progress bar on stderr. When the sweep ends, the CSV is rewritten as one table
+in grid order.
+
+Keys and resumption. A cell's key is the first 16 hex digits of the SHA-256 of the
+canonical JSON of ``{"sweep": name, "root_seed": seed, "params": params}`` (sorted
+keys): a stable hash of its parameters. Running a sweep again with the same results
+file reads the rows already there and computes only the cells whose key is missing,
+so an interrupted sweep (Ctrl-C, a killed worker, a lost cluster) keeps every cell
+that finished and resumes where it stopped. A partial last line (the writer was
+killed mid-line) is cut off.
+
+Determinism. A cell's randomness comes only from its parameters and the root seed:
+``seed`` is :func:`cell_seed` (``models.seeding.child_sequence(root_seed, "sweep",
+<key digits>)``), and ``fn`` may also derive streams from the root seed and the
+parameters (the benchmark derives Monte Carlo trial seeds from the root seed so that
+every estimator sees the same trials). Nothing depends on the executor, the number
+of workers or the order cells finish in, so the results are identical bit for bit
+(JSON floats round-trip exactly).
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import itertools
+import json
+import math
+import multiprocessing
+import os
+import socket
+import sys
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from models.seeding import child_sequence
+
+__all__ = [
+    "DEFAULT_WORKERS",
+    "EXECUTORS",
+    "SweepInterrupted",
+    "SweepResult",
+    "grid",
+    "cell_key",
+    "cell_seed",
+    "read_results",
+    "run_sweep",
+    "flatten",
+    "write_csv",
+    "demo_cell",
+]
+
+#: Workers of the local process pool by default (this project's machines have 2 cores).
+DEFAULT_WORKERS = 2
+#: Accepted ``executor`` values.
+EXECUTORS = ("serial", "local", "dask")
+
+
+class SweepInterrupted(Exception):
+    """The sweep stopped before every cell finished; the finished ones are saved.
+
+    Attributes
+    ----------
+    done, total, computed : int
+        Cells finished (saved) of ``total``; ``computed`` of them in this run.
+    path : str or None
+        The results file to resume from.
+    """
+
+    def __init__(self, done: int, total: int, computed: int, path: str | None,
+                 cause: str = "interrupted") -> None:
+        where = f"; resume with the same results file {path}" if path else ""
+        super().__init__(f"{cause}: {done} of {total} cells finished "
+                         f"({computed} computed in this run){where}")
+        self.done, self.total, self.computed, self.path = done, total, computed, path
+
+
+@dataclass
+class SweepResult:
+    """What :func:`run_sweep` returns.
+
+    Attributes
+    ----------
+    rows : list of dict
+        One row per cell, in the order of the cells given: ``key``, ``params``,
+        ``result`` (what ``fn`` returned), ``elapsed_s``, ``worker``.
+    computed : int
+        Cells computed in this run.
+    reused : int
+        Cells read back from the results file (not recomputed).
+    path, csv_path : str or None
+    """
+
+    rows: list[dict[str, Any]]
+    computed: int
+    reused: int
+    path: str | None = None
+    csv_path: str | None = None
+    executor: str = "serial"
+    workers: int = 1
+    elapsed_s: float = 0.0
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    def results(self) -> list[dict[str, Any]]:
+        """The ``result`` of every row, in cell order."""
+        return [row["result"] for row in self.rows]
+
+
+# -- cells --------------------------------------------------------------------------
+
+
+def grid(**axes: Any) -> list[dict[str, Any]]:
+    """Cartesian product of the axes, in the order given (the last varies fastest).
+
+    ``grid(tau=[0, 3], delays=["homogeneous"])`` -> ``[{"tau": 0, "delays":
+    "homogeneous"}, {"tau": 3, "delays": "homogeneous"}]``; a scalar is a one-value axis.
+    """
+    names = list(axes)
+    values = [v if isinstance(v, list | tuple) else [v] for v in axes.values()]
+    return [dict(zip(names, combo, strict=True)) for combo in itertools.product(*values)]
+
+
+def _canonical(value: Any) -> str:
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False,
+                      default=_json_default)
+
+
+def _json_default(value: Any) -> Any:
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    if isinstance(value, np.ndarray):
+        return value.tolist()
+    raise TypeError(f"not JSON-able: {value!r}")
+
+
+def cell_key(params: Mapping[str, Any], root_seed: int = 0, sweep: str = "") -> str:
+    """Stable key of a cell: 16 hex digits of SHA-256 of its canonical JSON."""
+    payload = _canonical({"sweep": sweep, "root_seed": int(root_seed), "params": params})
+    return hashlib.sha256(payload.encode("utf-8")).hexdigest()[:16]
+
+
+def cell_seed(root_seed: int, key: str) -> np.random.SeedSequence:
+    """The cell's own seed sequence: ``child_sequence(root_seed, "sweep", k1, k2)`` with
+    k1, k2 the two 32-bit halves of the key."""
+    return child_sequence(int(root_seed), "sweep", int(key[:8], 16), int(key[8:16], 16))
+
+
+# -- results file ---------------------------------------------------------------------
+
+
+def read_results(path: str | os.PathLike[str], *, repair: bool = False
+                 ) -> dict[str, dict[str, Any]]:
+    """Rows of a JSON-lines results file by key (later rows win).
+
+    A last line without its newline (the writer was killed) is ignored, and cut off
+    the file when ``repair`` is true. Any other line that is not a JSON object with a
+    ``key`` raises ValueError naming the file and line.
+    """
+    path = Path(path)
+    if not path.exists():
+        return {}
+    data = path.read_bytes()
+    complete = data.rfind(b"\n") + 1
+    if complete < len(data) and repair:
+        with open(path, "r+b") as f:
+            f.truncate(complete)
+    rows: dict[str, dict[str, Any]] = {}
+    for number, line in enumerate(data[:complete].decode("utf-8").splitlines(), start=1):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"results file {path}, line {number}: not JSON ({exc.msg})"
+                             ) from None
+        if not isinstance(row, dict) or "key" not in row or "result" not in row:
+            raise ValueError(f"results file {path}, line {number}: not a sweep row "
+                             "(needs 'key' and 'result')")
+        rows[str(row["key"])] = row
+    return rows
+
+
+def flatten(value: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested dicts to dotted keys; scalars kept, lists JSON-encoded."""
+    out: dict[str, Any] = {}
+    for k, v in value.items():
+        name = f"{prefix}{k}"
+        if isinstance(v, Mapping):
+            out.update(flatten(v, f"{name}."))
+        elif isinstance(v, list | tuple):
+            out[name] = json.dumps(v, default=_json_default)
+        else:
+            out[name] = v
+    return out
+
+
+def _csv_row(row: Mapping[str, Any]) -> dict[str, Any]:
+    return {"key": row["key"], **flatten(row["params"]), **flatten(row["result"])}
+
+
+def write_csv(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike[str]) -> None:
+    """Write rows (``key``, ``params``, ``result``) as one CSV table, flattened."""
+    flat = [_csv_row(r) for r in rows]
+    columns: list[str] = []
+    for r in flat:
+        columns += [c for c in r if c not in columns]
+    tmp = Path(str(path) + ".tmp")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        writer = csv.DictWriter(f, fieldnames=columns, restval="")
+        writer.writeheader()
+        writer.writerows(flat)
+    os.replace(tmp, path)
+
+
+class _Sink:
+    """Appends finished rows to the JSON-lines file (and a streaming CSV)."""
+
+    def __init__(self, path: Path | None, csv_path: Path | None) -> None:
+        self.path = path
+        self.csv_path = csv_path
+        self._f = open(path, "a", encoding="utf-8") if path else None  # noqa: SIM115
+        self._csv = None
+        self._writer: csv.DictWriter | None = None
+        self._columns: list[str] | None = None
+        if csv_path is not None:
+            fresh = not csv_path.exists() or csv_path.stat().st_size == 0
+            self._csv = open(csv_path, "a", newline="", encoding="utf-8")  # noqa: SIM115
+            self._fresh = fresh
+
+    def write(self, row: dict[str, Any]) -> None:
+        if self._f is not None:
+            self._f.write(_canonical(row) + "\n")
+            self._f.flush()
+            os.fsync(self._f.fileno())
+        if self._csv is not None:
+            flat = _csv_row(row)
+            if self._writer is None:
+                self._columns = list(flat)
+                self._writer = csv.DictWriter(self._csv, fieldnames=self._columns,
+                                              restval="", extrasaction="ignore")
+                if self._fresh:
+                    self._writer.writeheader()
+            self._writer.writerow(flat)
+            self._csv.flush()
+
+    def close(self) -> None:
+        for f in (self._f, self._csv):
+            if f is not None:
+                f.close()
+
+
+# -- running ----------------------------------------------------------------------------
+
+
+def _worker_name() -> str:
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+def _run_cell(fn: Callable[..., dict[str, Any]], params: dict[str, Any],
+              seed: np.random.SeedSequence, context: Any) -> tuple[dict[str, Any], float, str]:
+    start = time.perf_counter()
+    result = fn(params, seed, context)
+    # normalise to plain JSON types here, so every executor returns the same thing
+    result = json.loads(_canonical(_finite_floats(result)))
+    return result, time.perf_counter() - start, _worker_name()
+
+
+def _finite_floats(value: Any) -> Any:
+    """NaN -> None, +-inf -> "inf"/"-inf" (strict JSON)."""
+    if isinstance(value, Mapping):
+        return {str(k): _finite_floats(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_finite_floats(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _finite_floats(value.tolist())
+    if isinstance(value, float | np.floating):
+        value = float(value)
+        if math.isnan(value):
+            return None
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return value
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.bool_):
+        return bool(value)
+    return value
+
+
+def _serial(todo: list[tuple[str, dict[str, Any]]], fn: Callable, seeds: dict[str, Any],
+            context: Any) -> Iterator[tuple[str, tuple[dict[str, Any], float, str]]]:
+    for key, params in todo:
+        yield key, _run_cell(fn, params, seeds[key], context)
+
+
+class _Local:
+    def __init__(self, workers: int) -> None:
+        from concurrent.futures import ProcessPoolExecutor
+
+        self.pool = ProcessPoolExecutor(
+            max_workers=workers, mp_context=multiprocessing.get_context("forkserver"))
+
+    def run(self, todo, fn, seeds, context):
+        from concurrent.futures import as_completed
+
+        futures = {self.pool.submit(_run_cell, fn, params, seeds[key], context): key
+                   for key, params in todo}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+    def close(self, cancel: bool) -> None:
+        self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
+
+
+class _Dask:
+    def __init__(self, address: Any) -> None:
+        try:
+            from distributed import Client
+        except ImportError:  # pragma: no cover - dask is a dependency
+            raise RuntimeError("Dask executor needs the 'distributed' package "
+                               "(pip install 'dask[distributed]')") from None
+        if isinstance(address, Client):
+            self.client, self.own = address, False
+        else:
+            self.client, self.own = Client(address, timeout="30s"), True
+        self.futures: list[Any] = []
+
+    def run(self, todo, fn, seeds, context):
+        from distributed import as_completed
+
+        shared = self.client.scatter(context, broadcast=True) if context is not None else None
+        futures = {}
+        for key, params in todo:
+            future = self.client.submit(_run_cell, fn, params, seeds[key], shared,
+                                        key=f"netsim-cell-{key}-{time.time_ns()}", pure=False)
+            futures[future] = key
+        self.futures = list(futures)
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+    def close(self, cancel: bool) -> None:
+        if cancel and self.futures:
+            try:
+                self.client.cancel(self.futures)
+            except Exception:  # noqa: BLE001 - best effort while stopping
+                pass
+        if self.own:
+            self.client.close()
+
+
+def run_sweep(
+    fn: Callable[[dict[str, Any], np.random.SeedSequence, Any], dict[str, Any]],
+    cells: Iterable[Mapping[str, Any]],
+    *,
+    root_seed: int = 0,
+    sweep: str = "",
+    results: str | os.PathLike[str] | None = None,
+    csv_path: str | os.PathLike[str] | None = None,
+    executor: str = "local",
+    workers: int = DEFAULT_WORKERS,
+    dask_address: Any = None,
+    context: Any = None,
+    progress: bool = True,
+    description: str = "sweep",
+    on_row: Callable[[dict[str, Any]], None] | None = None,
+    stop_after: int | None = None,
+) -> SweepResult:
+    """Run every cell not already in ``results``; return all rows in cell order.
+
+    Parameters
+    ----------
+    fn : callable(params, seed, context) -> dict
+        Computes one cell; must be importable by name (module level) for the process
+        pool and Dask. ``seed`` is :func:`cell_seed`; its result must be JSON-able
+        (numpy scalars and arrays, NaN and inf are converted).
+    cells : iterable of dict
+        Parameters of each cell (JSON-able); duplicates are computed once.
+    root_seed : int
+    sweep : str
+        Name of the sweep, part of every key (two sweeps can share a results file).
+    results : path, optional
+        JSON-lines file: rows already in it are reused, new rows are appended as they
+        finish (flushed and fsynced). None: nothing is saved, nothing resumed.
+    csv_path : path, optional
+        Also stream rows to this CSV; rewritten as one table in cell order at the end.
+    executor : ``"local"`` (default), ``"dask"`` or ``"serial"``
+    workers : int
+        Processes of the local pool.
+    dask_address : str or distributed.Client
+        Scheduler address (e.g. ``tcp://127.0.0.1:8786``) or a connected client;
+        giving one selects the Dask executor.
+    context : object, optional
+        Passed to every call of ``fn`` (pickled once per task for the pool, scattered
+        once for Dask): large shared inputs such as a scenario and its gains.
+    progress : bool
+        tqdm bar on stderr.
+    on_row : callable(row), optional
+        Called in this process after each new row is saved.
+    stop_after : int, optional
+        Test hook: stop (as if interrupted) after this many new rows were saved.
+
+    Raises
+    ------
+    SweepInterrupted
+        On KeyboardInterrupt or ``stop_after``: the finished rows are saved.
+    """
+    if dask_address is not None:
+        executor = "dask"
+    if executor not in EXECUTORS:
+        raise ValueError(f"unknown executor {executor!r}; expected one of {', '.join(EXECUTORS)}")
+    if int(workers) < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    if executor == "dask" and dask_address is None:
+        raise ValueError("the dask executor needs a scheduler address")
+    started = time.perf_counter()
+    ordered: list[tuple[str, dict[str, Any]]] = []
+    seen: set[str] = set()
+    for params in cells:
+        params = json.loads(json.dumps(dict(params), allow_nan=False, default=_json_default))
+        key = cell_key(params, root_seed, sweep)
+        if key not in seen:
+            seen.add(key)
+            ordered.append((key, params))
+    path = Path(results) if results is not None else None
+    done: dict[str, dict[str, Any]] = read_results(path, repair=True) if path else {}
+    todo = [(k, p) for k, p in ordered if k not in done]
+    reused = len(ordered) - len(todo)
+    seeds = {k: cell_seed(root_seed, k) for k, _ in todo}
+    computed = 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(ordered), initial=reused, desc=description, unit="cell",
+                   file=sys.stderr, leave=False, dynamic_ncols=True)
+    sink = _Sink(path, Path(csv_path) if csv_path is not None else None)
+    runner: Any = None
+    cancelled = False
+    try:
+        if todo:
+            if executor == "serial":
+                stream_ = _serial(todo, fn, seeds, context)
+            elif executor == "local":
+                runner = _Local(min(int(workers), len(todo)))
+                stream_ = runner.run(todo, fn, seeds, context)
+            else:
+                runner = _Dask(dask_address)
+                stream_ = runner.run(todo, fn, seeds, context)
+            params_of = dict(todo)
+            for key, (result, elapsed, worker) in stream_:
+                row = {"key": key, "params": params_of[key], "result": result,
+                       "elapsed_s": round(elapsed, 6), "worker": worker}
+                sink.write(row)
+                done[key] = row
+                computed += 1
+                if bar is not None:
+                    bar.update(1)
+                if on_row is not None:
+                    on_row(row)
+                if stop_after is not None and computed >= stop_after and \
+                        computed < len(todo):
+                    cancelled = True
+                    raise SweepInterrupted(reused + computed, len(ordered), computed,
+                                           str(path) if path else None, "stopped (test hook)")
+    except KeyboardInterrupt:
+        cancelled = True
+        raise SweepInterrupted(reused + computed, len(ordered), computed,
+                               str(path) if path else None) from None
+    except BaseException:
+        cancelled = True
+        raise
+    finally:
+        if runner is not None:
+            runner.close(cancel=cancelled)
+        sink.close()
+        if bar is not None:
+            bar.close()
+    rows = [done[k] for k, _ in ordered]
+    if csv_path is not None:
+        write_csv(rows, csv_path)
+    return SweepResult(rows, computed, reused, str(path) if path else None,
+                       str(csv_path) if csv_path else None, executor,
+                       1 if executor == "serial" else int(workers),
+                       time.perf_counter() - started)
+
+
+def demo_cell(params: dict[str, Any], seed: np.random.SeedSequence, context: Any
+              ) -> dict[str, Any]:
+    """A cheap example cell (used by the tests): statistics of ``params["n"]`` normal draws
+    from the cell's own seed, scaled by ``params["scale"]`` (default 1) and ``context``
+    (a number, default 1). ``params["sleep"]`` seconds of wall time, to simulate work."""
+    if params.get("sleep"):
+        time.sleep(float(params["sleep"]))
+    rng = np.random.Generator(np.random.PCG64(seed))
+    x = rng.standard_normal(int(params.get("n", 100))) * float(params.get("scale", 1.0))
+    x *= 1.0 if context is None else float(context)
+    return {"mean": float(x.mean()), "std": float(x.std()), "max": float(x.max()),
+            "first": x[:3]}

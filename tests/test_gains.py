@@ -1,4 +1,5 @@
-"""Tests for estimators.gains: block-diagonal LMI gain design (LCSYS2022 eq. 13)."""
+"""Tests for estimators.gains: LMI and CCL gain design (LCSYS2022 eq. 13), delay-bound
+design (Discussion 5), direct refinement, method selection."""
 
 from __future__ import annotations
 
@@ -6,13 +7,17 @@ import numpy as np
 import pytest
 from scipy.linalg import block_diag
 
+import estimators.gains as gains_module
 from estimators.gains import (
     GainDesign,
     GainDesignError,
     design_gains,
     gains_from_matrices,
     is_observable,
+    refine_gains,
+    select_method,
 )
+from models.augmented import augmented_closed_loop, spectral_radius
 
 N_AGENTS, N_STATES = 4, 6
 
@@ -181,3 +186,219 @@ def test_invalid_parameters(system):
     with pytest.raises(ValueError, match=r"C\[1\]"):
         P, A, C = system
         design_gains(P, A, [C[0], np.zeros((1, 5)), C[2], C[3]])
+
+
+# ---------------------------------------------------------------------------
+# CCL (full Lyapunov matrix), method selection, delay-bound design, refinement
+# ---------------------------------------------------------------------------
+
+CCL_STEPS = 20
+
+
+def rho_with_power(P, A, C, L, power):
+    """rho((I - blockdiag(L_i C_i)) (P kron A^power)), computed independently."""
+    return rho_from_L(P, np.linalg.matrix_power(A, power), C, L)
+
+
+def homogeneous_delays(P, tau):
+    d = np.where(P != 0, tau, 0)
+    np.fill_diagonal(d, 0)  # an agent's own estimate is never delayed
+    return d
+
+
+@pytest.fixture(scope="module")
+def ccl(system):
+    return design_gains(*system, method="ccl", max_iter=CCL_STEPS)
+
+
+def test_ccl_is_stable_certified_and_no_worse_than_the_lmi(system, design, ccl):
+    P, A, C = system
+    rho = rho_from_L(P, A, C, ccl.L)
+    assert rho < 1
+    assert rho == pytest.approx(ccl.rho, abs=1e-9)
+    assert ccl.method == "ccl-full-lyapunov-rate-search"
+    assert ccl.certified and ccl.status == "optimal"
+    assert rho < ccl.certified_rate < 1
+    assert 1 <= ccl.iterations <= CCL_STEPS
+    assert "CCL" in ccl.message and "SDP solves" in ccl.message
+    # a full Lyapunov matrix is less conservative than a block-diagonal one
+    assert ccl.certified_rate <= design.certified_rate + 1e-3
+    # K realises L and stays block diagonal (one K_i per agent)
+    for Ki, Li, Ci in zip(ccl.K, ccl.L, C, strict=True):
+        np.testing.assert_allclose(Ki @ Ci.T, Li, atol=1e-10)
+
+
+def test_ccl_certificate_is_a_full_lyapunov_matrix(system, ccl):
+    from scipy.linalg import solve_discrete_lyapunov
+
+    P, A, C = system
+    M = np.kron(P, A)
+    KD = block_diag(*[Li @ Ci for Li, Ci in zip(ccl.L, C, strict=True)])
+    F = (M - KD @ M) / ccl.certified_rate
+    X = solve_discrete_lyapunov(F.T, np.eye(F.shape[0]))
+    assert np.linalg.eigvalsh((X + X.T) / 2)[0] > 0
+    assert np.linalg.eigvalsh(X - F.T @ X @ F)[0] > 0.5
+
+
+def test_ccl_at_a_given_rate(system):
+    d = design_gains(*system, method="ccl", rate=0.95, max_iter=CCL_STEPS)
+    assert d.method == "ccl-full-lyapunov"
+    assert d.certified_rate == 0.95 and d.certified
+    assert rho_from_L(*system, d.L) < 0.95
+
+
+def test_ccl_failures_are_gain_design_errors(system, monkeypatch):
+    with pytest.raises(GainDesignError, match=r"CCL.*alpha=0\.001") as info:
+        design_gains(*system, method="ccl", rate=1e-3, max_iter=3)
+    assert info.value.__cause__ is None
+    P, A, C = system
+    with pytest.raises(GainDesignError, match="not observable"):
+        design_gains(P, A, [np.zeros((1, 6)) for _ in C], method="ccl")
+
+    import cvxpy as cp
+
+    def boom(self, *args, **kwargs):
+        raise cp.error.SolverError("boom")
+
+    monkeypatch.setattr(cp.Problem, "solve", boom)
+    with pytest.raises(GainDesignError, match="boom") as info:
+        design_gains(*system, method="ccl", max_iter=2)
+    assert info.value.__cause__ is None and info.value.__suppress_context__
+
+
+def test_optimal_inaccurate_is_not_certified(system, monkeypatch):
+    import cvxpy as cp
+
+    real_solve = cp.Problem.solve
+
+    def inaccurate(self, *args, **kwargs):
+        real_solve(self, *args, **kwargs)
+        self._status = "optimal_inaccurate"
+
+    monkeypatch.setattr(cp.Problem, "solve", inaccurate)
+    d = design_gains(*system, bisect=False)
+    assert d.status == "optimal_inaccurate"
+    assert not d.certified and d.certified_rate is None
+    assert "NOT certified" in d.message
+    with pytest.raises(GainDesignError, match="CCL"):
+        design_gains(*system, method="ccl", max_iter=2)
+
+
+def test_select_method_by_size():
+    method, reason = select_method(4, 6)
+    assert method == "ccl" and "24" in reason
+    assert select_method(10, 6)[0] == "ccl"  # N n = 60 is the threshold
+    method, reason = select_method(11, 6)
+    assert method == "lmi" and "66" in reason
+    assert select_method(200, 6)[0] == "lmi"
+    assert select_method(200, 6, threshold=10**6)[0] == "ccl"
+
+
+def cycle_example(N, seed=1):
+    """n=6 plant of `example`, N sensors on a self-looped cycle, sensor i measures block i%4."""
+    _, A, _ = example(seed)
+    rng = np.random.default_rng(seed)
+    W = (np.eye(N) + np.roll(np.eye(N), -1, axis=1)) * rng.uniform(0.2, 1.0, (N, N))
+    starts = [0, 2, 4, 5]
+    C = [np.eye(6)[[starts[i % 4]]] for i in range(N)]
+    return W / W.sum(axis=1, keepdims=True), A, C
+
+
+def test_auto_dispatches_by_size_without_solving(system, monkeypatch):
+    calls = []
+
+    def fake(kind):
+        def run(*args, **kwargs):
+            calls.append(kind)
+            raise GainDesignError(f"{kind} called")
+
+        return run
+
+    monkeypatch.setattr(gains_module, "_design_ccl", fake("ccl"))
+    monkeypatch.setattr(gains_module, "_design_lmi", fake("lmi"))
+    with pytest.raises(GainDesignError, match=r"auto: N n = 24 <= 60.*ccl called"):
+        design_gains(*system, method="auto")
+    with pytest.raises(GainDesignError, match=r"auto: N n = 72 > 60.*lmi called"):
+        design_gains(*cycle_example(12), method="auto")
+    assert calls == ["ccl", "lmi"]
+    with pytest.raises(ValueError, match="method"):
+        design_gains(*system, method="newton")
+
+
+def test_auto_reports_what_ran(system, ccl):
+    d = design_gains(*system, method="auto", max_iter=CCL_STEPS)
+    assert d.method == ccl.method
+    assert d.message.startswith("auto: N n = 24 <= 60")
+    assert d.rho == pytest.approx(ccl.rho, abs=1e-6)
+
+
+@pytest.fixture(scope="module")
+def delay_design(system):
+    return design_gains(*system, tau1=3)
+
+
+def test_delay_bound_design_reports_both_radii(system, delay_design):
+    P, A, C = system
+    d = delay_design
+    assert d.design_tau == 3
+    assert d.rho == pytest.approx(rho_from_L(P, A, C, d.L), abs=1e-9)  # delay-free
+    assert d.rho_design == pytest.approx(rho_with_power(P, A, C, d.L, 4), abs=1e-9)
+    assert d.rho_design < d.certified_rate <= 1
+    assert d.certified and d.rho < 1
+    assert "tau1=3" in d.message
+    assert design_gains(*system, bisect=False).design_tau == 0
+
+
+def test_delay_bound_design_is_stable_for_homogeneous_delays_up_to_tau1(system, delay_design):
+    P, A, C = system
+    for tau in range(4):
+        Abar = augmented_closed_loop(P, A, C, delay_design.L, homogeneous_delays(P, tau), tau=tau)
+        assert spectral_radius(Abar) < 1, tau
+
+
+def test_delay_bound_design_infeasible_is_reported_plainly(system):
+    with pytest.raises(GainDesignError, match=r"^delay-bound design for tau1=2 is infeasible"):
+        design_gains(*system, tau1=2, rate=1e-3)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="tau1"):
+            design_gains(*system, tau1=bad)
+
+
+def test_refinement_never_worsens_and_is_recomputable(system, design):
+    P, A, C = system
+    r = refine_gains(design, P, A, C, max_iter=50)
+    assert r.method == "refined"
+    rho = rho_from_L(P, A, C, r.L)
+    assert rho == pytest.approx(r.rho, abs=1e-9)
+    assert rho <= design.rho + 1e-12
+    assert f"{design.rho:.6g}" in r.message
+    if r.certified:
+        assert rho < r.certified_rate < 1
+    else:
+        assert r.certified_rate is None
+    for Ki, Li, Ci in zip(r.K, r.L, C, strict=True):
+        np.testing.assert_allclose(Ki @ Ci.T, Li, atol=1e-10)
+
+
+def test_refinement_of_a_delay_bound_design(system, delay_design):
+    P, A, C = system
+    r = refine_gains(delay_design, P, A, C, tau1=3, max_iter=50)
+    assert r.design_tau == 3
+    assert r.rho_design <= delay_design.rho_design + 1e-12
+    assert r.rho_design == pytest.approx(rho_with_power(P, A, C, r.L, 4), abs=1e-9)
+    assert r.rho == pytest.approx(rho_from_L(P, A, C, r.L), abs=1e-9)
+
+
+def test_observability_fast_path_agrees_with_svd_test(system, monkeypatch):
+    P, A, C = system
+    C2 = list(C[:3]) + [np.zeros((1, 6))]
+    exact = [is_observable(P, A, C), is_observable(P, A, C2)]
+    monkeypatch.setattr(gains_module, "_PBH_SVD_MAX_STATES", 0)
+    assert [is_observable(P, A, C), is_observable(P, A, C2)] == exact
+
+
+def test_gain_design_stays_backward_compatible(design):
+    g = GainDesign(design.L, design.K, 0.5, None, True, "given", "none", "given", "")
+    assert g.rho_design == 0.5 and g.design_tau == 0 and g.iterations == 0
+    assert design.rho_design == design.rho and design.design_tau == 0
+    assert design.iterations == 11

@@ -28,6 +28,7 @@ from models.augmented import (
     delay_bound_lcsys,
     tau_star_report,
 )
+from models.jsonsafe import json_tree as _jsonable
 from models.scenario import Scenario
 
 __all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "BoundRow", "AnalysisReport", "analyze"]
@@ -117,18 +118,6 @@ class AnalysisReport:
             },
             "violations": self.violations,
         }
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, float | np.floating):
-        value = float(value)
-        if math.isnan(value):
-            return None
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
 
 
 def analyze(

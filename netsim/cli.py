@@ -15,6 +15,8 @@ from typing import Any
 
 import numpy as np
 
+from models.jsonsafe import json_number as _num
+
 __all__ = ["main", "build_parser"]
 
 EXIT_BAD_INPUT = 2
@@ -388,17 +390,6 @@ def _design_dict(design) -> dict[str, Any]:
         "K": [np.asarray(K).tolist() for K in design.K],
         "L": [np.asarray(L).tolist() for L in design.L],
     }
-
-
-def _num(value):
-    if value is None:
-        return None
-    value = float(value)
-    if value != value:
-        return None
-    if value in (float("inf"), float("-inf")):
-        return "inf" if value > 0 else "-inf"
-    return value
 
 
 def _cmd_design(args: argparse.Namespace) -> int:

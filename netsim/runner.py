@@ -31,6 +31,8 @@ from models.augmented import (
     tau_star,
 )
 from models.delays import latency_to_steps
+from models.jsonsafe import json_number as _json_float
+from models.jsonsafe import json_tree as _json_tree
 from models.scenario import Scenario
 from models.seeding import SeedLike, child_sequence, stream
 from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
@@ -271,25 +273,6 @@ class MonteCarloResult:
             "analytics": _json_tree(self.analytics),
             "estimators": {name: s.to_dict() for name, s in self.estimators.items()},
         }
-
-
-def _json_tree(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _json_tree(v) for k, v in value.items()}
-    if isinstance(value, float):
-        return _json_float(value)
-    return value
-
-
-def _json_float(value: float | None) -> float | None | str:
-    if value is None:
-        return None
-    value = float(value)
-    if math.isnan(value):
-        return None
-    if math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    return value
 
 
 def _summarise(

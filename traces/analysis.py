@@ -48,6 +48,7 @@ from models.augmented import (
     spectral_radius,
     tau_star_report,
 )
+from models.jsonsafe import json_number as _num
 from traces.reader import NOT_USED, Trace
 from traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system
 
@@ -80,15 +81,6 @@ _TINY = 1e-250
 TOP_PATTERNS = 5
 
 
-def _num(value: float | None) -> float | None:
-    if value is None:
-        return None
-    value = float(value)
-    if math.isnan(value):
-        return None
-    if math.isinf(value):
-        return math.copysign(1e308, value)
-    return value
 
 
 def _fmt(value: float | None, digits: int = 4) -> str:

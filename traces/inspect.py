@@ -26,20 +26,12 @@ from typing import Any
 
 import numpy as np
 
+from models.jsonsafe import json_number as _num
 from traces.reader import Trace
 
 __all__ = ["LinkStats", "AgentStats", "InspectReport", "inspect_trace", "delay_statistics"]
 
 
-def _num(value: float | None) -> float | None:
-    if value is None:
-        return None
-    value = float(value)
-    if math.isnan(value):
-        return None
-    if math.isinf(value):
-        return math.copysign(1e308, value)
-    return value
 
 
 def delay_statistics(delays: list[int] | np.ndarray) -> dict[str, Any]:

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 
 from models.augmented import augmented_closed_loop
+from models.jsonsafe import json_number as _num
 from traces.reader import NOT_USED, Trace
 
 __all__ = [
@@ -178,15 +179,6 @@ def effective_pattern(P: np.ndarray, delays: np.ndarray) -> tuple[np.ndarray, np
 # -- report ----------------------------------------------------------------------------
 
 
-def _num(value: float | None) -> float | None:
-    if value is None:
-        return None
-    value = float(value)
-    if math.isnan(value):
-        return None
-    if math.isinf(value):
-        return math.copysign(1e308, value)
-    return value
 
 
 @dataclass

@@ -275,11 +275,15 @@ def _cmd_run(args: argparse.Namespace) -> int:
         done[0] += count
         bar.update(count)
 
+    from netsim.interrupt import graceful_interrupts
+
     try:
-        result = run_monte_carlo(
-            scenario, steps=args.steps, trials=args.trials, seed=args.seed, families=families,
-            progress=_progress, gains=gains, trace=args.trace, on_trace=written.append,
-        )
+        with graceful_interrupts():
+            result = run_monte_carlo(
+                scenario, steps=args.steps, trials=args.trials, seed=args.seed,
+                families=families, progress=_progress, gains=gains, trace=args.trace,
+                on_trace=written.append,
+            )
     except KeyboardInterrupt:
         family = families[min(done[0] // trials, len(families) - 1)]
         where = f"estimator {family}, trial {done[0] % trials} of {trials}"

@@ -24,6 +24,7 @@ import simpy
 
 from models.delays import DelayModel
 from models.plant import LinearPlant
+from netsim import interrupt
 from netsim.links import ConfiguredLink, Link, Message
 
 __all__ = [
@@ -264,6 +265,7 @@ class Simulation:
         def plant_process():
             x = self.plant.sample_initial(self.plant_rng)
             for k in range(steps + 1):
+                interrupt.check()  # a requested Ctrl-C stops here, between steps
                 if k > 0:
                     x = self.plant.step(x, self.plant_rng)
                 ys = self.plant.measure(x, self.plant_rng)

@@ -1,0 +1,53 @@
+"""Graceful Ctrl-C: stop a run at the next step boundary, never inside a write.
+
+A KeyboardInterrupt raised at an arbitrary bytecode can land inside the MCAP writer and
+leave its bookkeeping inconsistent. :func:`graceful_interrupts` replaces the SIGINT
+handler for the duration of a command: the first Ctrl-C only sets a flag, which the
+kernel checks at the start of every step (:func:`check`) and turns into a
+KeyboardInterrupt there; a second Ctrl-C interrupts at once.
+"""
+
+from __future__ import annotations
+
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+
+__all__ = ["graceful_interrupts", "check", "requested"]
+
+_requested = False
+
+
+def requested() -> bool:
+    """Whether a graceful stop has been requested."""
+    return _requested
+
+
+def check() -> None:
+    """Raise KeyboardInterrupt if a graceful stop was requested (a safe point)."""
+    if _requested:
+        raise KeyboardInterrupt("interrupted by Ctrl-C")
+
+
+@contextmanager
+def graceful_interrupts() -> Iterator[None]:
+    """Within the block, the first SIGINT requests a stop at the next safe point."""
+    global _requested
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):  # noqa: ARG001
+        global _requested
+        if _requested:
+            raise KeyboardInterrupt("interrupted twice")
+        _requested = True
+
+    previous = signal.signal(signal.SIGINT, handler)
+    _requested = False
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+        _requested = False

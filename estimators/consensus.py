@@ -133,16 +133,19 @@ class _ConsensusBase:
     def _neighbour_term(self, k: int, j: int, own: np.ndarray) -> np.ndarray:
         raise NotImplementedError
 
+    def _own_prediction(self) -> np.ndarray:
+        """Agent i's own term A x-hat^i_{k-1|k-1} (also substituted for silent neighbours)."""
+        return self._A @ self._estimate
+
     def _prior(self, k: int) -> np.ndarray:
-        own = self._estimate
-        A = self._A
-        prior = self._weights[self.agent] * (A @ own)
+        own = self._own_prediction()
+        prior = self._weights[self.agent] * own
         delays = {}
         for j in self.neighbours:
             stored = self._stored.get(j)
             if stored is None:
                 delays[j] = NO_MESSAGE
-                prior = prior + self._weights[j] * (A @ own)
+                prior = prior + self._weights[j] * own
                 continue
             sent_step, payload = stored
             if sent_step >= k:
@@ -235,21 +238,9 @@ class BlockUpdateEstimator(_ConsensusBase):
     def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
         return self.power(k - sent_step) @ payload
 
-    def _prior(self, k: int) -> np.ndarray:
-        own = self._block_estimate
-        prior = self._weights[self.agent] * (self.power(self.period) @ own)
-        delays = {}
-        for j in self.neighbours:
-            stored = self._stored.get(j)
-            if stored is None:
-                delays[j] = NO_MESSAGE
-                prior = prior + self._weights[j] * (self.power(self.period) @ own)
-                continue
-            sent_step, payload = stored
-            delays[j] = k - 1 - sent_step
-            prior = prior + self._weights[j] * self._compensate(k, sent_step, payload)
-        self.last_delays = delays
-        return prior
+    def _own_prediction(self) -> np.ndarray:
+        """Agent i's own term A^(tau+1) x-hat^i at the previous block step (eq. 15)."""
+        return self.power(self.period) @ self._block_estimate
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run step ``k``: a full update at block steps, a prediction otherwise."""

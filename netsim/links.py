@@ -136,8 +136,12 @@ class Link:
         #: sending step (time-varying topologies, outages); None: always up.
         self.availability: Callable[[int, int, int], bool] | None = None
 
-    def send(self, step: int, payload: np.ndarray) -> Message:
-        """Send the payload time-stamped ``step``; schedule its delivery."""
+    def _stamp(self, step: int, payload: np.ndarray) -> tuple[Message, float, bool]:
+        """Draw the delay, build and count the message, report it sent.
+
+        Returns the message, the wait until its arrival (in sampling periods), and
+        whether the link is up at this sending step.
+        """
         raw = self.delay_model.draw(self.sender, self.receiver, step)
         # The environment's clock counts sampling periods (step k at time k exactly),
         # so equal-time comparisons are exact; reported times are scaled by Ts.
@@ -157,13 +161,17 @@ class Link:
         self.sent += 1
         if self.on_send is not None:
             self.on_send(message)
-        if self.availability is not None and not self.availability(
-            self.sender, self.receiver, step
-        ):
+        up = self.availability is None or self.availability(self.sender, self.receiver, step)
+        if not up:
             self.drop(message, REASON_LINK_DOWN)
-            return message
-        event = Delivery(self.env, wait, message)
-        event.callbacks.append(self._arrive)
+        return message, wait, up
+
+    def send(self, step: int, payload: np.ndarray) -> Message:
+        """Send the payload time-stamped ``step``; schedule its delivery."""
+        message, wait, up = self._stamp(step, payload)
+        if up:
+            event = Delivery(self.env, wait, message)
+            event.callbacks.append(self._arrive)
         return message
 
     def drop(self, message: Message, reason: str) -> None:
@@ -205,29 +213,10 @@ class ConfiguredLink(Link):
     def send(self, step: int, payload: np.ndarray) -> Message:
         """Send like :meth:`Link.send`, then apply outages, loss and the buffer policy."""
         # the delay is drawn first, for every message (trace replay counts on it)
-        raw = self.delay_model.draw(self.sender, self.receiver, step)
-        ts = self.sample_period
-        if self.delay_model.unit == "steps":
-            d = int(raw)
-            wait = 1.0 + d
-        else:
-            d = latency_to_steps(float(raw), ts)
-            wait = float(raw) / ts
-        now = self.env.now
-        sequence = self._sequence
-        message = Message(
-            self.sender, self.receiver, step, sequence, payload,
-            now * ts, (now + wait) * ts, d,
-        )
-        self._sequence += 1
-        self.sent += 1
-        if self.on_send is not None:
-            self.on_send(message)
-        if self.availability is not None and not self.availability(
-            self.sender, self.receiver, step
-        ):
-            self.drop(message, REASON_LINK_DOWN)
+        message, wait, up = self._stamp(step, payload)
+        if not up:
             return message
+        sequence = message.sequence
         if self.outages is not None and self.outages.down(step):
             self.drop(message, self.outages.reason)
             return message

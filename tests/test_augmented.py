@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from helpers import N_AGENTS, N_STATES, example  # noqa: E402,F401
 from scipy.linalg import block_diag
 
 import models.augmented as aug
@@ -33,27 +34,6 @@ from models.augmented import (
     tau_star,
     tau_star_report,
 )
-
-N_AGENTS, N_STATES = 4, 6
-
-
-def example(seed: int = 0):
-    """n=6 unstable structurally-cyclic A (4 irreducible blocks), N=4 sensors on
-    a directed self-looped cycle 1->2->3->4->1, one output per sensor."""
-    rng = np.random.default_rng(seed)
-    n, N = N_STATES, N_AGENTS
-    sizes = [2, 2, 1, 1]
-    starts = np.cumsum([0, *sizes])
-    A = np.zeros((n, n))
-    for b, (s, e) in enumerate(zip(starts[:-1], starts[1:], strict=True)):
-        A[s:e, s:e] = rng.uniform(0.5, 1.0, (e - s, e - s))
-        if b:
-            A[s:e, :s] = rng.uniform(-0.3, 0.3, (e - s, s)) * (rng.random((e - s, s)) < 0.5)
-    A *= 1.04 / np.max(np.abs(np.linalg.eigvals(A)))
-    C = [np.eye(n)[[s]] for s in starts[:-1]]
-    W = (np.eye(N) + np.roll(np.eye(N), -1, axis=1)) * rng.uniform(0.2, 1.0, (N, N))
-    P = W / W.sum(axis=1, keepdims=True)
-    return P, A, C
 
 
 def random_gains(rng, C, scale=0.5):

@@ -15,13 +15,15 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 
 from models.seeding import SeedLike, stream
 
 __all__ = [
+    "BATCH_SIZE",
+    "BatchedDraws",
     "DelayModel",
     "FixedDelays",
     "SynchronousRandomDelays",
@@ -33,6 +35,54 @@ __all__ = [
 ]
 
 Link = tuple[int, int]
+
+#: Random draws are made this many at a time per stream (same numbers as one at a time).
+BATCH_SIZE = 256
+
+
+class BatchedDraws:
+    """Values of ``fn(rng, size)`` handed out in order, drawn BATCH_SIZE at a time.
+
+    :meth:`next` (one value, for the event kernel) and :meth:`take` (many values at
+    once, for the vectorised engine) advance the same sequence, so a model gives the
+    same numbers whichever engine asks.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The stream (owned by this object from now on).
+    fn : callable(rng, size) -> numpy.ndarray
+        One batch of draws.
+    """
+
+    __slots__ = ("_rng", "_fn", "_buf", "_pos")
+
+    def __init__(self, rng: np.random.Generator, fn: Any) -> None:
+        self._rng = rng
+        self._fn = fn
+        self._buf: list = []
+        self._pos = 0
+
+    def next(self) -> Any:
+        """Return the next value (a Python scalar)."""
+        if self._pos >= len(self._buf):
+            self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
+            self._pos = 0
+        value = self._buf[self._pos]
+        self._pos += 1
+        return value
+
+    def take(self, count: int) -> np.ndarray:
+        """Return the next ``count`` values as an array, shape (count,)."""
+        out: list = []
+        while len(out) < count:
+            if self._pos >= len(self._buf):
+                self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
+                self._pos = 0
+            chunk = self._buf[self._pos:self._pos + count - len(out)]
+            self._pos += len(chunk)
+            out.extend(chunk)
+        return np.asarray(out)
 
 
 def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:
@@ -70,6 +120,11 @@ class DelayModel(Protocol):
         """Return the delay of one message (steps or time, see ``unit``)."""
         ...
 
+    # Optional: ``draw_many(sender, receiver, send_steps) -> numpy.ndarray``, the
+    # delays of the link's next messages, sent at the increasing ``send_steps``; the
+    # same numbers, and the same state afterwards, as calling ``draw`` for each in
+    # order. The vectorised engine uses it when present (else it calls ``draw``).
+
 
 @dataclass(frozen=True)
 class FixedDelays:
@@ -99,6 +154,10 @@ class FixedDelays:
 
     def draw(self, sender: int, receiver: int, send_step: int) -> int:
         return int(self.delays.get((sender, receiver), self.default))
+
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """Delays of messages sent at ``send_steps``, shape (len(send_steps),)."""
+        return np.full(len(send_steps), self.draw(sender, receiver, 0), dtype=np.int64)
 
 
 def homogeneous_delays(links: Iterable[Link], tau: int) -> FixedDelays:
@@ -134,13 +193,26 @@ class SynchronousRandomDelays:
         if int(tau) != tau or tau < 0:
             raise ValueError(f"delay bound tau must be a non-negative integer, got {tau}")
         self.max_delay = int(tau)
-        self._rng = stream(seed, "delays/synchronous")
-        self._draws: list[int] = []
+        high = self.max_delay + 1
+        self._source = BatchedDraws(stream(seed, "delays/synchronous"),
+                                    lambda g, n: g.integers(0, high, size=n))
+        self._draws = np.zeros(0, dtype=np.int64)
+
+    def _extend(self, last_step: int) -> None:
+        if len(self._draws) <= last_step:
+            more = self._source.take(max(last_step + 1 - len(self._draws), BATCH_SIZE))
+            self._draws = np.concatenate([self._draws, more.astype(np.int64)])
 
     def draw(self, sender: int, receiver: int, send_step: int) -> int:
-        while len(self._draws) <= send_step:
-            self._draws.append(int(self._rng.integers(0, self.max_delay + 1)))
-        return self._draws[send_step]
+        self._extend(send_step)
+        return int(self._draws[send_step])
+
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """Delays of messages sent at ``send_steps`` (the draws of those steps)."""
+        steps = np.asarray(send_steps, dtype=np.int64)
+        if steps.size:
+            self._extend(int(steps.max()))
+        return self._draws[steps]
 
 
 class AsynchronousRandomDelays:
@@ -158,15 +230,24 @@ class AsynchronousRandomDelays:
             raise ValueError(f"delay bound tau must be a non-negative integer, got {tau}")
         self.max_delay = int(tau)
         self._seed = seed
-        self._rngs: dict[Link, np.random.Generator] = {}
+        self._sources: dict[Link, BatchedDraws] = {}
+
+    def _source(self, sender: int, receiver: int) -> BatchedDraws:
+        source = self._sources.get((sender, receiver))
+        if source is None:
+            high = self.max_delay + 1
+            source = self._sources[(sender, receiver)] = BatchedDraws(
+                stream(self._seed, f"delays/link/{sender}-{receiver}"),
+                lambda g, n: g.integers(0, high, size=n),
+            )
+        return source
 
     def draw(self, sender: int, receiver: int, send_step: int) -> int:
-        rng = self._rngs.get((sender, receiver))
-        if rng is None:
-            rng = self._rngs[(sender, receiver)] = stream(
-                self._seed, f"delays/link/{sender}-{receiver}"
-            )
-        return int(rng.integers(0, self.max_delay + 1))
+        return int(self._source(sender, receiver).next())
+
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """Delays of the link's next len(send_steps) messages."""
+        return self._source(sender, receiver).take(len(send_steps)).astype(np.int64)
 
 
 @dataclass(frozen=True)
@@ -201,3 +282,7 @@ class FixedLatencies:
 
     def draw(self, sender: int, receiver: int, send_step: int) -> float:
         return float(self.latencies.get((sender, receiver), self.default))
+
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """Latencies of messages sent at ``send_steps``, shape (len(send_steps),)."""
+        return np.full(len(send_steps), self.draw(sender, receiver, 0), dtype=float)

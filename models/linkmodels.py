@@ -95,7 +95,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from models.delays import DelayModel, latency_to_steps
+from models.delays import BatchedDraws, DelayModel, latency_to_steps
 from models.seeding import SeedLike, stream
 
 __all__ = [
@@ -145,30 +145,6 @@ BUFFER_POLICIES = ("drop-tail", "drop-oldest", "keep-latest")
 LOSS_MODELS = ("none", "bernoulli", "gilbert-elliott")
 #: Unbounded distributions report this quantile's step delay as their nominal bound.
 NOMINAL_QUANTILE = 0.999
-#: Draws are made this many at a time per stream (same numbers as one at a time).
-_BATCH = 256
-
-
-class _Batched:
-    """Values of ``fn(rng, size)`` handed out one at a time, drawn in batches."""
-
-    __slots__ = ("_rng", "_fn", "_buf", "_pos")
-
-    def __init__(self, rng: np.random.Generator, fn: Any) -> None:
-        self._rng = rng
-        self._fn = fn
-        self._buf: list = []
-        self._pos = 0
-
-    def next(self) -> Any:
-        if self._pos >= len(self._buf):
-            self._buf = self._fn(self._rng, _BATCH).tolist()
-            self._pos = 0
-        value = self._buf[self._pos]
-        self._pos += 1
-        return value
-
-
 # -- distributions ---------------------------------------------------------------------
 
 
@@ -553,29 +529,48 @@ class DistributionDelays:
         self._name = name
         self._per_link: dict[Link, Any] = {}
         self._steps: list = []
-        self._sync: _Batched | None = None
+        self._sync: BatchedDraws | None = None
+
+    def _sampler(self, sender: int, receiver: int) -> BatchedDraws:
+        sampler = self._per_link.get((sender, receiver))
+        if sampler is None:
+            sampler = self._per_link[(sender, receiver)] = BatchedDraws(
+                stream(self._seed, self._name, f"{sender}-{receiver}"),
+                self.distribution.sample)
+        return sampler
+
+    def _sync_steps(self, last_step: int) -> None:
+        if self._sync is None:
+            self._sync = BatchedDraws(stream(self._seed, self._name, "synchronous"),
+                                      self.distribution.sample)
+        if len(self._steps) <= last_step:
+            self._steps.extend(self._sync.take(last_step + 1 - len(self._steps)).tolist())
 
     def draw(self, sender: int, receiver: int, send_step: int) -> float:
         mode = self.mode
         if mode == "asynchronous":
-            sampler = self._per_link.get((sender, receiver))
-            if sampler is None:
-                sampler = self._per_link[(sender, receiver)] = _Batched(
-                    stream(self._seed, self._name, f"{sender}-{receiver}"),
-                    self.distribution.sample)
-            return sampler.next()
+            return self._sampler(sender, receiver).next()
         if mode == "synchronous":
-            if self._sync is None:
-                self._sync = _Batched(stream(self._seed, self._name, "synchronous"),
-                                      self.distribution.sample)
-            while len(self._steps) <= send_step:
-                self._steps.append(self._sync.next())
+            self._sync_steps(send_step)
             return self._steps[send_step]
         value = self._per_link.get((sender, receiver))
         if value is None:
             rng = stream(self._static_seed, self._name, "fixed", f"{sender}-{receiver}")
             value = self._per_link[(sender, receiver)] = self.distribution.sample(rng, 1)[0].item()
         return value
+
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """The delays ``draw`` gives for messages sent at ``send_steps``, in order."""
+        count = len(send_steps)
+        if self.mode == "asynchronous":
+            return self._sampler(sender, receiver).take(count)
+        if self.mode == "synchronous":
+            steps = np.asarray(send_steps, dtype=np.int64)
+            if not steps.size:
+                return np.zeros(0)
+            self._sync_steps(int(steps.max()))
+            return np.asarray(self._steps)[steps]
+        return np.full(count, self.draw(sender, receiver, 0))
 
 
 class SerialisedDelays:
@@ -603,6 +598,17 @@ class SerialisedDelays:
             return (int(raw) + 1) * self.sample_period + self.extra
         return float(raw) + self.extra
 
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """The latencies ``draw`` gives for messages sent at ``send_steps``, in order."""
+        many = getattr(self.base, "draw_many", None)
+        if many is None:
+            raw = np.array([self.base.draw(sender, receiver, int(s)) for s in send_steps])
+        else:
+            raw = np.asarray(many(sender, receiver, send_steps))
+        if self._steps:
+            return (raw.astype(np.int64) + 1) * self.sample_period + self.extra
+        return raw.astype(float) + self.extra
+
 
 def serialisation_time(message_size: float, bandwidth: float) -> float:
     """``message_size`` (bits) / ``bandwidth`` (bits per time unit of Ts)."""
@@ -622,7 +628,7 @@ class BernoulliLoss:
         self.p = _finite(p, "p", 0.0)
         if self.p > 1:
             raise ValueError(f"loss probability must be in [0, 1], got {p}")
-        self._u = _Batched(rng, lambda g, n: g.random(n))
+        self._u = BatchedDraws(rng, lambda g, n: g.random(n))
 
     def drop_reason(self, step: int, sequence: int) -> str | None:
         return self.reason if self._u.next() < self.p else None
@@ -662,7 +668,7 @@ class GilbertElliottLoss:
             raise ValueError("p + r must be > 0 (the chain must be able to move)")
         self.p, self.r = float(p), float(r)
         self.loss_good, self.loss_bad = float(loss_good), float(loss_bad)
-        self._u = _Batched(rng, lambda g, n: g.random(n))
+        self._u = BatchedDraws(rng, lambda g, n: g.random(n))
         self.bad: bool | None = None
 
     @property
@@ -953,6 +959,18 @@ class NetworkLinks:
         if self.unit == "steps" or model.unit == "time":
             return raw
         return (int(raw) + 1) * self.sample_period
+
+    def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
+        """The delays ``draw`` gives for messages sent at ``send_steps``, in order."""
+        model = self._delay((sender, receiver))
+        many = getattr(model, "draw_many", None)
+        if many is None:
+            raw = np.array([model.draw(sender, receiver, int(s)) for s in send_steps])
+        else:
+            raw = np.asarray(many(sender, receiver, send_steps))
+        if self.unit == "steps" or model.unit == "time":
+            return raw
+        return (raw.astype(np.int64) + 1) * self.sample_period
 
 
 # -- configuration (parsed from a scenario, no randomness) ------------------------------

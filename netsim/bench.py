@@ -386,18 +386,18 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
     gains = context["gains"]
     if params["kind"] == "scan":
         return _scan(scenario, gains, int(params["tau_max"]))
-    from netsim.runner import run_trial
+    from netsim.runner import run_trials
 
     setting, tau, family = params["setting"], int(params["tau"]), params["family"]
     trials, steps, root = int(params["trials"]), int(params["steps"]), int(params["seed"])
     variant = _variant(scenario, setting, tau)
     time_varying = not variant.delay_model(0).time_invariant
-    results = []
-    for t in range(trials):
-        keep = t == 0 and time_varying and family in ("compensated", "uncompensated")
-        results.append(run_trial(variant, family, gains if family != "centralized-kf" else None,
-                                 child_sequence(root, "trial", t), steps,
-                                 record_delays=keep))
+    keep = time_varying and family in ("compensated", "uncompensated")
+    seeds = [child_sequence(root, "trial", t) for t in range(trials)]
+    # trial 0's effective delays feed the realised growth rate
+    results = run_trials(variant, family, gains if family != "centralized-kf" else None,
+                         seeds, steps, engine=params.get("engine", "events"),
+                         record_delays=[0] if keep else False, record_estimates=False)
     measured = _measure(results, steps, variant.steady_state_fraction)
     analytics = _analytics(variant, gains, family, tau, results[0] if results else None)
     return {
@@ -445,12 +445,13 @@ def _scan(scenario: Scenario, gains: Any, tau_max: int) -> dict[str, Any]:
 
 
 def _cells(taus: Sequence[int], settings: Sequence[str], families: Sequence[str],
-           trials: int, steps: int, seed: int, fingerprint: str) -> list[dict[str, Any]]:
+           trials: int, steps: int, seed: int, fingerprint: str, engine: str
+           ) -> list[dict[str, Any]]:
     """Distinct computations, longest first (big tau, time-varying)."""
     out = []
     seen = set()
     common = {"kind": "mc", "scenario": fingerprint, "trials": trials, "steps": steps,
-              "seed": seed}
+              "seed": seed, "engine": engine}
     for setting in settings:
         for tau in taus:
             for family in families:
@@ -483,12 +484,18 @@ def run_delay_tolerance(
     results: str | None = None,
     progress: bool = True,
     stop_after: int | None = None,
+    engine: str = "auto",
 ) -> dict[str, Any]:
-    """Run the delay-tolerance benchmark; return the JSON-ready report."""
-    from netsim.runner import scenario_gains
+    """Run the delay-tolerance benchmark; return the JSON-ready report.
+
+    ``engine`` (``auto``, ``vectorised`` or ``events``) runs each cell's trials; it is
+    part of the cell's key in a results file, so a resumed run never mixes engines.
+    """
+    from netsim.runner import choose_engine, scenario_gains
     from netsim.sweep import run_sweep
 
     started = time.perf_counter()
+    engine = choose_engine(engine, families)
     taus = sorted({int(t) for t in taus})
     for s in delays:
         if s not in DELAY_SETTINGS:
@@ -496,7 +503,7 @@ def run_delay_tolerance(
     if gains is None and any(f != "centralized-kf" for f in families):
         gains = scenario_gains(scenario)
     fingerprint = scenario_fingerprint(scenario, gains)
-    cells = _cells(taus, delays, families, trials, steps, seed, fingerprint)
+    cells = _cells(taus, delays, families, trials, steps, seed, fingerprint, engine)
     scan = {"kind": "scan", "scenario": fingerprint,
             "tau_max": max(SCAN_TAU_MIN, max(taus) if taus else 0)}
     has_consensus = gains is not None
@@ -514,7 +521,7 @@ def run_delay_tolerance(
 
     scan_result = lookup(scan)["result"] if has_consensus else None
     common = {"kind": "mc", "scenario": fingerprint, "trials": trials, "steps": steps,
-              "seed": seed}
+              "seed": seed, "engine": engine}
     table = []
     for setting in delays:
         for tau in taus:
@@ -544,6 +551,7 @@ def run_delay_tolerance(
         "trials": trials,
         "steps": steps,
         "seed": seed,
+        "engine": engine,
         "analysis": scan_result,
         "cells": table,
     }
@@ -1225,6 +1233,10 @@ def add_bench_parser(subparsers: Any) -> Any:
     dt.add_argument("--steps", type=int, help="steps per trial (default: the preset's, else "
                     "the scenario's)")
     dt.add_argument("--seed", type=int, help="root seed (default: the scenario's run.seed)")
+    dt.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
+                    help="engine of the Monte Carlo trials: vectorised (all trials of a "
+                    "cell in lockstep), events (the SimPy kernel), auto (default: "
+                    "vectorised)")
     dt.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     dt.add_argument("--plot", metavar="FILE.png", help="write MSE vs tau per estimator and "
                     "delay setting, and the MSE over time, to a PNG")
@@ -1374,7 +1386,7 @@ def _cmd_delay_tolerance(args: Any) -> int:
         data = run_delay_tolerance(
             scenario, taus=taus, delays=delays, trials=trials, steps=steps, seed=seed,
             families=families, gains=gains, preset=preset, results=args.resume,
-            progress=not args.no_progress, **_executor(args))
+            progress=not args.no_progress, engine=args.engine, **_executor(args))
     except SweepInterrupted as exc:
         raise CommandError(str(exc), EXIT_INTERRUPTED) from None
     except ValueError as exc:

@@ -10,7 +10,7 @@ delay model is fixed or when they send on the same steps).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,10 +43,18 @@ __all__ = [
     "MonteCarloResult",
     "scenario_gains",
     "build_agents",
+    "ENGINES",
+    "choose_engine",
     "run_trial",
+    "run_trials",
     "run_monte_carlo",
     "delay_analytics",
 ]
+
+#: Simulation engines: ``events`` (the SimPy kernel, the reference), ``vectorised``
+#: (all trials in lockstep, :mod:`netsim.vectorised`), ``auto`` (vectorised unless the
+#: run is traced, which needs the kernel's observer hooks).
+ENGINES = ("auto", "vectorised", "events")
 
 #: Factor by which the fitted MSE trend may grow over the second half of a run
 #: before a run without blow-up counts as diverging.
@@ -136,6 +144,65 @@ def run_trial(
         observer=observer,
     )
     return simulation.run(scenario.steps if steps is None else steps)
+
+
+def choose_engine(engine: str, families: Sequence[str], *, traced: bool = False) -> str:
+    """Resolve ``auto`` and check that the engine can run the request.
+
+    Returns ``"vectorised"`` or ``"events"``; raises ValueError for a request the
+    chosen engine cannot serve (unknown engine, family or a traced vectorised run).
+    """
+    from netsim.vectorised import VECTORISED_FAMILIES
+
+    if engine not in ENGINES:
+        raise ValueError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
+    vectorisable = all(f in VECTORISED_FAMILIES for f in families)
+    if engine == "auto":
+        return "vectorised" if vectorisable and not traced else "events"
+    if engine == "vectorised":
+        if traced:
+            raise ValueError("--trace records the event kernel's events; use --engine events "
+                             "(or auto) to trace a run")
+        if not vectorisable:
+            bad = [f for f in families if f not in VECTORISED_FAMILIES]
+            raise ValueError(f"the vectorised engine has no estimator family {bad[0]!r}")
+    return engine
+
+
+def run_trials(
+    scenario: Scenario,
+    family: str,
+    gains: GainDesign | None,
+    trial_seeds: Sequence[SeedLike],
+    steps: int | None = None,
+    *,
+    engine: str = "auto",
+    record_delays: bool | Collection[int] = False,
+    record_estimates: bool = True,
+    progress: Callable[[int], None] | None = None,
+) -> list[TrialResult]:
+    """Run several trials of one estimator family on the chosen engine.
+
+    The engines give the same results (to round-off) for the same trial seeds; the
+    vectorised one runs all trials in lockstep. ``record_delays``: True, False or the
+    indices of the trials whose effective delays to keep.
+    """
+    engine = choose_engine(engine, [family])
+    if engine == "vectorised":
+        from netsim.vectorised import run_vectorised
+
+        return run_vectorised(scenario, family, gains, trial_seeds, steps,
+                              record_delays=record_delays, record_estimates=record_estimates,
+                              progress=progress)
+    wanted = set(range(len(trial_seeds))) if record_delays is True else set(
+        record_delays or ())
+    results = []
+    for t, seed in enumerate(trial_seeds):
+        results.append(run_trial(scenario, family, gains, seed, steps,
+                                 record_delays=t in wanted))
+        if progress is not None:
+            progress(1)
+    return results
 
 
 def fixed_delay_matrix(scenario: Scenario) -> np.ndarray | None:
@@ -251,6 +318,7 @@ class MonteCarloResult:
     seed: int
     estimators: dict[str, EstimatorSummary] = field(default_factory=dict)
     analytics: dict[str, Any] | None = None
+    engine: str = "events"
 
     def to_dict(self) -> dict[str, Any]:
         gains = None
@@ -269,6 +337,7 @@ class MonteCarloResult:
             "steps": self.steps,
             "trials": self.trials,
             "seed": self.seed,
+            "engine": self.engine,
             "gains": gains,
             "analytics": _json_tree(self.analytics),
             "estimators": {name: s.to_dict() for name, s in self.estimators.items()},
@@ -339,6 +408,7 @@ def run_monte_carlo(
     gains: GainDesign | None = None,
     trace: str | None = None,
     on_trace: Callable[[str], None] | None = None,
+    engine: str = "auto",
 ) -> MonteCarloResult:
     """Run every estimator family of the scenario over Monte Carlo trials.
 
@@ -359,6 +429,8 @@ def run_monte_carlo(
         (:func:`traces.recorder.trace_path`).
     on_trace : callable(str), optional
         Called with each trace file's path once it is finished.
+    engine : str
+        One of :data:`ENGINES` (``auto``: vectorised unless traced).
 
     Returns
     -------
@@ -371,25 +443,25 @@ def run_monte_carlo(
     needs_gains = any(f != "centralized-kf" for f in families)
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)
-    result = MonteCarloResult(scenario, gains, steps, trials, seed)
+    engine = choose_engine(engine, families, traced=trace is not None)
+    result = MonteCarloResult(scenario, gains, steps, trials, seed, engine=engine)
     if gains is not None:
         result.analytics = delay_analytics(scenario, gains)
+    seeds = [child_sequence(seed, "trial", t) for t in range(trials)]
     for family in families:
-        runs = []
-        for t in range(trials):
-            trial_seed = child_sequence(seed, "trial", t)
-            if trace is None:
-                runs.append(
-                    run_trial(scenario, family, gains, trial_seed, steps, record_delays=False)
-                )
-            else:
+        if trace is None:
+            runs = run_trials(scenario, family, gains, seeds, steps, engine=engine,
+                              record_estimates=False, progress=progress)
+        else:
+            runs = []
+            for t in range(trials):
                 runs.append(
                     _traced_trial(scenario, family, gains, seed, t, steps, trace,
                                   single=(trials == 1 and len(families) == 1),
                                   on_trace=on_trace)
                 )
-            if progress is not None:
-                progress(1)
+                if progress is not None:
+                    progress(1)
         result.estimators[family] = _summarise(
             family, runs, scenario.steady_state_fraction, steps
         )

@@ -1,0 +1,403 @@
+"""Vectorised lockstep engine: all trials of a Monte Carlo batch advance together.
+
+The event kernel (:mod:`netsim.kernel`) is the reference; this engine computes the
+same runs with numpy arrays of shape (agents, trials, n) instead of one SimPy event
+per message, for the estimator families whose sending steps are known in advance
+(``compensated``, ``uncompensated``, ``block``) and the centralised Kalman filter.
+
+What is the same as the kernel, by construction:
+
+* the random streams: trial t's plant noise comes from ``stream(seed_t, "plant")``
+  drawn in the kernel's order (x_0, then per step the process noise and each
+  sensor's measurement noise), and the links consume each trial's delay model
+  exactly as the kernel does (:mod:`netsim.linkschedule`);
+* the update rules: LCSYS2022 eqs. (4)-(5) with A^(k - s) compensation, the
+  delay-tolerant paper's eqs. (6)-(7) with A and the most recently arrived message,
+  LCSYS2022 eqs. (15)-(16) for the block update, the Kalman filter of
+  :class:`estimators.kalman.CentralizedKalmanFilter`; substitution of the agent's own
+  prediction before anything arrived from a neighbour (DESIGN.md);
+* the outputs: one :class:`netsim.kernel.TrialResult` per trial, with the same
+  divergence rule and message counts.
+
+Only the order of floating-point additions differs (the neighbour sum is a sparse
+matrix product), so estimates agree with the kernel's to round-off; the
+differential tests (tests/test_vectorised.py) hold them to 1e-9 relative.
+
+Past estimates are kept in a ring buffer as deep as the largest lag k - s any
+receiver uses (known from the schedule), and powers A^r are precomputed once.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Collection, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from estimators.gains import GainDesign
+from models.scenario import Scenario
+from models.seeding import SeedLike, stream
+from netsim import interrupt
+from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult
+from netsim.linkschedule import (
+    LinkSchedule,
+    MessageSelection,
+    build_schedule,
+    select_messages,
+)
+
+__all__ = [
+    "VECTORISED_FAMILIES",
+    "PlantBatch",
+    "simulate_plant",
+    "run_vectorised",
+]
+
+#: Estimator families the vectorised engine runs.
+VECTORISED_FAMILIES = ("compensated", "uncompensated", "block", "centralized-kf")
+
+
+@dataclass
+class PlantBatch:
+    """States and measurements of a batch of trials.
+
+    Attributes
+    ----------
+    states : numpy.ndarray, shape (K+1, T, n)
+    measurements : numpy.ndarray, shape (K+1, T, M)
+        All sensors' measurements stacked (sensor i in columns ``offsets[i]:offsets[i+1]``).
+    offsets : numpy.ndarray, shape (N+1,)
+    """
+
+    states: np.ndarray
+    measurements: np.ndarray
+    offsets: np.ndarray
+
+
+def simulate_plant(scenario: Scenario, trial_seeds: Sequence[SeedLike], steps: int
+                   ) -> PlantBatch:
+    """Simulate the plant and sensors of every trial (LCSYS2022 eq. 1).
+
+    Trial t draws from ``stream(trial_seeds[t], "plant")`` exactly the numbers the
+    kernel's plant process draws: per step k, n process-noise values (x_0's for
+    k = 0), then each sensor's m_i measurement-noise values.
+    """
+    plant = scenario.plant
+    n = plant.n_states
+    sizes = [C.shape[0] for C in plant.C]
+    M = int(sum(sizes))
+    K = int(steps)
+    T = len(trial_seeds)
+    noise = np.empty((K + 1, T, n + M))
+    for t, seed in enumerate(trial_seeds):
+        noise[:, t, :] = stream(seed, "plant").standard_normal((K + 1) * (n + M)).reshape(
+            K + 1, n + M)
+    F0, FQ, FR = plant._factors
+    states = np.empty((K + 1, T, n))
+    states[0] = plant.x0_mean + noise[0, :, :n] @ F0.T
+    A_T, FQ_T = plant.A.T, FQ.T
+    for k in range(1, K + 1):
+        states[k] = states[k - 1] @ A_T + noise[k, :, :n] @ FQ_T
+    R_factor = sp.block_diag(FR, format="csr")
+    measurements = states @ plant.C_stacked.T
+    z = noise[:, :, n:].reshape(-1, M)
+    measurements += (R_factor @ z.T).T.reshape(K + 1, T, M)
+    return PlantBatch(states, measurements, np.concatenate([[0], np.cumsum(sizes)]))
+
+
+class _Outputs:
+    """Per-step recording with the kernel's divergence rule (agent-major arrays)."""
+
+    def __init__(self, K: int, N: int, T: int, n: int, threshold: float,
+                 record_estimates: bool) -> None:
+        self.K = K
+        self.sq = np.full((K + 1, T, N), np.nan)
+        self.estimates = np.full((K + 1, T, N, n), np.nan) if record_estimates else None
+        self.diverged_at = np.full(T, -1, dtype=np.int64)
+        self.alive = np.ones(T, dtype=bool)
+        self.threshold_sq = threshold ** 2
+
+    def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
+        """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
+        err = estimates - state[None]
+        sq = np.einsum("itj,itj->ti", err, err)
+        alive = self.alive
+        self.sq[k, alive] = sq[alive]
+        if self.estimates is not None:
+            self.estimates[k, alive] = estimates.transpose(1, 0, 2)[alive]
+        state_sq = np.einsum("tj,tj->t", state, state)
+        floor = np.maximum(self.threshold_sq, ROUNDOFF_RELATIVE_ERROR ** 2 * state_sq)
+        bad = ~np.all(np.isfinite(sq), axis=1) | np.any(sq > floor[:, None], axis=1)
+        newly = bad & alive
+        if np.any(newly):
+            self.diverged_at[newly] = k
+            self.sq[k, newly] = np.where(np.isfinite(sq[newly]), sq[newly], np.inf)
+            self.alive = alive & ~newly
+        return bool(np.any(self.alive))
+
+
+def _pad_outputs(scenario: Scenario, gains: GainDesign) -> tuple[np.ndarray, np.ndarray]:
+    """C_i (N, m, n) and L_i (N, n, m), zero-padded to the largest m_i."""
+    C = scenario.plant.C
+    m = max(Ci.shape[0] for Ci in C)
+    n = scenario.plant.n_states
+    N = len(C)
+    Cp = np.zeros((N, m, n))
+    Lp = np.zeros((N, n, m))
+    for i, Ci in enumerate(C):
+        Cp[i, : Ci.shape[0]] = Ci
+        Lp[i, :, : Ci.shape[0]] = np.asarray(gains.L[i])
+    return Cp, Lp
+
+
+def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
+    """Measurements per agent, shape (K+1, N, T, m), zero-padded."""
+    K1, T, _ = batch.measurements.shape
+    N = len(batch.offsets) - 1
+    out = np.zeros((K1, N, T, m))
+    for i in range(N):
+        a, b = batch.offsets[i], batch.offsets[i + 1]
+        out[:, i, :, : b - a] = batch.measurements[:, :, a:b]
+    return out
+
+
+def _powers(A: np.ndarray, count: int) -> np.ndarray:
+    """A^0 .. A^count, shape (count+1, n, n), by the estimators' recursion A @ A^(r-1)."""
+    out = [np.eye(A.shape[0]), A]
+    while len(out) <= count:
+        out.append(A @ out[-1])
+    return np.stack(out[: count + 1])
+
+
+def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
+                   batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
+                   steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
+    """Run a consensus family; returns the outputs and the steps with an update."""
+    plant = scenario.plant
+    A = plant.A
+    n = plant.n_states
+    K = int(steps)
+    T = batch.states.shape[1]
+    P = np.asarray(scenario.weights, dtype=float)
+    N = P.shape[0]
+    Cp, Lp = _pad_outputs(scenario, gains)
+    Y = _agent_measurements(batch, Cp.shape[1])
+    link_index = {link: q for q, link in enumerate(schedule.links)}
+    # consensus terms: every (i, j) with p_ij > 0, j != i, in row order
+    rows, cols = np.nonzero(P)
+    keep = rows != cols
+    term_i, term_j = rows[keep], cols[keep]
+    term_w = P[term_i, term_j]
+    term_link = np.array([link_index.get((int(j), int(i)), -1)
+                          for i, j in zip(term_i, term_j, strict=True)], dtype=np.int64)
+    E = len(term_i)
+    aggregate = sp.csr_matrix((term_w, (term_i, np.arange(E))), shape=(N, E))
+    own_weight = np.diag(P)[:, None, None]
+    block = family == "block"
+    period = scenario.delay_bound + 1 if block else 1
+    send = schedule.send_steps
+    depth = max(selection.max_lag, period) + 1
+    powers = _powers(A, max(selection.max_lag, period))
+    history = np.zeros((depth, N, T, n))
+    trials = np.arange(T)[None, :]
+    no_link = term_link < 0
+
+    def innovate(prior: np.ndarray, k: int) -> np.ndarray:
+        # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1})
+        innovation = Y[k] - np.einsum("imn,itn->itm", Cp, prior)
+        return prior + np.einsum("inm,itm->itn", Lp, innovation)
+
+    outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
+    estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0)
+    block_estimate, block_step = estimate, 0
+    history[0] = estimate
+    updated = [0]
+    alive = outputs.record(0, estimate, batch.states[0])
+    with np.errstate(all="ignore"):
+        for k in range(1, K + 1):
+            if not alive:
+                break
+            interrupt.check()  # a requested Ctrl-C stops here, between steps
+            if block and k % period:
+                estimate = np.einsum("ab,itb->ita", powers[k - block_step], block_estimate)
+            else:
+                if block:
+                    own = np.einsum("ab,itb->ita", powers[period], block_estimate)
+                else:
+                    own = estimate @ A.T
+                held = selection.chosen[k][np.maximum(term_link, 0)]  # (E, T)
+                held[no_link] = -1
+                missing = held < 0
+                sent = send[np.maximum(held, 0)]
+                payload = history[sent % depth, term_j[:, None], trials]  # (E, T, n)
+                if family == "uncompensated":
+                    neighbour = payload @ A.T
+                else:
+                    lag = np.where(missing, 1, k - sent)
+                    neighbour = np.einsum("etab,etb->eta", powers[lag], payload)
+                neighbour = np.where(missing[:, :, None], own[term_i], neighbour)
+                prior = own_weight * own
+                if E:
+                    prior = prior + (aggregate @ neighbour.reshape(E, -1)).reshape(N, T, n)
+                estimate = innovate(prior, k)
+                block_estimate, block_step = estimate, k
+                updated.append(k)
+            history[k % depth] = estimate
+            alive = outputs.record(k, estimate, batch.states[k])
+    return outputs, np.asarray(updated)
+
+
+def _kalman_run(scenario: Scenario, batch: PlantBatch, steps: int,
+                record_estimates: bool) -> _Outputs:
+    """The centralised Kalman filter on all trials (gains are the same for every trial)."""
+    plant = scenario.plant
+    A, C, Q, R = plant.A, plant.C_stacked, plant.Q, plant.R_stacked
+    K = int(steps)
+    T = batch.states.shape[1]
+    n = plant.n_states
+    x = np.broadcast_to(plant.x0_mean, (T, n)).astype(float)
+    cov = np.asarray(plant.x0_cov, dtype=float).copy()
+    outputs = _Outputs(K, 1, T, n, scenario.divergence_threshold, record_estimates)
+    identity = np.eye(n)
+    with np.errstate(all="ignore"):
+        for k in range(K + 1):
+            interrupt.check()
+            if k > 0:
+                x = x @ A.T
+                cov = A @ cov @ A.T + Q
+            S = C @ cov @ C.T + R
+            G = np.linalg.solve(S, C @ cov).T
+            x = x + (batch.measurements[k] - x @ C.T) @ G.T
+            I_GC = identity - G @ C
+            cov = I_GC @ cov @ I_GC.T + G @ R @ G.T
+            cov = 0.5 * (cov + cov.T)
+            if not outputs.record(k, x[None], batch.states[k]):
+                break
+    return outputs
+
+
+def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
+                      P: np.ndarray, updated: np.ndarray, trial: int, end: int
+                      ) -> np.ndarray:
+    """r_ij[k] of one trial as the kernel records it, shape (K+1, N, N)."""
+    K1 = selection.chosen.shape[0]
+    N = P.shape[0]
+    out = np.full((K1, N, N), NOT_USED, dtype=np.int32)
+    link_index = {link: q for q, link in enumerate(schedule.links)}
+    steps = updated[updated <= end]
+    for i, j in zip(*np.nonzero(P), strict=True):
+        if i == j:
+            continue
+        q = link_index.get((int(j), int(i)))
+        held = (selection.chosen[steps, q, trial] if q is not None
+                else np.full(len(steps), -1))
+        r = np.where(held >= 0, steps - 1 - schedule.send_steps[np.maximum(held, 0)], -1)
+        r[steps == 0] = -1
+        out[steps, i, j] = r
+    return out
+
+
+def run_vectorised(
+    scenario: Scenario,
+    family: str,
+    gains: GainDesign | None,
+    trial_seeds: Sequence[SeedLike],
+    steps: int | None = None,
+    *,
+    record_delays: bool | Collection[int] = False,
+    record_estimates: bool = True,
+    progress: Callable[[int], None] | None = None,
+) -> list[TrialResult]:
+    """Run a batch of trials of one estimator family in lockstep.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    family : str
+        One of :data:`VECTORISED_FAMILIES`.
+    gains : GainDesign or None
+        Innovation gains L_i (unused by the centralised filter).
+    trial_seeds : sequence of seed-like, length T
+        Trial t's seed, as :func:`netsim.runner.run_trial` takes it.
+    steps : int, optional
+        Last step K (default: the scenario's).
+    record_delays : bool or collection of int
+        Fill ``TrialResult.effective_delays`` (K+1, N, N) of every trial (True) or of
+        the listed trials.
+    record_estimates : bool
+        Fill ``TrialResult.estimates`` (K+1, N, n); otherwise it has shape (0, N, n).
+    progress : callable(int), optional
+        Called with T once the batch is done.
+
+    Returns
+    -------
+    list of TrialResult
+        One per trial, as the event kernel returns it (``messages`` is empty).
+    """
+    if family not in VECTORISED_FAMILIES:
+        raise ValueError(f"the vectorised engine has no estimator family {family!r}; "
+                         f"it runs {', '.join(VECTORISED_FAMILIES)}")
+    K = scenario.steps if steps is None else int(steps)
+    T = len(trial_seeds)
+    plant = scenario.plant
+    batch = simulate_plant(scenario, trial_seeds, K)
+    schedule = selection = None
+    P = np.asarray(scenario.weights, dtype=float)
+    if family == "centralized-kf":
+        outputs = _kalman_run(scenario, batch, K, record_estimates)
+        updated = np.arange(K + 1)
+        N = 1
+    else:
+        if gains is None:
+            raise ValueError(f"estimator family {family!r} needs gains")
+        period = scenario.delay_bound + 1 if family == "block" else 1
+        schedule = build_schedule([scenario.delay_model(s) for s in trial_seeds],
+                                  scenario.links, np.arange(0, K + 1, period),
+                                  sample_period=scenario.sample_period)
+        selection = select_messages(schedule, K, timestamps=family != "uncompensated")
+        outputs, updated = _consensus_run(scenario, family, gains, batch, schedule,
+                                          selection, K, record_estimates)
+        N = scenario.n_agents
+    n = plant.n_states
+    wanted = set(range(T)) if record_delays is True else set(record_delays or ())
+    results = []
+    for t in range(T):
+        end = int(outputs.diverged_at[t]) if outputs.diverged_at[t] >= 0 else K
+        states = batch.states[:, t].copy()
+        states[end + 1:] = np.nan
+        measurements = []
+        for i in range(len(batch.offsets) - 1):
+            y = batch.measurements[:, t, batch.offsets[i]:batch.offsets[i + 1]].copy()
+            y[end + 1:] = np.nan
+            measurements.append(y)
+        estimates = (outputs.estimates[:, t] if outputs.estimates is not None
+                     else np.zeros((0, N, n)))
+        counts: dict[str, Any] = {"sent": 0, "delivered": 0, "dropped": 0, "drop_reasons": {}}
+        discarded = 0
+        delays = None
+        if schedule is not None:
+            counts = schedule.counts(t, end)
+            arrived = (schedule.arrival[t] <= end) & (schedule.send_steps <= end)
+            discarded = int(np.count_nonzero(selection.discarded[t] & arrived))
+            if t in wanted:
+                delays = _effective_delays(selection, schedule, P, updated, t, end)
+        elif t in wanted:
+            delays = np.full((K + 1, N, N), NOT_USED, dtype=np.int32)
+        results.append(TrialResult(
+            states=states,
+            measurements=measurements,
+            estimates=estimates,
+            squared_errors=outputs.sq[:, t],
+            effective_delays=delays,
+            diverged_at=end if outputs.diverged_at[t] >= 0 else None,
+            messages_sent=counts["sent"],
+            messages_delivered=counts["delivered"],
+            messages_discarded=discarded,
+            messages_dropped=counts["dropped"],
+            drop_reasons=counts["drop_reasons"],
+        ))
+    if progress is not None:
+        progress(T)
+    return results

@@ -33,9 +33,21 @@ process:
   ``Delivery`` event. Its estimates are checked to be bit-identical to the
   kernel's, and the ratio of wall times is reported.
 
+* **profile** (``--profile``): one extra, untimed run per size and estimator under
+  cProfile, its time split by where it is spent: SimPy's own machinery, the kernel
+  (``netsim/kernel.py``), the links, the estimator, the delay model, the plant, the
+  benchmark's glue. Time in C functions (numpy, heapq, dict methods, ...) is charged
+  to the Python function that called them. cProfile slows Python-level calls more
+  than C work, so the shares are indicative, not wall-time fractions.
+
+The headline is the first table: at each N, the kernel's cost per event over bare
+SimPy's cost per event (``bare-timeout``), for the real estimator and for the null
+estimator, all measured in the same run. The issue's goal is <= 3x.
+
 Usage::
 
     python benchmarks/kernel_throughput.py                # default sizes 4,32,128
+    python benchmarks/kernel_throughput.py --profile      # plus the profile breakdown
     python benchmarks/kernel_throughput.py --sizes 8,64 --steps 500 --repeat 5
     python benchmarks/kernel_throughput.py --json > kernel.json
 
@@ -46,9 +58,11 @@ JSON object and no table).
 from __future__ import annotations
 
 import argparse
+import cProfile
 import gc
 import json
 import platform
+import pstats
 import sys
 import time
 from collections import Counter
@@ -368,12 +382,58 @@ def bare_process(n_events: int) -> float:
     return time.perf_counter() - t0
 
 
+#: (label, path fragment) of the profile's components, first match wins.
+PROFILE_COMPONENTS = (
+    ("simpy", "/simpy/"),
+    ("kernel", "netsim/kernel.py"),
+    ("links", "netsim/links.py"),
+    ("estimator", "estimators/"),
+    ("delay model", "models/delays.py"),
+    ("plant", "models/plant.py"),
+    ("benchmark glue", "kernel_throughput.py"),
+)
+
+
+def _component(func: tuple[str, int, str]) -> str | None:
+    filename = func[0].replace("\\", "/")
+    for label, fragment in PROFILE_COMPONENTS:
+        if fragment in filename:
+            return label
+    return None
+
+
+def profile_breakdown(sim: Simulation, steps: int) -> dict[str, float]:
+    """Profiled run; seconds of own time per component (C calls charged to the caller).
+
+    Own time of a Python function goes to its component; own time of a C function
+    (``~`` entries: numpy, heapq, dict methods, ...) is split over its callers by what
+    each caller spent in it, so ``ndarray.dot`` called by the estimator counts as
+    estimator time. Whatever matches nothing is reported as ``other``.
+    """
+    profiler = cProfile.Profile()
+    profiler.enable()
+    sim.run(steps)
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats  # type: ignore[attr-defined]
+    out: dict[str, float] = {label: 0.0 for label, _ in PROFILE_COMPONENTS}
+    out["other"] = 0.0
+    for func, (_, _, tottime, _, callers) in stats.items():
+        label = _component(func)
+        if label is not None or func[0] != "~" or not callers:
+            out[label or "other"] += tottime
+            continue
+        for caller, caller_stats in callers.items():
+            out[_component(caller) or "other"] += caller_stats[2]
+    return out
+
+
 def default_steps(n_agents: int) -> int:
     return int(min(STEPS_MAX, max(STEPS_MIN, STEPS_BUDGET // n_agents)))
 
 
 def benchmark_size(
-    n_agents: int, steps: int, repeat: int, tau: int, in_degree: float, seed: int
+    n_agents: int, steps: int, repeat: int, tau: int, in_degree: float, seed: int,
+    profile: bool = False,
 ) -> dict[str, Any]:
     scn = build_scenario(n_agents, in_degree, tau, seed)
     progress(
@@ -435,7 +495,15 @@ def benchmark_size(
     null_us = per_event(null_wall, null_events)
     pp_us = per_event(pp_wall, pp_events)
     simulated = steps + 1  # steps 0..steps
+    profiles = {}
+    if profile:
+        for estimator in ("compensated", "null"):
+            progress(f"  profiling {estimator}")
+            profiles[estimator] = profile_breakdown(
+                make_simulation(scn, estimator, "scheduled"), steps
+            )
     return {
+        "profile_s": profiles,
         "n_agents": n_agents,
         "steps": steps,
         "simulated_steps": simulated,
@@ -465,6 +533,7 @@ def benchmark_size(
             "us_per_event": bare_p_us,
         },
         "kernel_over_bare_timeout": kernel_us / bare_t_us,
+        "bare_timeout_events_per_s": kernel_events / bare_t_wall,
         "kernel_over_bare_process": kernel_us / bare_p_us,
         "null_estimator": {
             "wall_s": null_wall,
@@ -472,6 +541,7 @@ def benchmark_size(
             "messages_per_s": null_res.messages_delivered / null_wall,
             "events": null_events,
             "us_per_event": null_us,
+            "events_per_s": null_events / null_wall,
             "over_bare_timeout": null_us / bare_t_us,
             "share_of_kernel_wall": null_wall / kernel_wall,
         },
@@ -520,6 +590,29 @@ def render(report: dict[str, Any]) -> str:
         "n=2 plant, 1 output/agent, L_i = 0.1 C_i^T, "
         f"asynchronous random delays tau={results[0]['tau'] if results else '?'}, "
         "CompensatingEstimator, record_delays=False",
+        "",
+        "Headline: kernel cost per event / bare SimPy timeout cost per event (goal <= 3x)",
+        _table(
+            [
+                "N",
+                "kernel events/s",
+                "bare-timeout events/s",
+                "ratio (real estimator)",
+                "null-est events/s",
+                "ratio (null estimator)",
+            ],
+            [
+                [
+                    str(r["n_agents"]),
+                    _si(r["kernel"]["events_per_s"]),
+                    _si(r["bare_timeout_events_per_s"]),
+                    f"{r['kernel_over_bare_timeout']:.2f}x",
+                    _si(r["null_estimator"]["events_per_s"]),
+                    f"{r['null_estimator']['over_bare_timeout']:.2f}x",
+                ]
+                for r in results
+            ],
+        ),
         "",
         "Kernel throughput",
         _table(
@@ -619,6 +712,7 @@ def render(report: dict[str, Any]) -> str:
                 for r in results
             ],
         ),
+        *_render_profiles(results),
         "",
         "Notes:",
         "- " + EVENT_COUNT_EXPLANATION,
@@ -635,6 +729,26 @@ def render(report: dict[str, Any]) -> str:
         "- steps/s counts simulated steps 0..steps (steps + 1 per run).",
     ]
     return "\n".join(out)
+
+
+def _render_profiles(results: list[dict[str, Any]]) -> list[str]:
+    rows = []
+    labels = [label for label, _ in PROFILE_COMPONENTS] + ["other"]
+    for r in results:
+        for estimator, parts in r["profile_s"].items():
+            total = sum(parts.values())
+            rows.append(
+                [str(r["n_agents"]), estimator, f"{total:.2f}"]
+                + [f"{100 * parts[label] / total:.0f}%" for label in labels]
+            )
+    if not rows:
+        return []
+    return [
+        "",
+        "Profile (--profile): share of cProfile time by component "
+        "(C calls charged to their caller)",
+        _table(["N", "estimator", "prof. s", *labels], rows),
+    ]
 
 
 def parse_int_list(text: str) -> list[int]:
@@ -683,6 +797,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--seed", type=int, default=0, help="root seed (0)")
     parser.add_argument(
+        "--profile",
+        action="store_true",
+        help="also profile one untimed run per size and estimator (cProfile) and "
+        "report where the time goes",
+    )
+    parser.add_argument(
         "--json",
         action="store_true",
         help="print one JSON object on stdout instead of the table",
@@ -707,7 +827,7 @@ def main(argv: list[str] | None = None) -> int:
 
     t0 = time.perf_counter()
     results = [
-        benchmark_size(n, s, args.repeat, args.tau, args.in_degree, args.seed)
+        benchmark_size(n, s, args.repeat, args.tau, args.in_degree, args.seed, args.profile)
         for n, s in zip(sizes, steps, strict=True)
     ]
     types = sorted({t for r in results for t in r["kernel"]["events_by_type"]})

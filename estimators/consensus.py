@@ -76,12 +76,18 @@ class _ConsensusBase:
 
     #: Whether the rule uses time-stamps (freshest = largest time-stamp).
     uses_timestamps = True
+    #: Whether a neighbour estimate stamped s is propagated with A^(k - s) (else A).
+    compensates = True
 
     def __init__(self, params: ConsensusParameters) -> None:
         self.params = params
         self.agent = params.agent
         self.neighbours = params.neighbours
         self._weights = params.weights
+        # the same float64 weights as plain Python floats (identical products, no
+        # numpy scalar indexing in the update loop)
+        self._own_weight = float(params.weights[params.agent])
+        self._neighbour_weights = tuple((j, float(params.weights[j])) for j in self.neighbours)
         self._A = params.A
         self._C = params.C
         self._L = params.L
@@ -90,11 +96,30 @@ class _ConsensusBase:
         self._stored: dict[int, tuple[int, np.ndarray]] = {}
         self._started = False
         self.last_step: int | None = None
-        #: Effective delay r_ij[k] = k - 1 - s_j used by the last update, per
-        #: in-neighbour j (NO_MESSAGE when i substituted its own estimate).
-        self.last_delays: dict[int, int] = {}
+        self._last_delays: dict[int, int] = {}
+        # (k, copy of the stored messages) of the last update: last_delays is built
+        # from it only when someone reads it
+        self._used: tuple[int, dict[int, tuple[int, np.ndarray]]] | None = None
         #: Messages discarded on arrival by the freshest rule.
         self.discarded = 0
+
+    @property
+    def last_delays(self) -> dict[int, int]:
+        """Effective delay r_ij[k] = k - 1 - s_j used by the last update, per
+        in-neighbour j (NO_MESSAGE when i substituted its own estimate)."""
+        if self._used is not None:
+            k, stored = self._used
+            self._used = None
+            self._last_delays = {
+                j: NO_MESSAGE if j not in stored else k - 1 - stored[j][0]
+                for j in self.neighbours
+            }
+        return self._last_delays
+
+    @last_delays.setter
+    def last_delays(self, delays: dict[int, int]) -> None:
+        self._used = None
+        self._last_delays = delays
 
     # -- messages -------------------------------------------------------------
     def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool:
@@ -103,10 +128,11 @@ class _ConsensusBase:
         Freshest rule: with time-stamps, a message older than (or as old as) the
         stored one from the same sender is discarded.
         """
-        current = self._stored.get(sender)
-        if self.uses_timestamps and current is not None and sent_step <= current[0]:
-            self.discarded += 1
-            return False
+        if self.uses_timestamps:
+            current = self._stored.get(sender)
+            if current is not None and sent_step <= current[0]:
+                self.discarded += 1
+                return False
         self._stored[sender] = (sent_step, payload)
         return True
 
@@ -126,39 +152,50 @@ class _ConsensusBase:
         return self._powers[exponent]
 
     # -- update ---------------------------------------------------------------
+    # Matrix-vector products use ndarray.dot: the same BLAS gemv as ``@`` (bit for
+    # bit), at well under half of the matmul ufunc's call overhead on tiny arrays.
     def _innovate(self, prior: np.ndarray, y: np.ndarray) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + K_i C_i^T (y - C_i x_{k|k-1}), K_i C_i^T = L_i
-        return prior + self._L @ (y - self._C @ prior)
+        return prior + self._L.dot(y - self._C.dot(prior))
 
-    def _neighbour_term(self, k: int, j: int, own: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
+    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
+        """The neighbour term A^(k - s) x-hat^j_{s|s} (A x-hat^j without compensation)."""
+        if not self.compensates:
+            return self._A.dot(payload)
+        return self.power(k - sent_step).dot(payload)
 
     def _own_prediction(self) -> np.ndarray:
         """Agent i's own term A x-hat^i_{k-1|k-1} (also substituted for silent neighbours)."""
-        return self._A @ self._estimate
+        return self._A.dot(self._estimate)
 
     def _prior(self, k: int) -> np.ndarray:
+        # p_ii own + sum_j p_ij (compensated neighbour term, or own if j is silent),
+        # accumulated in neighbour order (the same float operations as the textbook
+        # sum, without a new array per term)
         own = self._own_prediction()
-        prior = self._weights[self.agent] * own
-        delays = {}
-        for j in self.neighbours:
-            stored = self._stored.get(j)
-            if stored is None:
-                delays[j] = NO_MESSAGE
-                prior = prior + self._weights[j] * own
+        prior = self._own_weight * own
+        stored = self._stored
+        compensates = self.compensates
+        powers = self._powers
+        A = self._A
+        for j, w in self._neighbour_weights:
+            entry = stored.get(j)
+            if entry is None:
+                prior += w * own
                 continue
-            sent_step, payload = stored
+            sent_step, payload = entry
             if sent_step >= k:
                 raise RuntimeError(
                     f"agent {self.agent}: message from {j} stamped {sent_step} used at step {k}"
                 )
-            delays[j] = k - 1 - sent_step
-            prior = prior + self._weights[j] * self._compensate(k, sent_step, payload)
-        self.last_delays = delays
+            if compensates:
+                lag = k - sent_step
+                M = powers[lag] if lag < len(powers) else self.power(lag)
+            else:
+                M = A
+            prior += w * M.dot(payload)
+        self._used = (k, stored.copy())
         return prior
-
-    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
-        raise NotImplementedError
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run the update of step ``k`` with the measurement y^i_k (shape (m_i,)).
@@ -188,9 +225,7 @@ class CompensatingEstimator(_ConsensusBase):
 
     family = "compensated"
     uses_timestamps = True
-
-    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
-        return self.power(k - sent_step) @ payload
+    compensates = True
 
 
 class UncompensatedEstimator(_ConsensusBase):
@@ -202,9 +237,7 @@ class UncompensatedEstimator(_ConsensusBase):
 
     family = "uncompensated"
     uses_timestamps = False
-
-    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
-        return self._A @ payload
+    compensates = False
 
 
 class BlockUpdateEstimator(_ConsensusBase):
@@ -227,6 +260,7 @@ class BlockUpdateEstimator(_ConsensusBase):
 
     family = "block"
     uses_timestamps = True
+    compensates = True
 
     def __init__(self, params: ConsensusParameters, tau: int) -> None:
         super().__init__(params)
@@ -235,12 +269,9 @@ class BlockUpdateEstimator(_ConsensusBase):
         self._block_estimate = self._estimate
         self._block_step = 0
 
-    def _compensate(self, k: int, sent_step: int, payload: np.ndarray) -> np.ndarray:
-        return self.power(k - sent_step) @ payload
-
     def _own_prediction(self) -> np.ndarray:
         """Agent i's own term A^(tau+1) x-hat^i at the previous block step (eq. 15)."""
-        return self.power(self.period) @ self._block_estimate
+        return self.power(self.period).dot(self._block_estimate)
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run step ``k``: a full update at block steps, a prediction otherwise."""
@@ -256,7 +287,7 @@ class BlockUpdateEstimator(_ConsensusBase):
             self._estimate = self._block_estimate
         else:
             self.last_delays = {}
-            self._estimate = self.power(k - self._block_step) @ self._block_estimate
+            self._estimate = self.power(k - self._block_step).dot(self._block_estimate)
         self.last_step = k
         return self._estimate
 

@@ -15,6 +15,7 @@ all updates of step k, so a message is never used at the step it was sent.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
@@ -227,6 +228,12 @@ class Simulation:
         self._messages: list[Message] = []
         self._discarded = 0
         self._drop_reasons: dict[str, int] = {}
+        if observer is None and not record_messages:
+            # Nothing needs Message objects: plain links hand deliveries straight to
+            # the receiver's estimator (Link's lean path, same events and times).
+            for (_, r), link in self.links.items():
+                if type(link) is Link:
+                    link.receive = self.agents[r].estimator.message_arrived
 
     def _dropped(self, message: Message, reason: str) -> None:
         self._drop_reasons[reason] = self._drop_reasons.get(reason, 0) + 1
@@ -246,10 +253,15 @@ class Simulation:
     def run(self, steps: int) -> TrialResult:
         """Simulate steps 0..``steps`` and return the recorded result."""
         env = self.env
-        n = self.plant.n_states
+        plant = self.plant
+        plant_rng = self.plant_rng
+        n = plant.n_states
         n_agents = len(self.agents)
         states = np.full((steps + 1, n), np.nan)
-        measurements = [np.full((steps + 1, C.shape[0]), np.nan) for C in self.plant.C]
+        # all sensors' y^i_k side by side, one row per step; split per sensor at the end
+        widths = [C.shape[0] for C in plant.C]
+        offsets = np.cumsum([0, *widths])
+        all_measurements = np.full((steps + 1, int(offsets[-1])), np.nan)
         estimates = np.full((steps + 1, n_agents, n), np.nan)
         sq_errors = np.full((steps + 1, n_agents), np.nan)
         delays = (
@@ -261,17 +273,17 @@ class Simulation:
         done = env.event()
         threshold_sq = self.divergence_threshold**2
         observer = self.observer
+        concatenate = np.concatenate
 
         def plant_process():
-            x = self.plant.sample_initial(self.plant_rng)
+            x = plant.sample_initial(plant_rng)
             for k in range(steps + 1):
                 interrupt.check()  # a requested Ctrl-C stops here, between steps
                 if k > 0:
-                    x = self.plant.step(x, self.plant_rng)
-                ys = self.plant.measure(x, self.plant_rng)
+                    x = plant.step(x, plant_rng)
+                ys = plant.measure(x, plant_rng)
                 states[k] = x
-                for i, y in enumerate(ys):
-                    measurements[i][k] = y
+                all_measurements[k] = concatenate(ys)
                 if observer is not None:
                     observer.on_plant(k, x, ys)
                 shared["ys"] = ys
@@ -280,25 +292,34 @@ class Simulation:
                 yield env.timeout(1.0)
 
         def agent_process(i: int, spec: AgentSpec):
+            # resolved once: the update, the payload hook, the sends
             estimator = spec.estimator
-            out_links = self._out_links[i]
+            update = estimator.step
+            measure = spec.measure
+            sends = [link.send for link in self._out_links[i]]
+            outgoing = getattr(estimator, "outgoing", None) if sends else None
+            has_delays = hasattr(estimator, "last_delays")
+            read_delays = has_delays and (delays is not None or observer is not None)
+            estimates_i = estimates[:, i]
             while True:
                 k = yield shared["tick"]
-                estimate = estimator.step(k, spec.measure(shared["ys"]))
-                estimates[k, i] = estimate
-                used = getattr(estimator, "last_delays", None)
-                if delays is not None and used:
-                    for j, r in used.items():
-                        delays[k, i, j] = r
-                if observer is not None:
-                    observer.on_update(i, k, estimate, used or {})
-                if out_links:
-                    payload = (
-                        estimator.outgoing(k) if hasattr(estimator, "outgoing") else estimate
-                    )
+                estimate = update(k, measure(shared["ys"]))
+                estimates_i[k] = estimate
+                if read_delays:
+                    used = estimator.last_delays
+                    if delays is not None and used:
+                        row = delays[k, i]
+                        for j, r in used.items():
+                            row[j] = r
+                    if observer is not None:
+                        observer.on_update(i, k, estimate, used or {})
+                elif observer is not None:
+                    observer.on_update(i, k, estimate, {})
+                if sends:
+                    payload = estimate if outgoing is None else outgoing(k)
                     if payload is not None:
-                        for link in out_links:
-                            link.send(k, payload)
+                        for send in sends:
+                            send(k, payload)
 
         def monitor_process():
             while True:
@@ -306,9 +327,12 @@ class Simulation:
                 err = estimates[k] - states[k]
                 sq = np.einsum("ij,ij->i", err, err)
                 sq_errors[k] = sq
-                state_sq = float(states[k] @ states[k])
-                floor = max(threshold_sq, ROUNDOFF_RELATIVE_ERROR**2 * state_sq)
-                if not np.all(np.isfinite(sq)) or np.any(sq > floor):
+                x = states[k]
+                floor = max(threshold_sq, ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
+                # max propagates NaN and NaN <= floor is False: one test for non-finite
+                # errors (inf included) and errors above the floor
+                worst = sq.max(initial=0.0)
+                if not (worst <= floor and worst != math.inf):
                     shared["diverged_at"] = k
                     sq_errors[k] = np.where(np.isfinite(sq), sq, np.inf)
                     done.succeed()
@@ -326,17 +350,21 @@ class Simulation:
         with np.errstate(over="ignore", invalid="ignore"):
             env.run(until=done)
 
+        links = self.links.values()
         return TrialResult(
             states=states,
-            measurements=measurements,
+            measurements=[
+                all_measurements[:, a:b].copy()
+                for a, b in zip(offsets[:-1], offsets[1:], strict=True)
+            ],
             estimates=estimates,
             squared_errors=sq_errors,
             effective_delays=delays,
             diverged_at=shared["diverged_at"],
-            messages_sent=sum(link.sent for link in self.links.values()),
-            messages_delivered=sum(link.delivered for link in self.links.values()),
-            messages_dropped=sum(link.dropped for link in self.links.values()),
-            messages_discarded=self._discarded,
+            messages_sent=sum(link.sent for link in links),
+            messages_delivered=sum(link.delivered for link in links),
+            messages_dropped=sum(link.dropped for link in links),
+            messages_discarded=self._discarded + sum(link.discarded for link in links),
             messages=self._messages,
             drop_reasons=dict(self._drop_reasons),
         )

@@ -18,6 +18,14 @@ Drop reasons reported to ``on_drop`` (and traced): ``link down`` (availability),
 ``outage``, the loss model's reason (``loss: bernoulli``, ``loss: gilbert-elliott
 (bad state)``, ..., ``trace: <recorded reason>``), ``buffer full (drop-tail)``,
 ``buffer full (drop-oldest)`` and ``superseded (keep-latest)``.
+
+Lean path: a plain :class:`Link` whose ``receive`` hook is set (the receiver's
+``message_arrived``), with no ``on_send`` and no ``availability`` hook and a delay
+model in steps, builds no :class:`Message` at all: its :class:`Delivery` carries
+``(sent_step, payload)`` and its arrival calls ``receive(sender, sent_step, payload)``
+directly, counting refusals (stale messages) in :attr:`Link.discarded`. The kernel
+uses it when no observer and no message recording need the Message objects; the
+delay draw, the event and its time and priority are exactly those of the full path.
 """
 
 from __future__ import annotations
@@ -28,6 +36,7 @@ from dataclasses import dataclass
 import numpy as np
 import simpy
 from simpy.core import URGENT
+from simpy.events import Event
 
 from models.delays import DelayModel, latency_to_steps
 
@@ -75,7 +84,11 @@ class Message:
 
 
 class Delivery(simpy.events.Event):
-    """An already-triggered event processed at ``now + delay`` with URGENT priority."""
+    """An already-triggered event processed at ``now + delay`` with URGENT priority.
+
+    Its value is the :class:`Message`, or ``(sent_step, payload)`` on a link's lean
+    path (see the module docstring).
+    """
 
     __slots__ = ()
 
@@ -87,6 +100,10 @@ class Delivery(simpy.events.Event):
         self._value = message
         self._ok = True
         env.schedule(self, URGENT, delay)
+
+
+#: Allocates a Delivery without running ``__init__`` (the lean path sets its fields).
+_new_event = Event.__new__
 
 
 class Link:
@@ -107,7 +124,7 @@ class Link:
     __slots__ = (
         "env", "sender", "receiver", "delay_model", "_deliver",
         "sample_period", "sent", "delivered", "dropped", "_sequence", "on_send", "on_drop",
-        "availability",
+        "availability", "receive", "discarded",
     )
 
     def __init__(
@@ -135,6 +152,12 @@ class Link:
         #: availability(sender, receiver, step) -> bool: whether the link is up at the
         #: sending step (time-varying topologies, outages); None: always up.
         self.availability: Callable[[int, int, int], bool] | None = None
+        #: receive(sender, sent_step, payload) -> bool (accepted): when set, a plain
+        #: link without on_send / availability hooks takes the lean path and
+        #: ``deliver`` is not called (see the module docstring).
+        self.receive: Callable[[int, int, np.ndarray], bool] | None = None
+        #: Deliveries refused by ``receive`` (lean path only).
+        self.discarded = 0
 
     def _stamp(self, step: int, payload: np.ndarray) -> tuple[Message, float, bool]:
         """Draw the delay, build and count the message, report it sent.
@@ -166,8 +189,23 @@ class Link:
             self.drop(message, REASON_LINK_DOWN)
         return message, wait, up
 
-    def send(self, step: int, payload: np.ndarray) -> Message:
-        """Send the payload time-stamped ``step``; schedule its delivery."""
+    def send(self, step: int, payload: np.ndarray) -> Message | None:
+        """Send the payload time-stamped ``step``; schedule its delivery.
+
+        Returns the :class:`Message`, or None on the lean path (no Message is built).
+        """
+        if (self.receive is not None and self.on_send is None and self.availability is None
+                and self.delay_model.unit == "steps"):
+            # lean path: the same draw, arrival time and priority as _stamp + Delivery
+            wait = 1.0 + int(self.delay_model.draw(self.sender, self.receiver, step))
+            self._sequence += 1
+            self.sent += 1
+            event = _new_event(Delivery)
+            event.callbacks = [self._arrive_lean]
+            event._value = (step, payload)
+            event._ok = True
+            self.env.schedule(event, URGENT, wait)
+            return None
         message, wait, up = self._stamp(step, payload)
         if up:
             event = Delivery(self.env, wait, message)
@@ -183,6 +221,12 @@ class Link:
     def _arrive(self, event: simpy.events.Event) -> None:
         self.delivered += 1
         self._deliver(event._value)
+
+    def _arrive_lean(self, event: simpy.events.Event) -> None:
+        self.delivered += 1
+        sent_step, payload = event._value
+        if not self.receive(self.sender, sent_step, payload):
+            self.discarded += 1
 
 
 class ConfiguredLink(Link):
@@ -211,7 +255,11 @@ class ConfiguredLink(Link):
         self._newest_delivered = -1
 
     def send(self, step: int, payload: np.ndarray) -> Message:
-        """Send like :meth:`Link.send`, then apply outages, loss and the buffer policy."""
+        """Send like :meth:`Link.send`, then apply outages, loss and the buffer policy.
+
+        A configured link always builds Messages (its buffer holds them); it never
+        takes the lean path.
+        """
         # the delay is drawn first, for every message (trace replay counts on it)
         message, wait, up = self._stamp(step, payload)
         if not up:

@@ -79,34 +79,43 @@ class LinkSchedule:
     drop_time: np.ndarray
     reasons: list[str]
 
-    @property
-    def arrival(self) -> np.ndarray:
-        """Arrival times s + wait, shape (T, L, S), in sampling periods."""
-        return self.send_steps.astype(float) + self.wait
+    def __post_init__(self) -> None:
+        #: Arrival times s + wait, shape (T, L, S), in sampling periods.
+        self.arrival = self.send_steps.astype(float) + self.wait
 
-    def counts(self, trial: int, end: int) -> dict[str, object]:
-        """Messages sent, delivered and dropped up to and including time ``end``.
+    def counts(self, ends: np.ndarray) -> list[dict[str, object]]:
+        """Messages sent, delivered and dropped by each trial's end.
 
-        Returns a dict with ``sent``, ``delivered``, ``dropped`` (ints) and
-        ``drop_reasons`` (reason -> count), as the kernel counts them for a run
-        that stopped at step ``end``.
+        Parameters
+        ----------
+        ends : numpy.ndarray, shape (T,)
+            Last step of each trial (the divergence step, or K).
+
+        Returns
+        -------
+        list of dict
+            Per trial: ``sent``, ``delivered``, ``dropped`` (ints) and
+            ``drop_reasons`` (reason -> count), as the kernel counts them for a run that
+            stopped at that step (deliveries and drops up to and including its time).
         """
-        sent_mask = self.send_steps <= end
-        fate = self.fate[trial][:, sent_mask]
-        arrival = self.arrival[trial][:, sent_mask]
-        drop_time = self.drop_time[trial][:, sent_mask]
-        delivered = int(np.count_nonzero((fate == DELIVERED) & (arrival <= end)))
-        dropped_mask = (fate != DELIVERED) & (drop_time <= end)
-        reasons: dict[str, int] = {}
-        codes, numbers = np.unique(fate[dropped_mask], return_counts=True)
-        for code, number in zip(codes.tolist(), numbers.tolist(), strict=True):
-            reasons[self.reasons[code - 1]] = int(number)
-        return {
-            "sent": int(fate.size),
-            "delivered": delivered,
-            "dropped": int(np.count_nonzero(dropped_mask)),
-            "drop_reasons": reasons,
-        }
+        end = np.asarray(ends, dtype=float)[:, None, None]
+        delivered = np.count_nonzero((self.fate == DELIVERED) & (self.arrival <= end),
+                                     axis=(1, 2))
+        dropped = (self.fate != DELIVERED) & (self.drop_time <= end)
+        out = []
+        for t in range(self.fate.shape[0]):
+            reasons: dict[str, int] = {}
+            if self.reasons:
+                codes = np.bincount(self.fate[t][dropped[t]], minlength=len(self.reasons) + 1)
+                reasons = {r: int(c) for r, c in zip(self.reasons, codes[1:].tolist(),
+                                                      strict=True) if c}
+            out.append({
+                "sent": int(np.count_nonzero(self.send_steps <= ends[t])) * len(self.links),
+                "delivered": int(delivered[t]),
+                "dropped": int(np.count_nonzero(dropped[t])),
+                "drop_reasons": reasons,
+            })
+        return out
 
 
 @dataclass
@@ -140,25 +149,15 @@ def _kernel_link_model(delay_model: DelayModel, sender: int, receiver: int):
     return delays, model
 
 
-def _draw(delays: DelayModel, sender: int, receiver: int, send_steps: np.ndarray,
-          sample_period: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Raw draws, waits (periods) and step delays of one link's messages."""
+def _draws(delays: DelayModel, sender: int, receiver: int, send_steps: np.ndarray
+           ) -> np.ndarray | float:
+    """The delay model's raw draws for one link's messages (a scalar if constant)."""
+    if delays.time_invariant:
+        return delays.draw(sender, receiver, int(send_steps[0]) if len(send_steps) else 0)
     many = getattr(delays, "draw_many", None)
     if many is not None:
-        raw = np.asarray(many(sender, receiver, send_steps))
-    else:
-        raw = np.array([delays.draw(sender, receiver, int(s)) for s in send_steps])
-    if delays.unit == "steps":
-        d = raw.astype(np.int64)
-        return raw.astype(float), 1.0 + d, d
-    raw = raw.astype(float)
-    if raw.size and not (np.all(np.isfinite(raw)) and np.all(raw >= 0)):
-        bad = raw[~(np.isfinite(raw) & (raw >= 0))][0]
-        raise ValueError(f"latency must be finite and >= 0, got {bad} on link "
-                         f"{sender}->{receiver}")
-    wait = raw / sample_period
-    d = np.maximum(np.ceil(wait) - 1, 0).astype(np.int64)
-    return raw, wait, d
+        return np.asarray(many(sender, receiver, send_steps))
+    return np.array([delays.draw(sender, receiver, int(s)) for s in send_steps])
 
 
 def _configured_pass(model, send_steps: np.ndarray, wait: np.ndarray, fate: np.ndarray,
@@ -235,11 +234,10 @@ def build_schedule(
     """
     send_steps = np.asarray(send_steps, dtype=np.int64)
     T, L, S = len(delay_models), len(links), len(send_steps)
-    wait = np.zeros((T, L, S))
-    delay_steps = np.zeros((T, L, S), dtype=np.int64)
     latency = np.zeros((T, L, S))
     fate = np.zeros((T, L, S), dtype=np.int16)
     drop_time = np.full((T, L, S), np.nan)
+    in_steps = np.zeros(L, dtype=bool)
     reasons: list[str] = []
     index: dict[str, int] = {}
 
@@ -249,14 +247,35 @@ def build_schedule(
             reasons.append(reason)
         return index[reason]
 
+    configured_links = []
     for t, model in enumerate(delay_models):
         for l_, (j, i) in enumerate(links):
             delays, configured = _kernel_link_model(model, j, i)
-            raw, w, d = _draw(delays, j, i, send_steps, sample_period)
-            latency[t, l_], wait[t, l_], delay_steps[t, l_] = raw, w, d
+            in_steps[l_] = delays.unit == "steps"
+            latency[t, l_] = _draws(delays, j, i, send_steps)
             if configured is not None:
-                _configured_pass(configured, send_steps, w, fate[t, l_], drop_time[t, l_],
-                                 code)
+                configured_links.append((t, l_, configured))
+    # Link._stamp: a step delay d waits 1 + d periods; a latency l waits l / Ts and
+    # counts as d = ceil(l / Ts) - 1 (at least 0)
+    if not np.all(np.isfinite(latency)) or np.any(latency < 0):
+        t, l_, q = np.argwhere(~(np.isfinite(latency) & (latency >= 0)))[0]
+        j, i = links[l_]
+        raise ValueError(f"delay must be finite and >= 0, got {latency[t, l_, q]} on link "
+                         f"{j}->{i}")
+    if in_steps.all():
+        delay_steps = latency.astype(np.int64)
+        wait = delay_steps + 1.0
+    else:
+        scaled = latency / sample_period
+        delay_steps = np.maximum(np.ceil(scaled) - 1, 0).astype(np.int64)
+        wait = scaled
+        if in_steps.any():
+            steps_mask = in_steps[None, :, None]
+            delay_steps = np.where(steps_mask, latency.astype(np.int64), delay_steps)
+            wait = np.where(steps_mask, delay_steps + 1.0, scaled)
+    for t, l_, configured in configured_links:
+        _configured_pass(configured, send_steps, wait[t, l_], fate[t, l_], drop_time[t, l_],
+                         code)
     return LinkSchedule(list(links), send_steps, wait, delay_steps, latency, fate, drop_time,
                         reasons)
 
@@ -282,36 +301,49 @@ def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> 
     T, L, S = schedule.fate.shape
     send = schedule.send_steps
     ok = schedule.fate == DELIVERED
-    arrival = np.where(ok, schedule.arrival, np.inf)
+    all_ok = bool(ok.all())
+    arrival = schedule.arrival if all_ok else np.where(ok, schedule.arrival, np.inf)
     # usable at the first sampling instant at or after arrival, and never before s + 1
-    with np.errstate(invalid="ignore"):
-        usable = np.maximum(send + 1, np.ceil(np.minimum(arrival, K + 1))).astype(np.int64)
-    usable = np.minimum(usable, K + 1)
-    order = np.argsort(arrival, axis=-1, kind="stable")  # arrival order, ties by sending
-    slots = np.broadcast_to(np.arange(S, dtype=np.int64), (T, L, S))
-    if timestamps:
-        key = slots
-    else:
-        key = np.empty((T, L, S), dtype=np.int64)
-        np.put_along_axis(key, order, slots, axis=-1)  # rank in arrival order
-    latest = np.full((T, L, K + 2), -1, dtype=np.int64)
-    flat = (np.arange(T * L, dtype=np.int64).reshape(T, L, 1) * (K + 2) + usable)
-    np.maximum.at(latest.reshape(-1), flat[ok], key[ok])
-    held = np.maximum.accumulate(latest[:, :, : K + 1], axis=-1)
-    if not timestamps:
-        held = np.where(held >= 0, np.take_along_axis(order, np.maximum(held, 0), axis=-1), -1)
-    # freshest rule: discarded on arrival if a newer time-stamp arrived before it
+    usable_f = np.minimum(arrival, K + 1)
+    np.ceil(usable_f, out=usable_f)
+    np.maximum(usable_f, send + 1, out=usable_f)
+    usable = usable_f.astype(np.int64)
+    del usable_f
+    group = np.arange(T * L, dtype=np.int64).reshape(T, L, 1) * (K + 2)
+
+    def held_count(values: np.ndarray) -> np.ndarray:
+        # values: (T, L, S) non-decreasing along the last axis; returns, per step k,
+        # (number of entries <= k) - 1, shape (T, L, K+1)
+        counts = np.bincount((group + values).reshape(-1), minlength=T * L * (K + 2))
+        held = np.cumsum(counts.reshape(T, L, K + 2)[:, :, : K + 1], axis=-1, dtype=np.int32)
+        held -= 1
+        return held
+
     discarded = np.zeros((T, L, S), dtype=bool)
-    if timestamps and S:
-        arrived = np.take_along_axis(np.where(ok, slots, -1), order, axis=-1)
-        before = np.maximum.accumulate(arrived, axis=-1)
-        before = np.concatenate([np.full((T, L, 1), -1), before[:, :, :-1]], axis=-1)
-        np.put_along_axis(discarded, order, (arrived >= 0) & (arrived < before), axis=-1)
-    used = held >= 0
+    if timestamps:
+        # held[k] = largest q with usable[q] <= k = (number of q whose suffix minimum
+        # of usable is <= k) - 1, since that suffix minimum is non-decreasing in q
+        suffix = np.minimum.accumulate(usable[:, :, ::-1], axis=-1)[:, :, ::-1]
+        held = held_count(suffix)
+        if S > 1:
+            # freshest rule: discarded on arrival if a newer message arrived before it
+            later = np.minimum.accumulate(arrival[:, :, :0:-1], axis=-1)[:, :, ::-1]
+            discarded[:, :, :-1] = later < arrival[:, :, :-1]
+            if not all_ok:
+                discarded &= ok
+    else:
+        # arrival order (ties: the one sent first arrives first, as the kernel
+        # schedules them); usable steps are non-decreasing in that order
+        order = np.argsort(arrival, axis=-1, kind="stable")
+        rank_held = held_count(np.take_along_axis(usable, order, axis=-1))
+        held = np.where(rank_held >= 0,
+                        np.take_along_axis(order, np.maximum(rank_held, 0), axis=-1), -1)
+    chosen = np.ascontiguousarray(held.transpose(2, 1, 0), dtype=np.int32)
+    del held
+    # largest lag k - s of a used message
     max_lag = 0
-    if np.any(used):
-        steps_k = np.arange(K + 1, dtype=np.int64)
-        lag = np.where(used, steps_k - send[np.maximum(held, 0)], 0)
-        max_lag = int(lag.max())
-    chosen = np.ascontiguousarray(held.transpose(2, 1, 0)).astype(np.int32)
+    for k in range(K + 1):
+        used = chosen[k][chosen[k] >= 0]
+        if used.size:
+            max_lag = max(max_lag, k - int(send[used.min()]))
     return MessageSelection(chosen, discarded, max_lag)

@@ -51,7 +51,9 @@ from netsim.linkschedule import (
 __all__ = [
     "VECTORISED_FAMILIES",
     "PlantBatch",
+    "VectorisedBatch",
     "simulate_plant",
+    "run_batch",
     "run_vectorised",
 ]
 
@@ -105,6 +107,31 @@ def simulate_plant(scenario: Scenario, trial_seeds: Sequence[SeedLike], steps: i
     z = noise[:, :, n:].reshape(-1, M)
     measurements += (R_factor @ z.T).T.reshape(K + 1, T, M)
     return PlantBatch(states, measurements, np.concatenate([[0], np.cumsum(sizes)]))
+
+
+@dataclass
+class VectorisedBatch:
+    """What :func:`run_batch` computed.
+
+    Attributes
+    ----------
+    results : list of TrialResult
+        One per trial.
+    schedule : LinkSchedule or None
+        Every message's delay and fate (None for the centralised filter).
+    selection : MessageSelection or None
+        The message each receiver held at each step.
+    updated : numpy.ndarray, shape (U,)
+        Steps at which the estimators updated (every step; block steps for ``block``).
+    period : int
+        Sending period (tau + 1 for ``block``, else 1).
+    """
+
+    results: list[TrialResult]
+    schedule: LinkSchedule | None
+    selection: MessageSelection | None
+    updated: np.ndarray
+    period: int
 
 
 class _Outputs:
@@ -171,6 +198,22 @@ def _powers(A: np.ndarray, count: int) -> np.ndarray:
     return np.stack(out[: count + 1])
 
 
+def _apply_powers(powers_T: np.ndarray, lag: np.ndarray, payload: np.ndarray) -> np.ndarray:
+    """Return A^lag[e, t] x payload[e, t] for every (e, t), shape (E, T, n).
+
+    ``powers_T[r]`` is (A^r)^T. One matrix product per distinct lag (there are few:
+    at most the delay bound + 1 with fixed or bounded delays).
+    """
+    present = np.flatnonzero(np.bincount(lag.reshape(-1)))
+    if len(present) == 1:
+        return payload @ powers_T[present[0]]
+    out = np.empty_like(payload)
+    for r in present:
+        rows, cols = np.nonzero(lag == r)
+        out[rows, cols] = payload[rows, cols] @ powers_T[r]
+    return out
+
+
 def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
                    steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
@@ -200,9 +243,13 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
     send = schedule.send_steps
     depth = max(selection.max_lag, period) + 1
     powers = _powers(A, max(selection.max_lag, period))
+    powers_T = np.ascontiguousarray(powers.transpose(0, 2, 1))
+    A_T = A.T
     history = np.zeros((depth, N, T, n))
+    flat_history = history.reshape(-1, n)
     trials = np.arange(T)[None, :]
     no_link = term_link < 0
+    term_row = np.maximum(term_link, 0)
 
     def innovate(prior: np.ndarray, k: int) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1})
@@ -226,18 +273,24 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                 if block:
                     own = np.einsum("ab,itb->ita", powers[period], block_estimate)
                 else:
-                    own = estimate @ A.T
-                held = selection.chosen[k][np.maximum(term_link, 0)]  # (E, T)
+                    own = estimate @ A_T
+                held = selection.chosen[k][term_row]  # (E, T)
                 held[no_link] = -1
                 missing = held < 0
                 sent = send[np.maximum(held, 0)]
-                payload = history[sent % depth, term_j[:, None], trials]  # (E, T, n)
+                # x-hat^j_{s|s} of every term, from the ring of past estimates
+                slot = ((sent % depth) * N + term_j[:, None]) * T + trials
+                payload = flat_history.take(slot, axis=0)  # (E, T, n)
                 if family == "uncompensated":
-                    neighbour = payload @ A.T
+                    neighbour = payload @ A_T  # eq. (6): A, whatever the delay
                 else:
+                    # eq. (4): A^(k - s_j), one product per distinct lag
                     lag = np.where(missing, 1, k - sent)
-                    neighbour = np.einsum("etab,etb->eta", powers[lag], payload)
-                neighbour = np.where(missing[:, :, None], own[term_i], neighbour)
+                    neighbour = _apply_powers(powers_T, lag, payload)
+                if missing.any():
+                    # nothing from j yet: agent i's own prediction stands in
+                    rows, cols = np.nonzero(missing)
+                    neighbour[rows, cols] = own[term_i[rows], cols]
                 prior = own_weight * own
                 if E:
                     prior = prior + (aggregate @ neighbour.reshape(E, -1)).reshape(N, T, n)
@@ -299,7 +352,7 @@ def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
     return out
 
 
-def run_vectorised(
+def run_batch(
     scenario: Scenario,
     family: str,
     gains: GainDesign | None,
@@ -333,8 +386,10 @@ def run_vectorised(
 
     Returns
     -------
-    list of TrialResult
-        One per trial, as the event kernel returns it (``messages`` is empty).
+    VectorisedBatch
+        ``results``: one TrialResult per trial, as the event kernel returns it
+        (``messages`` is empty); and the link schedule and message selection the run
+        used (None for the centralised filter).
     """
     if family not in VECTORISED_FAMILIES:
         raise ValueError(f"the vectorised engine has no estimator family {family!r}; "
@@ -362,9 +417,15 @@ def run_vectorised(
         N = scenario.n_agents
     n = plant.n_states
     wanted = set(range(T)) if record_delays is True else set(record_delays or ())
+    ends = np.where(outputs.diverged_at >= 0, outputs.diverged_at, K)
+    if schedule is not None:
+        all_counts = schedule.counts(ends)
+        arrived = (schedule.arrival <= ends[:, None, None]) & (
+            schedule.send_steps[None, None, :] <= ends[:, None, None])
+        all_discarded = np.count_nonzero(selection.discarded & arrived, axis=(1, 2))
     results = []
     for t in range(T):
-        end = int(outputs.diverged_at[t]) if outputs.diverged_at[t] >= 0 else K
+        end = int(ends[t])
         states = batch.states[:, t].copy()
         states[end + 1:] = np.nan
         measurements = []
@@ -378,9 +439,8 @@ def run_vectorised(
         discarded = 0
         delays = None
         if schedule is not None:
-            counts = schedule.counts(t, end)
-            arrived = (schedule.arrival[t] <= end) & (schedule.send_steps <= end)
-            discarded = int(np.count_nonzero(selection.discarded[t] & arrived))
+            counts = all_counts[t]
+            discarded = int(all_discarded[t])
             if t in wanted:
                 delays = _effective_delays(selection, schedule, P, updated, t, end)
         elif t in wanted:
@@ -400,4 +460,21 @@ def run_vectorised(
         ))
     if progress is not None:
         progress(T)
-    return results
+    return VectorisedBatch(results, schedule, selection, updated,
+                           scenario.delay_bound + 1 if family == "block" else 1)
+
+
+def run_vectorised(
+    scenario: Scenario,
+    family: str,
+    gains: GainDesign | None,
+    trial_seeds: Sequence[SeedLike],
+    steps: int | None = None,
+    *,
+    record_delays: bool | Collection[int] = False,
+    record_estimates: bool = True,
+    progress: Callable[[int], None] | None = None,
+) -> list[TrialResult]:
+    """Run a batch of trials in lockstep; one TrialResult per trial (see :func:`run_batch`)."""
+    return run_batch(scenario, family, gains, trial_seeds, steps, record_delays=record_delays,
+                     record_estimates=record_estimates, progress=progress).results

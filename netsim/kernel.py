@@ -296,7 +296,7 @@ class Simulation:
             estimator = spec.estimator
             update = estimator.step
             measure = spec.measure
-            sends = [link.send for link in self._out_links[i]]
+            sends = [link.send_function() for link in self._out_links[i]]
             outgoing = getattr(estimator, "outgoing", None) if sends else None
             has_delays = hasattr(estimator, "last_delays")
             read_delays = has_delays and (delays is not None or observer is not None)

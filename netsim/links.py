@@ -194,23 +194,41 @@ class Link:
 
         Returns the :class:`Message`, or None on the lean path (no Message is built).
         """
-        if (self.receive is not None and self.on_send is None and self.availability is None
-                and self.delay_model.unit == "steps"):
-            # lean path: the same draw, arrival time and priority as _stamp + Delivery
-            wait = 1.0 + int(self.delay_model.draw(self.sender, self.receiver, step))
-            self._sequence += 1
-            self.sent += 1
-            event = _new_event(Delivery)
-            event.callbacks = [self._arrive_lean]
-            event._value = (step, payload)
-            event._ok = True
-            self.env.schedule(event, URGENT, wait)
+        if self.lean:
+            self._send_lean(step, payload)
             return None
         message, wait, up = self._stamp(step, payload)
         if up:
             event = Delivery(self.env, wait, message)
             event.callbacks.append(self._arrive)
         return message
+
+    @property
+    def lean(self) -> bool:
+        """Whether :meth:`send` takes the lean path with the link's current hooks."""
+        return (type(self).send is Link.send and self.receive is not None
+                and self.on_send is None and self.availability is None
+                and self.delay_model.unit == "steps")
+
+    def send_function(self) -> Callable[[int, np.ndarray], Message | None]:
+        """Return the send function for the link's current hooks (resolved once).
+
+        The same as :meth:`send`, minus the per-message test of the hooks: call it
+        again after changing ``receive``, ``on_send``, ``availability`` or the delay
+        model.
+        """
+        return self._send_lean if self.lean else self.send
+
+    def _send_lean(self, step: int, payload: np.ndarray) -> None:
+        # the same draw, arrival time and priority as _stamp + Delivery, no Message
+        wait = 1.0 + int(self.delay_model.draw(self.sender, self.receiver, step))
+        self._sequence += 1
+        self.sent += 1
+        event = _new_event(Delivery)
+        event.callbacks = [self._arrive_lean]
+        event._value = (step, payload)
+        event._ok = True
+        self.env.schedule(event, URGENT, wait)
 
     def drop(self, message: Message, reason: str) -> None:
         """Count a lost message and report it (drops are never silent)."""

@@ -1,0 +1,119 @@
+"""The kernel's lean path (no Message objects when nothing observes) changes nothing."""
+
+import numpy as np
+import pytest
+import simpy
+from helpers import lcsys, with_delays
+
+from estimators.consensus import NO_MESSAGE, CompensatingEstimator, ConsensusParameters
+from models.delays import AsynchronousRandomDelays
+from models.seeding import child_sequence
+from netsim.links import Link
+from netsim.runner import run_trial, scenario_gains
+
+STEPS = 120
+
+
+@pytest.fixture(scope="module")
+def scenario():
+    return with_delays(lcsys(), model="asynchronous", tau=3)
+
+
+@pytest.fixture(scope="module")
+def gains(scenario):
+    return scenario_gains(scenario)
+
+
+class _Updates:
+    """Observer that only records the effective delays it is given."""
+
+    def __init__(self):
+        self.delays = {}
+
+    def on_plant(self, k, state, measurements):
+        pass
+
+    def on_sent(self, message):
+        pass
+
+    def on_delivered(self, message, accepted):
+        pass
+
+    def on_update(self, agent, k, estimate, delays):
+        self.delays[(agent, k)] = dict(delays)
+
+
+@pytest.mark.parametrize("family", ["compensated", "uncompensated", "block"])
+def test_lean_and_full_paths_are_bit_identical(scenario, gains, family):
+    seed = child_sequence(11, "trial", 0)
+    lean = run_trial(scenario, family, gains, seed, STEPS)
+    full = run_trial(scenario, family, gains, seed, STEPS, record_messages=True)
+    observer = _Updates()
+    observed = run_trial(scenario, family, gains, seed, STEPS, observer=observer)
+    for other in (full, observed):
+        assert lean.estimates.tobytes() == other.estimates.tobytes()
+        assert lean.states.tobytes() == other.states.tobytes()
+        assert np.array_equal(lean.effective_delays, other.effective_delays)
+        for a, b in zip(lean.measurements, other.measurements, strict=True):
+            assert a.tobytes() == b.tobytes()
+        assert (lean.messages_sent, lean.messages_delivered, lean.messages_discarded) == (
+            other.messages_sent, other.messages_delivered, other.messages_discarded)
+    assert len(full.messages) == full.messages_delivered and not lean.messages
+    # the delays handed to the observer are the recorded r_ij[k]
+    for (i, k), delays in observer.delays.items():
+        for j, r in delays.items():
+            assert observed.effective_delays[k, i, j] == r
+
+
+def test_send_function_is_lean_only_without_hooks():
+    env = simpy.Environment()
+    received = []
+    link = Link(env, 0, 1, AsynchronousRandomDelays(2, seed=0), received.append)
+    assert not link.lean and link.send_function() == link.send
+    link.receive = lambda sender, step, payload: True
+    assert link.lean and link.send_function() != link.send
+    link.on_send = lambda message: None
+    assert not link.lean
+    link.on_send = None
+    link.availability = lambda sender, receiver, step: True
+    assert not link.lean
+
+
+def test_lean_link_delivers_at_the_same_time_as_the_full_link():
+    times = {}
+    for lean in (False, True):
+        env = simpy.Environment()
+        arrivals = []
+        link = Link(env, 0, 1, AsynchronousRandomDelays(3, seed=4),
+                    lambda m, a=arrivals, e=env: a.append((e.now, m.sent_step)))
+        if lean:
+            link.receive = lambda sender, step, payload, a=arrivals, e=env: \
+                a.append((e.now, step)) or step % 2 == 0
+        send = link.send_function()
+
+        def sender(env=env, send=send):
+            for k in range(50):
+                send(k, np.zeros(1))
+                yield env.timeout(1)
+
+        env.process(sender())
+        env.run()
+        times[lean] = arrivals
+        assert link.sent == link.delivered == 50
+        assert link.discarded == (25 if lean else 0)
+    assert times[True] == times[False]
+
+
+def test_last_delays_reflect_the_update_not_later_arrivals():
+    params = ConsensusParameters(agent=0, weights=np.array([0.5, 0.25, 0.25]),
+                                 A=np.eye(2), C=np.ones((1, 2)), L=np.zeros((2, 1)),
+                                 prior=np.zeros(2))
+    est = CompensatingEstimator(params)
+    est.step(0, np.zeros(1))
+    assert est.last_delays == {1: NO_MESSAGE, 2: NO_MESSAGE}
+    est.message_arrived(1, 0, np.ones(2))
+    est.step(3, np.zeros(1))
+    est.message_arrived(2, 2, np.ones(2))  # after the update: not in its delays
+    assert est.last_delays == {1: 2, 2: NO_MESSAGE}
+    est.step(4, np.zeros(1))
+    assert est.last_delays == {1: 3, 2: 1}

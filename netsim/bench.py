@@ -1154,7 +1154,8 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
             except (GainDesignError, ValueError) as exc:
                 return {"error": f"gain design failed: {exc}"}
     result = run_monte_carlo(scenario, steps=context["steps"], trials=context["trials"],
-                             seed=scenario.seed, families=families, gains=gains)
+                             seed=scenario.seed, families=families, gains=gains,
+                             engine=params.get("_engine", "events"))
     data = result.to_dict()
     out: dict[str, Any] = {
         "n_agents": scenario.n_agents,
@@ -1177,17 +1178,24 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
 
 
 def run_scenario_sweep(scenario: str, *, axes: dict[str, list], trials: int, steps: int,
-                       families: Sequence[str], seed: int, **options: Any):
-    """Grid over ``axes`` (delays, tau, topology, agents, seed) of one base scenario."""
+                       families: Sequence[str], seed: int, engine: str = "auto",
+                       **options: Any):
+    """Grid over ``axes`` (delays, tau, topology, agents, seed) of one base scenario.
+
+    ``engine`` runs the trials (``auto``: vectorised); it is part of every cell's key.
+    """
+    from netsim.runner import choose_engine
     from netsim.sweep import grid, run_sweep
+
+    engine = choose_engine(engine, families)
 
     data, source = _scenario_data(scenario)
     base = sweep_variant(data, source, {})
     cells = grid(**{k: v for k, v in axes.items() if v})
     context = {"data": data, "source": source, "families": list(families),
                "trials": trials, "steps": steps, "fingerprint": scenario_fingerprint(base)}
-    cells = [{**c, "_scenario": context["fingerprint"], "_trials": trials, "_steps": steps}
-             for c in cells]
+    cells = [{**c, "_scenario": context["fingerprint"], "_trials": trials, "_steps": steps,
+              "_engine": engine} for c in cells]
     return run_sweep(scenario_sweep_cell, cells, root_seed=seed, sweep="scenario-sweep",
                      context=context, **options)
 
@@ -1269,6 +1277,8 @@ def add_bench_parser(subparsers: Any) -> Any:
     sw.add_argument("--out", metavar="FILE.jsonl", required=True,
                     help="JSON-lines results file (resumed if it exists)")
     sw.add_argument("--csv", metavar="FILE.csv", help="also write the table as CSV")
+    sw.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
+                    help="engine of the Monte Carlo trials (default auto: vectorised)")
     sw.add_argument("--json", action="store_true", help="print the rows as one JSON object")
     _executor_options(sw)
     return bench
@@ -1445,7 +1455,7 @@ def _cmd_sweep(args: Any) -> int:
             args.scenario, axes=axes, trials=args.trials, steps=args.steps,
             families=families, seed=args.seed, results=args.out, csv_path=args.csv,
             progress=not args.no_progress, description=f"sweep {args.scenario}",
-            **_executor(args))
+            engine=args.engine, **_executor(args))
     except ScenarioError as exc:
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
     except SweepInterrupted as exc:

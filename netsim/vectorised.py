@@ -49,6 +49,7 @@ from netsim.linkschedule import (
 )
 
 __all__ = [
+    "BATCH_ELEMENTS",
     "VECTORISED_FAMILIES",
     "PlantBatch",
     "VectorisedBatch",
@@ -59,6 +60,9 @@ __all__ = [
 
 #: Estimator families the vectorised engine runs.
 VECTORISED_FAMILIES = ("compensated", "uncompensated", "block", "centralized-kf")
+#: Largest trials x links x (steps + 2) of one lockstep batch (memory bound; about
+#: 160 MB per schedule array).
+BATCH_ELEMENTS = 20_000_000
 
 
 @dataclass
@@ -475,6 +479,22 @@ def run_vectorised(
     record_estimates: bool = True,
     progress: Callable[[int], None] | None = None,
 ) -> list[TrialResult]:
-    """Run a batch of trials in lockstep; one TrialResult per trial (see :func:`run_batch`)."""
-    return run_batch(scenario, family, gains, trial_seeds, steps, record_delays=record_delays,
-                     record_estimates=record_estimates, progress=progress).results
+    """Run trials in lockstep; one TrialResult per trial (see :func:`run_batch`).
+
+    Trials are run in batches whose link-schedule arrays (trials x links x steps) hold
+    at most :data:`BATCH_ELEMENTS` entries, so memory stays bounded however many
+    trials are asked for; ``progress`` is called after each batch. The split depends
+    only on the number of trials, links and steps, so the same request always gives
+    the same numbers.
+    """
+    K = scenario.steps if steps is None else int(steps)
+    per = max(1, BATCH_ELEMENTS // (max(1, len(scenario.links)) * (K + 2)))
+    results: list[TrialResult] = []
+    for start in range(0, len(trial_seeds), per):
+        stop = min(start + per, len(trial_seeds))
+        wanted: bool | set[int] = record_delays if isinstance(record_delays, bool) else {
+            t - start for t in record_delays if start <= t < stop}
+        results += run_batch(scenario, family, gains, trial_seeds[start:stop], K,
+                             record_delays=wanted, record_estimates=record_estimates,
+                             progress=progress).results
+    return results

@@ -255,3 +255,22 @@ def test_same_seed_same_numbers_bit_for_bit():
     for x, y in zip(a, b, strict=True):
         assert np.array_equal(x.estimates, y.estimates)
         assert np.array_equal(x.squared_errors, y.squared_errors)
+
+
+def test_batches_of_trials_give_the_trials_results(monkeypatch):
+    """Splitting a Monte Carlo run into lockstep batches changes nothing but memory."""
+    import netsim.vectorised as vectorised
+
+    scenario = with_delays(lcsys(), model="asynchronous", tau=3)
+    seeds = [child_sequence(2, "trial", t) for t in range(5)]
+    whole = run_vectorised(scenario, "compensated", lcsys_gains(), seeds, 60,
+                           record_delays=[3])
+    monkeypatch.setattr(vectorised, "BATCH_ELEMENTS", 2 * len(scenario.links) * 62)
+    calls = []
+    split = run_vectorised(scenario, "compensated", lcsys_gains(), seeds, 60,
+                           record_delays=[3], progress=calls.append)
+    assert calls == [2, 2, 1]
+    for t, (a, b) in enumerate(zip(whole, split, strict=True)):
+        np.testing.assert_allclose(b.estimates, a.estimates, rtol=1e-12, atol=1e-12)
+        assert (a.effective_delays is None) == (t != 3) == (b.effective_delays is None)
+    np.testing.assert_array_equal(whole[3].effective_delays, split[3].effective_delays)

@@ -88,6 +88,9 @@ class _ConsensusBase:
         # numpy scalar indexing in the update loop)
         self._own_weight = float(params.weights[params.agent])
         self._neighbour_weights = tuple((j, float(params.weights[j])) for j in self.neighbours)
+        # per neighbour j: p_ij A^r for r = 0, 1, ... (filled on demand), so a neighbour
+        # term costs one matrix-vector product
+        self._weighted: dict[int, list[np.ndarray]] = {j: [] for j in self.neighbours}
         self._A = params.A
         self._C = params.C
         self._L = params.L
@@ -170,14 +173,14 @@ class _ConsensusBase:
 
     def _prior(self, k: int) -> np.ndarray:
         # p_ii own + sum_j p_ij (compensated neighbour term, or own if j is silent),
-        # accumulated in neighbour order (the same float operations as the textbook
-        # sum, without a new array per term)
+        # accumulated in place in neighbour order. A neighbour term is one product with
+        # the cached p_ij A^r: (p_ij A^r) x rather than p_ij (A^r x), the same value up
+        # to round-off (about one unit in the last place).
         own = self._own_prediction()
         prior = self._own_weight * own
         stored = self._stored
         compensates = self.compensates
-        powers = self._powers
-        A = self._A
+        weighted = self._weighted
         for j, w in self._neighbour_weights:
             entry = stored.get(j)
             if entry is None:
@@ -188,12 +191,11 @@ class _ConsensusBase:
                 raise RuntimeError(
                     f"agent {self.agent}: message from {j} stamped {sent_step} used at step {k}"
                 )
-            if compensates:
-                lag = k - sent_step
-                M = powers[lag] if lag < len(powers) else self.power(lag)
-            else:
-                M = A
-            prior += w * M.dot(payload)
+            lag = k - sent_step if compensates else 1
+            matrices = weighted[j]
+            while len(matrices) <= lag:
+                matrices.append(w * self.power(len(matrices)))
+            prior += matrices[lag].dot(payload)
         self._used = (k, stored.copy())
         return prior
 

@@ -52,8 +52,8 @@ __all__ = [
 ]
 
 #: Simulation engines: ``events`` (the SimPy kernel, the reference), ``vectorised``
-#: (all trials in lockstep, :mod:`netsim.vectorised`), ``auto`` (vectorised unless the
-#: run is traced, which needs the kernel's observer hooks).
+#: (all trials in lockstep, :mod:`netsim.vectorised`), ``auto`` (vectorised when every
+#: family has a vectorised form; traced runs too, see :mod:`netsim.vectrace`).
 ENGINES = ("auto", "vectorised", "events")
 
 #: Factor by which the fitted MSE trend may grow over the second half of a run
@@ -150,22 +150,21 @@ def choose_engine(engine: str, families: Sequence[str], *, traced: bool = False)
     """Resolve ``auto`` and check that the engine can run the request.
 
     Returns ``"vectorised"`` or ``"events"``; raises ValueError for a request the
-    chosen engine cannot serve (unknown engine, family or a traced vectorised run).
+    chosen engine cannot serve (unknown engine or estimator family). Both engines
+    write the same traces (:mod:`netsim.vectrace` replays a vectorised trial as the
+    kernel's observer calls), so ``traced`` no longer changes the choice.
     """
     from netsim.vectorised import VECTORISED_FAMILIES
 
+    del traced  # both engines trace
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
     vectorisable = all(f in VECTORISED_FAMILIES for f in families)
     if engine == "auto":
-        return "vectorised" if vectorisable and not traced else "events"
-    if engine == "vectorised":
-        if traced:
-            raise ValueError("--trace records the event kernel's events; use --engine events "
-                             "(or auto) to trace a run")
-        if not vectorisable:
-            bad = [f for f in families if f not in VECTORISED_FAMILIES]
-            raise ValueError(f"the vectorised engine has no estimator family {bad[0]!r}")
+        return "vectorised" if vectorisable else "events"
+    if engine == "vectorised" and not vectorisable:
+        bad = [f for f in families if f not in VECTORISED_FAMILIES]
+        raise ValueError(f"the vectorised engine has no estimator family {bad[0]!r}")
     return engine
 
 
@@ -380,16 +379,25 @@ def _summarise(
     )
 
 
-def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_trace):
+def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_trace,
+                  batch=None, batch_trial=None):
+    """Run (event kernel) or replay (``batch``: a vectorised batch) trial t into a trace."""
     from traces.recorder import TraceRecorder, trace_path
 
     path = trace_path(trace) if single else trace_path(trace, family, t)
     recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps)
     with recorder:
-        result = run_trial(
-            scenario, family, gains, child_sequence(seed, "trial", t), steps,
-            record_delays=False, observer=recorder,
-        )
+        if batch is None:
+            result = run_trial(
+                scenario, family, gains, child_sequence(seed, "trial", t), steps,
+                record_delays=False, observer=recorder,
+            )
+        else:
+            from netsim.vectrace import replay_trial
+
+            index = t if batch_trial is None else batch_trial
+            replay_trial(batch, index, scenario, family, recorder)
+            result = batch.results[index]
         if result.diverged_at is not None:
             recorder.set_status("diverged", diverged_at=result.diverged_at)
     if on_trace is not None:
@@ -430,7 +438,8 @@ def run_monte_carlo(
     on_trace : callable(str), optional
         Called with each trace file's path once it is finished.
     engine : str
-        One of :data:`ENGINES` (``auto``: vectorised unless traced).
+        One of :data:`ENGINES` (``auto``: vectorised when every family has a
+        vectorised form, traced or not).
 
     Returns
     -------
@@ -453,15 +462,31 @@ def run_monte_carlo(
             runs = run_trials(scenario, family, gains, seeds, steps, engine=engine,
                               record_estimates=False, progress=progress)
         else:
+            single = trials == 1 and len(families) == 1
             runs = []
-            for t in range(trials):
-                runs.append(
-                    _traced_trial(scenario, family, gains, seed, t, steps, trace,
-                                  single=(trials == 1 and len(families) == 1),
-                                  on_trace=on_trace)
-                )
-                if progress is not None:
-                    progress(1)
+            if engine == "vectorised":
+                from netsim.vectorised import run_batch
+
+                # the trials' estimates are kept for the trace: batches of at most
+                # 2^24 values (steps x trials x agents x states)
+                width = 1 if family == "centralized-kf" else scenario.n_agents
+                size = max(1, (1 << 24) // ((steps + 1) * width * scenario.plant.n_states))
+                for first in range(0, trials, size):
+                    batch = run_batch(scenario, family, gains, seeds[first:first + size],
+                                      steps, record_estimates=True)
+                    for index in range(len(batch.results)):
+                        runs.append(_traced_trial(scenario, family, gains, seed, first + index,
+                                                  steps, trace, single, on_trace, batch=batch,
+                                                  batch_trial=index))
+                        if progress is not None:
+                            progress(1)
+                    del batch
+            else:
+                for t in range(trials):
+                    runs.append(_traced_trial(scenario, family, gains, seed, t, steps, trace,
+                                              single, on_trace))
+                    if progress is not None:
+                        progress(1)
         result.estimators[family] = _summarise(
             family, runs, scenario.steady_state_fraction, steps
         )

@@ -51,8 +51,8 @@ def build_parser() -> argparse.ArgumentParser:
         help="Monte Carlo runs of every estimator in a scenario",
         description=(
             "Run every estimator family of SCENARIO over Monte Carlo trials (in the "
-            "vectorised engine, or the SimPy event kernel with --engine events or --trace) "
-            "and print, per estimator, the network MSE over time, the steady-state "
+            "vectorised engine, or the SimPy event kernel with --engine events) and "
+            "print, per estimator, the network MSE over time, the steady-state "
             "MSE and a verdict (stable / diverging / diverged at step k). The same seed "
             "gives the same numbers, bit for bit."
         ),
@@ -70,9 +70,8 @@ def build_parser() -> argparse.ArgumentParser:
                      "file per estimator and trial, FILE.<estimator>.trial<k>.mcap")
     run.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
                      help="vectorised: all trials advance together in numpy arrays (fast; "
-                     "same results as the kernel to round-off); events: the SimPy event "
-                     "kernel, the reference; auto (default): vectorised, or events when "
-                     "--trace is given")
+                     "same results and traces as the kernel, to round-off); events: the "
+                     "SimPy event kernel, the reference; auto (default): vectorised")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     from netsim.aoi import add_aoi_arguments
 
@@ -299,8 +298,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         family = families[min(done[0] // trials, len(families) - 1)]
         where = f"estimator {family}, trial {done[0] % trials} of {trials}"
-        kept = f"; trace files finished: {len(written) + (1 if args.trace else 0)}" \
-            if args.trace else ""
+        kept = f"; trace files finished: {len(written)}" if args.trace else ""
         raise CommandError(f"interrupted during {where} ({done[0]} of {total} trials "
                            f"done){kept}", EXIT_INTERRUPTED) from None
     except OSError as exc:

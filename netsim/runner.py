@@ -386,22 +386,25 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
 
     path = trace_path(trace) if single else trace_path(trace, family, t)
     recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps)
-    with recorder:
-        if batch is None:
-            result = run_trial(
-                scenario, family, gains, child_sequence(seed, "trial", t), steps,
-                record_delays=False, observer=recorder,
-            )
-        else:
-            from netsim.vectrace import replay_trial
+    try:
+        with recorder:
+            if batch is None:
+                result = run_trial(
+                    scenario, family, gains, child_sequence(seed, "trial", t), steps,
+                    record_delays=False, observer=recorder,
+                )
+            else:
+                from netsim.vectrace import replay_trial
 
-            index = t if batch_trial is None else batch_trial
-            replay_trial(batch, index, scenario, family, recorder)
-            result = batch.results[index]
-        if result.diverged_at is not None:
-            recorder.set_status("diverged", diverged_at=result.diverged_at)
-    if on_trace is not None:
-        on_trace(str(path))
+                index = t if batch_trial is None else batch_trial
+                replay_trial(batch, index, scenario, family, recorder)
+                result = batch.results[index]
+            if result.diverged_at is not None:
+                recorder.set_status("diverged", diverged_at=result.diverged_at)
+    finally:
+        # the file is finished (run_status "interrupted" or "failed" if it stopped early)
+        if on_trace is not None:
+            on_trace(str(path))
     return result
 
 

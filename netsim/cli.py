@@ -200,9 +200,10 @@ def build_parser() -> argparse.ArgumentParser:
     f_run.add_argument("--steps", type=int, default=100, help="steps K (default 100)")
     f_run.add_argument("--trials", type=int, default=50, help="Monte Carlo trials (default 50)")
     f_run.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
-    f_run.add_argument("--engine", choices=["kernel", "lockstep"], default="kernel",
-                       help="kernel: each trial in the SimPy kernel (default); lockstep: "
-                       "all trials at once, vectorised")
+    f_run.add_argument("--engine", choices=["events", "vectorised", "kernel", "lockstep"],
+                       default="events",
+                       help="events (alias kernel): each trial in the SimPy kernel "
+                       "(default); vectorised (alias lockstep): all trials at once")
     f_run.add_argument("--time-varying", action="store_true",
                        help="random link delays in 0..d_i - 1, padded to d_i at the centre "
                        "(Remark 1; kernel engine)")
@@ -630,8 +631,9 @@ def _cmd_fusion(args: argparse.Namespace) -> int:
     if args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     try:
+        engine = {"events": "kernel", "vectorised": "lockstep"}.get(args.engine, args.engine)
         result = nf.run_fusion(args.example, args.steps, args.trials, args.seed,
-                               engine=args.engine, time_varying=args.time_varying)
+                               engine=engine, time_varying=args.time_varying)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     return _emit(args, result.to_dict(), result.format_text())

@@ -324,15 +324,17 @@ class Simulation:
         def monitor_process():
             while True:
                 k = yield shared["tick"]
-                err = estimates[k] - states[k]
-                sq = np.einsum("ij,ij->i", err, err)
-                sq_errors[k] = sq
                 x = states[k]
-                floor = max(threshold_sq, ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
-                # max propagates NaN and NaN <= floor is False: one test for non-finite
-                # errors (inf included) and errors above the floor
+                err = estimates[k] - x
+                sq = np.einsum("ij,ij->i", err, err, out=sq_errors[k])
+                # diverged: an error is not finite or above max(threshold, the round-off
+                # floor). max propagates NaN and NaN <= t is False; the floor (x @ x) is
+                # only computed when the threshold is exceeded.
                 worst = sq.max(initial=0.0)
-                if not (worst <= floor and worst != math.inf):
+                if worst == math.inf or not (
+                    worst <= threshold_sq
+                    or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x)
+                ):
                     shared["diverged_at"] = k
                     sq_errors[k] = np.where(np.isfinite(sq), sq, np.inf)
                     done.succeed()

@@ -23,6 +23,7 @@ import heapq
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
+from functools import cached_property
 
 import numpy as np
 
@@ -68,6 +69,9 @@ class LinkSchedule:
         Time of the drop in sampling periods (NaN when not dropped).
     reasons : list of str
         Drop reasons, see :mod:`netsim.links`.
+    constant_delay : numpy.ndarray or None, shape (T, L), int
+        Set when every link has one constant step delay and drops nothing (the
+        per-message arrays are then broadcast views).
     """
 
     links: list[tuple[int, int]]
@@ -78,10 +82,12 @@ class LinkSchedule:
     fate: np.ndarray
     drop_time: np.ndarray
     reasons: list[str]
+    constant_delay: np.ndarray | None = None
 
-    def __post_init__(self) -> None:
-        #: Arrival times s + wait, shape (T, L, S), in sampling periods.
-        self.arrival = self.send_steps.astype(float) + self.wait
+    @cached_property
+    def arrival(self) -> np.ndarray:
+        """Arrival times s + wait, shape (T, L, S), in sampling periods."""
+        return self.send_steps.astype(float) + self.wait
 
     def counts(self, ends: np.ndarray) -> list[dict[str, object]]:
         """Messages sent, delivered and dropped by each trial's end.
@@ -99,6 +105,13 @@ class LinkSchedule:
             stopped at that step (deliveries and drops up to and including its time).
         """
         end = np.asarray(ends, dtype=float)[:, None, None]
+        if self.constant_delay is not None:
+            # s + 1 + d <= end  <=>  s <= end - 1 - d
+            limit = np.asarray(ends)[:, None] - 1 - self.constant_delay
+            delivered = np.searchsorted(self.send_steps, limit, side="right").sum(axis=1)
+            return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
+                     "delivered": int(n), "dropped": 0, "drop_reasons": {}}
+                    for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
         delivered = np.count_nonzero((self.fate == DELIVERED) & (self.arrival <= end),
                                      axis=(1, 2))
         dropped = (self.fate != DELIVERED) & (self.drop_time <= end)
@@ -207,6 +220,38 @@ def _configured_pass(model, send_steps: np.ndarray, wait: np.ndarray, fate: np.n
     deliver_until(math.inf)
 
 
+def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[int, int]],
+                     send_steps: np.ndarray) -> LinkSchedule | None:
+    """The schedule of constant integer step delays on lossless links, or None.
+
+    Every message of a link then has the same delay: the per-message arrays are
+    broadcast views of one value per link (no memory per message), and nothing is
+    dropped, so the whole schedule costs O(T L).
+    """
+    T, L, S = len(delay_models), len(links), len(send_steps)
+    d = np.zeros((T, L, 1))
+    for t, model in enumerate(delay_models):
+        for l_, (j, i) in enumerate(links):
+            delays, configured = _kernel_link_model(model, j, i)
+            if configured is not None or not delays.time_invariant or delays.unit != "steps":
+                return None
+            d[t, l_, 0] = delays.draw(j, i, int(send_steps[0]) if S else 0)
+    if not (np.all(np.isfinite(d)) and np.all(d >= 0)):
+        return None  # the general path reports the bad value
+    shape = (T, L, S)
+    delay_steps = d.astype(np.int64)
+    return LinkSchedule(
+        list(links), send_steps,
+        wait=np.broadcast_to(delay_steps + 1.0, shape),
+        delay_steps=np.broadcast_to(delay_steps, shape),
+        latency=np.broadcast_to(d, shape),
+        fate=np.broadcast_to(np.zeros((1, 1, 1), dtype=np.int16), shape),
+        drop_time=np.broadcast_to(np.full((1, 1, 1), np.nan), shape),
+        reasons=[],
+        constant_delay=delay_steps[:, :, 0],
+    )
+
+
 def build_schedule(
     delay_models: Sequence[DelayModel],
     links: Sequence[tuple[int, int]],
@@ -234,6 +279,9 @@ def build_schedule(
     """
     send_steps = np.asarray(send_steps, dtype=np.int64)
     T, L, S = len(delay_models), len(links), len(send_steps)
+    static = _static_schedule(delay_models, links, send_steps)
+    if static is not None:
+        return static
     latency = np.zeros((T, L, S))
     fate = np.zeros((T, L, S), dtype=np.int16)
     drop_time = np.full((T, L, S), np.nan)
@@ -280,6 +328,32 @@ def build_schedule(
                         reasons)
 
 
+def _max_lag(chosen: np.ndarray, send: np.ndarray) -> int:
+    """Largest k - s over the messages held in ``chosen`` (K+1, L, T)."""
+    max_lag = 0
+    for k in range(chosen.shape[0]):
+        used = chosen[k][chosen[k] >= 0]
+        if used.size:
+            max_lag = max(max_lag, k - int(send[used.min()]))
+    return max_lag
+
+
+def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
+    """:func:`select_messages` for constant step delays d and no drops.
+
+    Messages arrive in sending order, so the freshest is also the last arrived and
+    none is discarded: at step k the receiver holds the last message sent at a step
+    s with s + 1 + d <= k.
+    """
+    send = schedule.send_steps
+    T, L, S = schedule.fate.shape
+    limit = (np.arange(K + 1)[:, None, None] - 1
+             - schedule.constant_delay.T[None, :, :])  # (K+1, L, T): latest s usable
+    chosen = (np.searchsorted(send, limit, side="right") - 1).astype(np.int32)
+    discarded = np.broadcast_to(np.zeros((1, 1, 1), dtype=bool), (T, L, S))
+    return MessageSelection(chosen, discarded, _max_lag(chosen, send))
+
+
 def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> MessageSelection:
     """For every link and step, the message its receiver holds at that step's update.
 
@@ -300,6 +374,8 @@ def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> 
     K = int(steps)
     T, L, S = schedule.fate.shape
     send = schedule.send_steps
+    if schedule.constant_delay is not None and S:
+        return _select_constant(schedule, K)
     ok = schedule.fate == DELIVERED
     all_ok = bool(ok.all())
     arrival = schedule.arrival if all_ok else np.where(ok, schedule.arrival, np.inf)
@@ -340,10 +416,4 @@ def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> 
                         np.take_along_axis(order, np.maximum(rank_held, 0), axis=-1), -1)
     chosen = np.ascontiguousarray(held.transpose(2, 1, 0), dtype=np.int32)
     del held
-    # largest lag k - s of a used message
-    max_lag = 0
-    for k in range(K + 1):
-        used = chosen[k][chosen[k] >= 0]
-        if used.size:
-            max_lag = max(max_lag, k - int(send[used.min()]))
-    return MessageSelection(chosen, discarded, max_lag)
+    return MessageSelection(chosen, discarded, _max_lag(chosen, send))

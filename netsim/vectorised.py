@@ -29,6 +29,7 @@ receiver uses (known from the schedule), and powers A^r are precomputed once.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -60,9 +61,11 @@ __all__ = [
 
 #: Estimator families the vectorised engine runs.
 VECTORISED_FAMILIES = ("compensated", "uncompensated", "block", "centralized-kf")
-#: Largest trials x links x (steps + 2) of one lockstep batch (memory bound; about
-#: 160 MB per schedule array).
-BATCH_ELEMENTS = 20_000_000
+#: Largest trials x links x (steps + 2) of one lockstep batch. Links with random
+#: delays, losses or buffers need about 75 bytes per element at the peak (measured by
+#: benchmarks/engine_scaling.py), so a full batch takes about 0.75 GB; constant delays
+#: need far less. One trial is never split.
+BATCH_ELEMENTS = 10_000_000
 
 
 @dataclass
@@ -148,7 +151,8 @@ class _Outputs:
         self.estimates = np.full((K + 1, T, N, n), np.nan) if record_estimates else None
         self.diverged_at = np.full(T, -1, dtype=np.int64)
         self.alive = np.ones(T, dtype=bool)
-        self.threshold_sq = threshold ** 2
+        # a threshold beyond sqrt(float max) means no threshold on the error's size
+        self.threshold_sq = threshold * threshold if threshold < 1e150 else math.inf
 
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
@@ -202,6 +206,11 @@ def _powers(A: np.ndarray, count: int) -> np.ndarray:
     return np.stack(out[: count + 1])
 
 
+def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Return x @ M over the last axis as one 2-D product (x: (..., n), M: (n, p))."""
+    return (x.reshape(-1, x.shape[-1]) @ M).reshape(*x.shape[:-1], M.shape[1])
+
+
 def _apply_powers(powers_T: np.ndarray, lag: np.ndarray, payload: np.ndarray) -> np.ndarray:
     """Return A^lag[e, t] x payload[e, t] for every (e, t), shape (E, T, n).
 
@@ -210,11 +219,11 @@ def _apply_powers(powers_T: np.ndarray, lag: np.ndarray, payload: np.ndarray) ->
     """
     present = np.flatnonzero(np.bincount(lag.reshape(-1)))
     if len(present) == 1:
-        return payload @ powers_T[present[0]]
+        return _times(payload, powers_T[present[0]])
     out = np.empty_like(payload)
     for r in present:
         rows, cols = np.nonzero(lag == r)
-        out[rows, cols] = payload[rows, cols] @ powers_T[r]
+        out[rows, cols] = _times(payload[rows, cols], powers_T[r])
     return out
 
 
@@ -272,12 +281,12 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                 break
             interrupt.check()  # a requested Ctrl-C stops here, between steps
             if block and k % period:
-                estimate = np.einsum("ab,itb->ita", powers[k - block_step], block_estimate)
+                estimate = _times(block_estimate, powers_T[k - block_step])
             else:
                 if block:
-                    own = np.einsum("ab,itb->ita", powers[period], block_estimate)
+                    own = _times(block_estimate, powers_T[period])
                 else:
-                    own = estimate @ A_T
+                    own = _times(estimate, A_T)
                 held = selection.chosen[k][term_row]  # (E, T)
                 held[no_link] = -1
                 missing = held < 0
@@ -286,7 +295,7 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                 slot = ((sent % depth) * N + term_j[:, None]) * T + trials
                 payload = flat_history.take(slot, axis=0)  # (E, T, n)
                 if family == "uncompensated":
-                    neighbour = payload @ A_T  # eq. (6): A, whatever the delay
+                    neighbour = _times(payload, A_T)  # eq. (6): A, whatever the delay
                 else:
                     # eq. (4): A^(k - s_j), one product per distinct lag
                     lag = np.where(missing, 1, k - sent)

@@ -72,6 +72,15 @@ class BatchedDraws:
         self._pos += 1
         return value
 
+    def next_for(self, send_step: int) -> Any:
+        """:meth:`next`, as a per-link sampler taking the sending step (ignored)."""
+        if self._pos >= len(self._buf):
+            self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
+            self._pos = 0
+        value = self._buf[self._pos]
+        self._pos += 1
+        return value
+
     def take(self, count: int) -> np.ndarray:
         """Return the next ``count`` values as an array, shape (count,)."""
         out: list = []
@@ -120,6 +129,8 @@ class DelayModel(Protocol):
         """Return the delay of one message (steps or time, see ``unit``)."""
         ...
 
+    # Optional: ``sampler(sender, receiver)`` -> callable(send_step) -> delay, the
+    # link's ``draw`` as one call (the kernel's lean links use it when present).
     # Optional: ``draw_many(sender, receiver, send_steps) -> numpy.ndarray``, the
     # delays of the link's next messages, sent at the increasing ``send_steps``; the
     # same numbers, and the same state afterwards, as calling ``draw`` for each in
@@ -244,6 +255,10 @@ class AsynchronousRandomDelays:
 
     def draw(self, sender: int, receiver: int, send_step: int) -> int:
         return int(self._source(sender, receiver).next())
+
+    def sampler(self, sender: int, receiver: int) -> Any:
+        """The link's draw as one callable send_step -> delay (the same sequence)."""
+        return self._source(sender, receiver).next_for
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """Delays of the link's next len(send_steps) messages."""

@@ -559,6 +559,12 @@ class DistributionDelays:
             value = self._per_link[(sender, receiver)] = self.distribution.sample(rng, 1)[0].item()
         return value
 
+    def sampler(self, sender: int, receiver: int) -> Any:
+        """The link's ``draw`` as one callable send_step -> delay."""
+        if self.mode == "asynchronous":
+            return self._sampler(sender, receiver).next_for
+        return lambda send_step: self.draw(sender, receiver, send_step)
+
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """The delays ``draw`` gives for messages sent at ``send_steps``, in order."""
         count = len(send_steps)

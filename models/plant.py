@@ -78,12 +78,32 @@ class LinearPlant:
         """Return x_k = A x_{k-1} + nu_k, shape (n,)."""
         return self.A @ x + self._factors[1] @ rng.standard_normal(self.n_states)
 
+    @cached_property
+    def _stacked_measurement(self) -> tuple[np.ndarray, np.ndarray, bool, list[int]]:
+        """C stacked, the noise factor (diagonal as a vector if every m_i = 1, else
+        block-diagonal), whether it is diagonal, and the split points."""
+        factors = self._factors[2]
+        sizes = [C.shape[0] for C in self.C]
+        if all(m == 1 for m in sizes):
+            factor = np.array([float(F[0, 0]) for F in factors])
+            diagonal = True
+        else:
+            from scipy.linalg import block_diag
+
+            factor = block_diag(*factors)
+            diagonal = False
+        return self.C_stacked, factor, diagonal, np.cumsum(sizes)[:-1].tolist()
+
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
-        """Return each sensor's y^i_k = C_i x_k + zeta^i_k, shapes (m_i,)."""
-        return [
-            Ci @ x + Fi @ rng.standard_normal(Ci.shape[0])
-            for Ci, Fi in zip(self.C, self._factors[2], strict=True)
-        ]
+        """Return each sensor's y^i_k = C_i x_k + zeta^i_k, shapes (m_i,).
+
+        All sensors' noise is one draw of sum m_i standard normals, in sensor order
+        (the same numbers as one draw per sensor).
+        """
+        C, factor, diagonal, splits = self._stacked_measurement
+        z = rng.standard_normal(C.shape[0])
+        y = C @ x + (factor * z if diagonal else factor @ z)
+        return np.split(y, splits)
 
 
 def _factor(cov: np.ndarray) -> np.ndarray:

@@ -32,6 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 import simpy
@@ -124,7 +125,7 @@ class Link:
     __slots__ = (
         "env", "sender", "receiver", "delay_model", "_deliver",
         "sample_period", "sent", "delivered", "dropped", "_sequence", "on_send", "on_drop",
-        "availability", "receive", "discarded",
+        "availability", "receive", "discarded", "_constant_wait", "_sample",
     )
 
     def __init__(
@@ -195,7 +196,7 @@ class Link:
         Returns the :class:`Message`, or None on the lean path (no Message is built).
         """
         if self.lean:
-            self._send_lean(step, payload)
+            self.send_function()(step, payload)
             return None
         message, wait, up = self._stamp(step, payload)
         if up:
@@ -217,18 +218,39 @@ class Link:
         again after changing ``receive``, ``on_send``, ``availability`` or the delay
         model.
         """
-        return self._send_lean if self.lean else self.send
+        if not self.lean:
+            return self.send
+        if self.delay_model.time_invariant:
+            # a constant delay: drawn once (the model promises the same value for
+            # every message of the link)
+            self._constant_wait = 1.0 + int(self.delay_model.draw(self.sender,
+                                                                   self.receiver, 0))
+            return self._send_lean_constant
+        sampler = getattr(self.delay_model, "sampler", None)
+        self._sample = (sampler(self.sender, self.receiver) if sampler is not None
+                        else partial(self.delay_model.draw, self.sender, self.receiver))
+        return self._send_lean
 
-    def _send_lean(self, step: int, payload: np.ndarray) -> None:
-        # the same draw, arrival time and priority as _stamp + Delivery, no Message
-        wait = 1.0 + int(self.delay_model.draw(self.sender, self.receiver, step))
+    def _send_lean_constant(self, step: int, payload: np.ndarray) -> None:
+        # _send_lean with the link's constant wait
         self._sequence += 1
         self.sent += 1
         event = _new_event(Delivery)
         event.callbacks = [self._arrive_lean]
         event._value = (step, payload)
         event._ok = True
-        self.env.schedule(event, URGENT, wait)
+        self.env.schedule(event, URGENT, self._constant_wait)
+
+    def _send_lean(self, step: int, payload: np.ndarray) -> None:
+        # the same draw, arrival time and priority as _stamp + Delivery, no Message;
+        # _sample is the delay model's draw for this link (see send_function)
+        self._sequence += 1
+        self.sent += 1
+        event = _new_event(Delivery)
+        event.callbacks = [self._arrive_lean]
+        event._value = (step, payload)
+        event._ok = True
+        self.env.schedule(event, URGENT, 1.0 + int(self._sample(step)))
 
     def drop(self, message: Message, reason: str) -> None:
         """Count a lost message and report it (drops are never silent)."""

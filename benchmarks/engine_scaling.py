@@ -74,6 +74,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
+from tables import format_table, si  # noqa: E402
 
 #: Threshold high enough that nothing stops early, low enough that its square is finite.
 NO_DIVERGENCE = 1e150
@@ -456,22 +457,6 @@ def plot_grid(grid: dict[str, Any], path: str) -> str:
     return str(path)
 
 
-def _table(headers: list[str], rows: list[list[str]]) -> str:
-    widths = [max(len(h), *(len(r[c]) for r in rows)) for c, h in enumerate(headers)]
-    line = "  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))
-    rule = "  ".join("-" * w for w in widths)
-    body = ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in rows]
-    return "\n".join([line, rule, *body])
-
-
-def _si(x: float) -> str:
-    if x >= 1e6:
-        return f"{x / 1e6:.2f}M"
-    if x >= 1e4:
-        return f"{x / 1e3:.1f}k"
-    return f"{x:.1f}" if x < 100 else f"{x:.0f}"
-
-
 def _mib(b: float) -> str:
     return f"{b / 2**20:.0f}"
 
@@ -494,17 +479,17 @@ def render(report: dict[str, Any]) -> str:
             "LCSYS2022 n=6 plant, homogeneous delays, L_i = 0.3 C_i^T; wall = "
             "perf_counter around run_trials, best of the runs shown; goal >= 50x at N = 32 "
             "with 100 trials)",
-            _table(
+            format_table(
                 ["N", "graph", "links", "tau", "vec T x K", "vec runs", "vec s",
                  "vec trial-steps/s", "ev T x K", "ev runs", "ev s", "ev trial-steps/s",
                  "ratio", "diverged"],
                 [[str(r["agents"]), r["topology"], str(r["links"]), str(r["tau"]),
                   f"{r['vectorised']['trials']} x {r['vectorised']['steps']}",
                   str(r["vectorised"]["repeat"]), f"{r['vectorised']['wall_s']:.3f}",
-                  _si(r["vectorised"]["trial_steps_per_s"]),
+                  si(r["vectorised"]["trial_steps_per_s"]),
                   f"{r['events']['trials']} x {r['events']['steps']}",
                   str(r["events"]["repeat"]), f"{r['events']['wall_s']:.3f}",
-                  _si(r["events"]["trial_steps_per_s"]), f"{r['ratio']:.1f}x",
+                  si(r["events"]["trial_steps_per_s"]), f"{r['ratio']:.1f}x",
                   f"{r['vectorised']['diverged_trials']}/{r['events']['diverged_trials']}"]
                  for r in ratio]),
             "   (diverged = trials that crossed the 1e150 threshold, vectorised/events)",
@@ -531,7 +516,7 @@ def render(report: dict[str, Any]) -> str:
             f"x {vs['trials']} trials x {vs['steps']} steps, families "
             f"{', '.join(vs['families'])}; gain design (cvxpy) not timed except in the CLI "
             "row; goal < 30 s on the vectorised engine",
-            _table(["engine", "executor", "wall s", "cells"], rows),
+            format_table(["engine", "executor", "wall s", "cells"], rows),
         ]
         if ev is not None:
             out.append(f"   events / vectorised: {fig1['events_over_vectorised_local']:.1f}x "
@@ -551,7 +536,7 @@ def render(report: dict[str, Any]) -> str:
                              str(r["tau"]), str(r["trials"]), str(r["steps"]), str(r["links"]),
                              str(r["batch_trials"]),
                              f"{r['wall_s']:.3f}", str(len(r["walls_s"])),
-                             _si(r["trials"] * r["steps"] / r["wall_s"]),
+                             si(r["trials"] * r["steps"] / r["wall_s"]),
                              _mib(r["peak_rss_bytes"]), _mib(r["run_rss_bytes"]),
                              str(r["diverged_trials"])])
         out += [
@@ -561,7 +546,7 @@ def render(report: dict[str, Any]) -> str:
             "of up to 2 runs; memory = the child's peak RSS during the timed runs "
             f"({grid['points']['agents'][0]['peak_source']}), and its increase over the "
             "RSS just before them, i.e. after imports, warm-up and scenario build)",
-            _table(["varied", "N", "n", "tau", "T", "K", "links", "batch T", "wall s", "runs",
+            format_table(["varied", "N", "n", "tau", "T", "K", "links", "batch T", "wall s", "runs",
                     "trial-steps/s", "peak RSS MiB", "run +MiB", "diverged"], rows),
             "   (batch T = trials per lockstep batch: run_vectorised splits the trials so "
             "that trials x links x (K + 2) <= netsim.vectorised.BATCH_ELEMENTS)",

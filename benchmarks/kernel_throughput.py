@@ -75,6 +75,7 @@ from unittest import mock
 import networkx as nx
 import numpy as np
 import simpy
+from tables import format_table, si
 
 import netsim.kernel
 from estimators.consensus import CompensatingEstimator, ConsensusParameters
@@ -564,22 +565,6 @@ def benchmark_size(
 # -------------------------------------------------------------------------- output
 
 
-def _table(headers: list[str], rows: list[list[str]]) -> str:
-    widths = [max(len(h), *(len(r[c]) for r in rows)) for c, h in enumerate(headers)]
-    line = "  ".join(h.rjust(w) for h, w in zip(headers, widths, strict=True))
-    rule = "  ".join("-" * w for w in widths)
-    body = ["  ".join(v.rjust(w) for v, w in zip(r, widths, strict=True)) for r in rows]
-    return "\n".join([line, rule, *body])
-
-
-def _si(x: float) -> str:
-    if x >= 1e6:
-        return f"{x / 1e6:.2f}M"
-    if x >= 1e4:
-        return f"{x / 1e3:.1f}k"
-    return f"{x:.0f}"
-
-
 def render(report: dict[str, Any]) -> str:
     results = report["results"]
     out = [
@@ -592,7 +577,7 @@ def render(report: dict[str, Any]) -> str:
         "CompensatingEstimator, record_delays=False",
         "",
         "Headline: kernel cost per event / bare SimPy timeout cost per event (goal <= 3x)",
-        _table(
+        format_table(
             [
                 "N",
                 "kernel events/s",
@@ -604,10 +589,10 @@ def render(report: dict[str, Any]) -> str:
             [
                 [
                     str(r["n_agents"]),
-                    _si(r["kernel"]["events_per_s"]),
-                    _si(r["bare_timeout_events_per_s"]),
+                    si(r["kernel"]["events_per_s"]),
+                    si(r["bare_timeout_events_per_s"]),
                     f"{r['kernel_over_bare_timeout']:.2f}x",
-                    _si(r["null_estimator"]["events_per_s"]),
+                    si(r["null_estimator"]["events_per_s"]),
                     f"{r['null_estimator']['over_bare_timeout']:.2f}x",
                 ]
                 for r in results
@@ -615,7 +600,7 @@ def render(report: dict[str, Any]) -> str:
         ),
         "",
         "Kernel throughput",
-        _table(
+        format_table(
             [
                 "N",
                 "links",
@@ -637,10 +622,10 @@ def render(report: dict[str, Any]) -> str:
                     str(r["steps"]),
                     str(r["messages_delivered"]),
                     f"{r['kernel']['wall_s']:.3f}",
-                    _si(r["kernel"]["steps_per_s"]),
-                    _si(r["kernel"]["messages_per_s"]),
+                    si(r["kernel"]["steps_per_s"]),
+                    si(r["kernel"]["messages_per_s"]),
                     str(r["kernel"]["events"]),
-                    _si(r["kernel"]["events_per_s"]),
+                    si(r["kernel"]["events_per_s"]),
                     f"{r['kernel']['us_per_event']:.2f}",
                 ]
                 for r in results
@@ -648,7 +633,7 @@ def render(report: dict[str, Any]) -> str:
         ),
         "",
         "Cost per event vs bare SimPy (same event count)",
-        _table(
+        format_table(
             [
                 "N",
                 "kernel us/ev",
@@ -677,7 +662,7 @@ def render(report: dict[str, Any]) -> str:
         ),
         "",
         "Scheduled Delivery events (kernel) vs one process per message (same scenario)",
-        _table(
+        format_table(
             [
                 "N",
                 "kernel wall s",
@@ -704,7 +689,7 @@ def render(report: dict[str, Any]) -> str:
         ),
         "",
         "Kernel events by type",
-        _table(
+        format_table(
             ["N", *report["event_types"]],
             [
                 [str(r["n_agents"])]
@@ -747,7 +732,7 @@ def _render_profiles(results: list[dict[str, Any]]) -> list[str]:
         "",
         "Profile (--profile): share of cProfile time by component "
         "(C calls charged to their caller)",
-        _table(["N", "estimator", "prof. s", *labels], rows),
+        format_table(["N", "estimator", "prof. s", *labels], rows),
     ]
 
 

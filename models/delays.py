@@ -63,17 +63,12 @@ class BatchedDraws:
         self._buf: list = []
         self._pos = 0
 
-    def next(self) -> Any:
-        """Return the next value (a Python scalar)."""
-        if self._pos >= len(self._buf):
-            self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
-            self._pos = 0
-        value = self._buf[self._pos]
-        self._pos += 1
-        return value
+    def next(self, send_step: int | None = None) -> Any:
+        """Return the next value (a Python scalar).
 
-    def next_for(self, send_step: int) -> Any:
-        """:meth:`next`, as a per-link sampler taking the sending step (ignored)."""
+        ``send_step`` is ignored: it lets ``next`` serve as a per-link sampler
+        send_step -> delay (see ``DelayModel``).
+        """
         if self._pos >= len(self._buf):
             self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
             self._pos = 0
@@ -258,7 +253,7 @@ class AsynchronousRandomDelays:
 
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's draw as one callable send_step -> delay (the same sequence)."""
-        return self._source(sender, receiver).next_for
+        return self._source(sender, receiver).next
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """Delays of the link's next len(send_steps) messages."""

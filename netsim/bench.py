@@ -1287,9 +1287,8 @@ def add_bench_parser(subparsers: Any) -> Any:
 def _executor_options(parser: Any) -> None:
     parser.add_argument("--dask", metavar="ADDRESS", help="run the cells on a Dask "
                         "distributed scheduler (e.g. tcp://127.0.0.1:8786)")
-    parser.add_argument("--workers", type=int, help="local worker processes (1 runs in "
-                        "this process; default: 1 with the vectorised engine, whose cells "
-                        "take well under a second, 2 with the event kernel)")
+    parser.add_argument("--workers", type=int, default=2, help="local worker processes "
+                        "(default 2; 1 runs in this process)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
@@ -1341,15 +1340,9 @@ def cmd_bench(args: Any) -> int:
 
 
 def _executor(args: Any) -> dict[str, Any]:
-    from netsim.runner import choose_engine
-
-    workers = args.workers
-    if workers is None:
-        vectorised = choose_engine(getattr(args, "engine", "auto"), FAMILIES) == "vectorised"
-        workers = 1 if vectorised and not args.dask else 2
     if args.dask:
-        return {"executor": "dask", "dask_address": args.dask, "workers": workers}
-    return {"executor": "serial" if workers == 1 else "local", "workers": workers}
+        return {"executor": "dask", "dask_address": args.dask, "workers": args.workers}
+    return {"executor": "serial" if args.workers == 1 else "local", "workers": args.workers}
 
 
 def _cmd_delay_tolerance(args: Any) -> int:

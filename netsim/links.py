@@ -225,32 +225,25 @@ class Link:
             # every message of the link)
             self._constant_wait = 1.0 + int(self.delay_model.draw(self.sender,
                                                                    self.receiver, 0))
-            return self._send_lean_constant
+            return self._send_lean
+        self._constant_wait = 0.0
         sampler = getattr(self.delay_model, "sampler", None)
         self._sample = (sampler(self.sender, self.receiver) if sampler is not None
                         else partial(self.delay_model.draw, self.sender, self.receiver))
         return self._send_lean
 
-    def _send_lean_constant(self, step: int, payload: np.ndarray) -> None:
-        # _send_lean with the link's constant wait
-        self._sequence += 1
-        self.sent += 1
-        event = _new_event(Delivery)
-        event.callbacks = [self._arrive_lean]
-        event._value = (step, payload)
-        event._ok = True
-        self.env.schedule(event, URGENT, self._constant_wait)
-
     def _send_lean(self, step: int, payload: np.ndarray) -> None:
         # the same draw, arrival time and priority as _stamp + Delivery, no Message;
-        # _sample is the delay model's draw for this link (see send_function)
+        # a constant delay's wait, or the delay model's draw for this link (resolved
+        # by send_function)
         self._sequence += 1
         self.sent += 1
         event = _new_event(Delivery)
         event.callbacks = [self._arrive_lean]
         event._value = (step, payload)
         event._ok = True
-        self.env.schedule(event, URGENT, 1.0 + int(self._sample(step)))
+        self.env.schedule(event, URGENT,
+                          self._constant_wait or 1.0 + int(self._sample(step)))
 
     def drop(self, message: Message, reason: str) -> None:
         """Count a lost message and report it (drops are never silent)."""

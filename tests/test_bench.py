@@ -141,13 +141,7 @@ def test_parser_registration():
     sub = parser.add_subparsers(dest="command")
     add_bench_parser(sub)
     args = parser.parse_args(["bench", "delay-tolerance", "delay-tolerant-fig2", "--json"])
-    assert args.bench_command == "delay-tolerance" and args.json and args.workers is None
-    from netsim.bench import _executor
-
-    # the default pool: this process for the vectorised engine, 2 workers for the kernel
-    assert _executor(args) == {"executor": "serial", "workers": 1}
-    args.engine = "events"
-    assert _executor(args) == {"executor": "local", "workers": 2}
+    assert args.bench_command == "delay-tolerance" and args.json and args.workers == 2
     with pytest.raises(CommandError, match="name a benchmark"):
         cmd_bench(parser.parse_args(["bench"]))
     assert set(PRESETS) == {"lcsys2022-fig1", "delay-tolerant-fig1", "delay-tolerant-fig2"}

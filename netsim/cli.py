@@ -235,6 +235,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if is_aoi_scenario(args.scenario):
         from estimators.aoi import GainDesignError as AoIDesignError
 
+        if args.engine == "vectorised":
+            raise CommandError(f"--engine vectorised: scenario {args.scenario} runs the "
+                               "age-of-information observer, which only the event kernel "
+                               "runs (use --engine events or auto)")
+
         try:
             data, text = aoi_command(args)
         except AoIDesignError as exc:

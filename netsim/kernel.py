@@ -271,7 +271,9 @@ class Simulation:
         )
         shared: dict[str, Any] = {"tick": env.event(), "ys": None, "diverged_at": None}
         done = env.event()
-        threshold_sq = self.divergence_threshold**2
+        # a threshold beyond sqrt(float max) means no threshold on the error's size
+        threshold = self.divergence_threshold
+        threshold_sq = threshold * threshold if threshold < 1e150 else math.inf
         observer = self.observer
         concatenate = np.concatenate
 

@@ -304,3 +304,21 @@ def test_non_positive_geometric_radius_is_rejected(tmp_path: Path, capsys, radiu
     path.write_text(text)
     code, out, err = run_main(capsys, str(path), *SMALL)
     assert_bad_input(code, out, err, "network.radius")
+
+
+def test_vectorised_engine_refuses_the_aoi_observer(capsys: pytest.CaptureFixture[str]) -> None:
+    code, out, err = run_main(capsys, "aoi-example", "--engine", "vectorised",
+                              "--no-progress")
+    assert_bad_input(code, out, err, "--engine vectorised", "aoi-example", "event kernel")
+
+
+def test_divergence_threshold_beyond_float_range_is_no_threshold(tmp_path: Path) -> None:
+    """run.divergence_threshold = 1e300 (its square overflows) runs on both engines."""
+    path = write(tmp_path, BASE.replace("[run]", "[run]\ndivergence_threshold = 1e300", 1))
+    scenario = load_scenario(path)
+    from netsim.runner import run_monte_carlo
+
+    for engine in ("events", "vectorised"):
+        result = run_monte_carlo(scenario, steps=20, trials=2, engine=engine,
+                                 families=["centralized-kf"])
+        assert result.estimators["centralized-kf"].verdict == "stable"

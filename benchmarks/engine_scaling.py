@@ -426,6 +426,14 @@ def plot_grid(grid: dict[str, Any], path: str) -> str:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
+
+    def plain_ticks(ax: Any) -> None:
+        # decade and 2, 5 ticks as plain numbers; no crowded minor labels
+        for axis in (ax.xaxis, ax.yaxis):
+            axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+            axis.set_major_formatter(ScalarFormatter())
+            axis.set_minor_formatter(NullFormatter())
 
     fig, axes = plt.subplots(2, len(GRID), figsize=(4 * len(GRID), 7))
     for c, (param, rows) in enumerate(grid["points"].items()):
@@ -438,6 +446,7 @@ def plot_grid(grid: dict[str, Any], path: str) -> str:
         ax.set_xlabel(label)
         ax.set_ylabel("wall s (best run)")
         ax.grid(True, which="both", alpha=0.3)
+        plain_ticks(ax)
         ax = axes[1, c]
         ax.loglog(x, [r["peak_rss_bytes"] / 2**20 for r in rows], "o-", label="peak RSS")
         ax.loglog(x, [max(r["run_rss_bytes"], 1) / 2**20 for r in rows], "s--",
@@ -446,6 +455,7 @@ def plot_grid(grid: dict[str, Any], path: str) -> str:
         ax.set_xlabel(label)
         ax.set_ylabel("MiB")
         ax.grid(True, which="both", alpha=0.3)
+        plain_ticks(ax)
         ax.legend(fontsize=8)
     base = ", ".join(f"{GRID_LABEL[k]}={v}" for k, v in BASE.items() if k in GRID_LABEL)
     fig.suptitle(f"vectorised engine, one parameter varied around {base}, "

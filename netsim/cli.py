@@ -309,6 +309,9 @@ def _cmd_run(args: argparse.Namespace) -> int:
                            f"done){kept}", EXIT_INTERRUPTED) from None
     except OSError as exc:
         raise CommandError(f"cannot write trace {args.trace}: {exc}") from None
+    except ValueError as exc:
+        # e.g. a trace-driven link asked for more messages than its trace recorded
+        raise CommandError(f"scenario {args.scenario}: {exc}") from None
     finally:
         bar.close()
     data = result.to_dict()

@@ -322,3 +322,20 @@ def test_divergence_threshold_beyond_float_range_is_no_threshold(tmp_path: Path)
         result = run_monte_carlo(scenario, steps=20, trials=2, engine=engine,
                                  families=["centralized-kf"])
         assert result.estimators["centralized-kf"].verdict == "stable"
+
+
+@pytest.mark.parametrize("engine", ["events", "vectorised"])
+def test_trace_replay_past_its_end_is_one_clear_line(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str], engine: str) -> None:
+    short = tmp_path / "short.mcap"
+    code, _, err = run_main(capsys, "lcsys2022-time-varying", "--trials", "1", "--steps", "20",
+                            "--estimators", "compensated", "--trace", str(short),
+                            "--no-progress")
+    assert code == 0, err
+    replay = write(tmp_path, BASE + f'\n[links]\ndelay = {{distribution = "trace", '
+                   f'file = "{short}"}}\n', "replay.toml")
+    code, out, err = run_main(capsys, str(replay), "--steps", "40", "--trials", "1",
+                              "--estimators", "compensated", "--engine", engine,
+                              "--no-progress")
+    assert_bad_input(code, out, err, "replay.toml", "recorded 21 messages on link",
+                     "no recorded delay")

@@ -26,7 +26,7 @@ import simpy
 from models.delays import DelayModel
 from models.plant import LinearPlant
 from netsim import interrupt
-from netsim.links import ConfiguredLink, Link, Message
+from netsim.links import ConfiguredLink, Link, Message, resolve_link
 
 __all__ = [
     "KernelObserver",
@@ -37,6 +37,7 @@ __all__ = [
     "NOT_USED",
     "DEFAULT_DIVERGENCE_THRESHOLD",
     "ROUNDOFF_RELATIVE_ERROR",
+    "squared_threshold",
 ]
 
 #: Entry of ``TrialResult.effective_delays`` where no neighbour estimate was used.
@@ -63,6 +64,11 @@ class HostedEstimator(Protocol):
 
     @property
     def estimate(self) -> np.ndarray: ...
+
+
+def squared_threshold(threshold: float) -> float:
+    """The divergence threshold squared; beyond sqrt(float max) it means no threshold."""
+    return threshold * threshold if threshold < 1e150 else math.inf
 
 
 class KernelObserver(Protocol):
@@ -201,18 +207,11 @@ class Simulation:
         self.observer = observer
         self.links: dict[tuple[int, int], Link] = {}
         self._out_links: list[list[Link]] = []
-        per_link = getattr(delay_model, "link", None)
         for i, spec in enumerate(self.agents):
             links = []
             for r in spec.out_neighbours:
-                model = None
-                if link_models is not None:
-                    model = link_models.get((i, int(r)))
-                if model is None and per_link is not None:
-                    model = per_link(i, int(r))
-                delays = model.delay if model is not None and model.delay is not None \
-                    else delay_model
-                if model is not None and not model.trivial:
+                delays, model = resolve_link(delay_model, i, int(r), link_models)
+                if model is not None:
                     link = ConfiguredLink(self.env, i, int(r), delays, self._deliver,
                                           self.sample_period)
                     link.configure(model)
@@ -271,9 +270,7 @@ class Simulation:
         )
         shared: dict[str, Any] = {"tick": env.event(), "ys": None, "diverged_at": None}
         done = env.event()
-        # a threshold beyond sqrt(float max) means no threshold on the error's size
-        threshold = self.divergence_threshold
-        threshold_sq = threshold * threshold if threshold < 1e150 else math.inf
+        threshold_sq = squared_threshold(self.divergence_threshold)
         observer = self.observer
         concatenate = np.concatenate
 

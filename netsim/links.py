@@ -33,6 +33,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import partial
+from typing import Any
 
 import numpy as np
 import simpy
@@ -42,7 +43,7 @@ from simpy.events import Event
 from models.delays import DelayModel, latency_to_steps
 
 __all__ = [
-    "Message", "Delivery", "Link", "ConfiguredLink",
+    "Message", "Delivery", "Link", "ConfiguredLink", "resolve_link",
     "REASON_LINK_DOWN", "REASON_DROP_TAIL", "REASON_DROP_OLDEST", "REASON_SUPERSEDED",
 ]
 
@@ -329,3 +330,20 @@ class ConfiguredLink(Link):
             self._newest_delivered = message.sequence
         self.delivered += 1
         self._deliver(message)
+
+
+def resolve_link(delay_model: DelayModel, sender: int, receiver: int,
+                 link_models: Any = None) -> tuple[DelayModel, Any]:
+    """The delays and the link model of link sender -> receiver, as the kernel uses them.
+
+    ``link_models`` (mapping (sender, receiver) -> LinkModel) takes precedence over the
+    delay model's own ``link()``. Returns the link's delay model and its
+    :class:`models.linkmodels.LinkModel`, or None when the link needs no loss, outage
+    or buffer (a plain :class:`Link`).
+    """
+    model = link_models.get((sender, receiver)) if link_models is not None else None
+    per_link = getattr(delay_model, "link", None)
+    if model is None and per_link is not None:
+        model = per_link(sender, receiver)
+    delays = model.delay if model is not None and model.delay is not None else delay_model
+    return delays, (model if model is not None and not model.trivial else None)

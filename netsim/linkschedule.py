@@ -28,6 +28,7 @@ from functools import cached_property
 import numpy as np
 
 from models.delays import DelayModel
+from netsim.links import resolve_link
 
 __all__ = [
     "DELIVERED",
@@ -152,16 +153,6 @@ class MessageSelection:
     max_lag: int
 
 
-def _kernel_link_model(delay_model: DelayModel, sender: int, receiver: int):
-    """The (delay model, link model or None) the kernel gives link sender -> receiver."""
-    per_link = getattr(delay_model, "link", None)
-    model = per_link(sender, receiver) if per_link is not None else None
-    delays = model.delay if model is not None and model.delay is not None else delay_model
-    if model is not None and model.trivial:
-        model = None
-    return delays, model
-
-
 def _draws(delays: DelayModel, sender: int, receiver: int, send_steps: np.ndarray
            ) -> np.ndarray | float:
     """The delay model's raw draws for one link's messages (a scalar if constant)."""
@@ -232,7 +223,7 @@ def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[i
     d = np.zeros((T, L, 1))
     for t, model in enumerate(delay_models):
         for l_, (j, i) in enumerate(links):
-            delays, configured = _kernel_link_model(model, j, i)
+            delays, configured = resolve_link(model, j, i)
             if configured is not None or not delays.time_invariant or delays.unit != "steps":
                 return None
             d[t, l_, 0] = delays.draw(j, i, int(send_steps[0]) if S else 0)
@@ -298,7 +289,7 @@ def build_schedule(
     configured_links = []
     for t, model in enumerate(delay_models):
         for l_, (j, i) in enumerate(links):
-            delays, configured = _kernel_link_model(model, j, i)
+            delays, configured = resolve_link(model, j, i)
             in_steps[l_] = delays.unit == "steps"
             latency[t, l_] = _draws(delays, j, i, send_steps)
             if configured is not None:

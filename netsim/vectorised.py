@@ -29,7 +29,6 @@ receiver uses (known from the schedule), and powers A^r are precomputed once.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -41,7 +40,7 @@ from estimators.gains import GainDesign
 from models.scenario import Scenario
 from models.seeding import SeedLike, stream
 from netsim import interrupt
-from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult
+from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult, squared_threshold
 from netsim.linkschedule import (
     LinkSchedule,
     MessageSelection,
@@ -151,8 +150,7 @@ class _Outputs:
         self.estimates = np.full((K + 1, T, N, n), np.nan) if record_estimates else None
         self.diverged_at = np.full(T, -1, dtype=np.int64)
         self.alive = np.ones(T, dtype=bool)
-        # a threshold beyond sqrt(float max) means no threshold on the error's size
-        self.threshold_sq = threshold * threshold if threshold < 1e150 else math.inf
+        self.threshold_sq = squared_threshold(threshold)
 
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""

@@ -92,18 +92,31 @@ class LinearPlant:
 
             factor = block_diag(*factors)
             diagonal = False
-        return self.C_stacked, factor, diagonal, np.cumsum(sizes)[:-1].tolist()
+        return self.C_stacked, factor, diagonal, self.sensor_slices
+
+    @cached_property
+    def sensor_slices(self) -> tuple[slice, ...]:
+        """Each sensor's rows of the stacked measurement (of :meth:`measure_stacked`)."""
+        ends = np.cumsum([0] + [C.shape[0] for C in self.C]).tolist()
+        return tuple(slice(a, b) for a, b in zip(ends[:-1], ends[1:], strict=True))
+
+    def measure_stacked(self, x: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Return all sensors' y^i_k = C_i x_k + zeta^i_k stacked, shape (sum m_i,).
+
+        The noise is one draw of sum m_i standard normals, in sensor order (the same
+        numbers as one draw per sensor).
+        """
+        C, factor, diagonal, _ = self._stacked_measurement
+        z = rng.standard_normal(C.shape[0])
+        return C @ x + (factor * z if diagonal else factor @ z)
 
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
         """Return each sensor's y^i_k = C_i x_k + zeta^i_k, shapes (m_i,).
 
-        All sensors' noise is one draw of sum m_i standard normals, in sensor order
-        (the same numbers as one draw per sensor).
+        Views of :meth:`measure_stacked` (same draw, same numbers).
         """
-        C, factor, diagonal, splits = self._stacked_measurement
-        z = rng.standard_normal(C.shape[0])
-        y = C @ x + (factor * z if diagonal else factor @ z)
-        return np.split(y, splits)
+        y = self.measure_stacked(x, rng)
+        return [y[rows] for rows in self.sensor_slices]
 
 
 def _factor(cov: np.ndarray) -> np.ndarray:

@@ -3,7 +3,8 @@
 One run of one estimator family over one realisation of the plant and the links.
 Event order within a sampling instant k (simulation time k, in units of Ts):
 
-1. deliveries arriving at k (URGENT events, scheduled when sent);
+1. deliveries arriving at k, in sending order (one URGENT event per arrival instant
+   on the shared :class:`netsim.deliveries.DeliveryCalendar`);
 2. the plant process makes x_k and every sensor's y^i_k, then fires the step's tick;
 3. every agent process, in agent order, runs its estimator's update for step k;
    then, in the same order, sends its new estimate on its out-links;
@@ -26,6 +27,7 @@ import simpy
 from models.delays import DelayModel
 from models.plant import LinearPlant
 from netsim import interrupt
+from netsim.deliveries import DeliveryCalendar
 from netsim.links import ConfiguredLink, Link, Message, resolve_link
 
 __all__ = [
@@ -206,6 +208,8 @@ class Simulation:
         self.record_messages = record_messages
         self.observer = observer
         self.links: dict[tuple[int, int], Link] = {}
+        #: Pending deliveries of every link (one event per arrival instant).
+        self.calendar = DeliveryCalendar(self.env)
         self._out_links: list[list[Link]] = []
         for i, spec in enumerate(self.agents):
             links = []
@@ -213,10 +217,11 @@ class Simulation:
                 delays, model = resolve_link(delay_model, i, int(r), link_models)
                 if model is not None:
                     link = ConfiguredLink(self.env, i, int(r), delays, self._deliver,
-                                          self.sample_period)
+                                          self.sample_period, self.calendar)
                     link.configure(model)
                 else:
-                    link = Link(self.env, i, int(r), delays, self._deliver, self.sample_period)
+                    link = Link(self.env, i, int(r), delays, self._deliver,
+                                self.sample_period, self.calendar)
                 link.availability = availability
                 link.on_drop = self._dropped
                 if observer is not None:
@@ -272,7 +277,7 @@ class Simulation:
         done = env.event()
         threshold_sq = squared_threshold(self.divergence_threshold)
         observer = self.observer
-        concatenate = np.concatenate
+        sensor_slices = plant.sensor_slices
 
         def plant_process():
             x = plant.sample_initial(plant_rng)
@@ -280,9 +285,10 @@ class Simulation:
                 interrupt.check()  # a requested Ctrl-C stops here, between steps
                 if k > 0:
                     x = plant.step(x, plant_rng)
-                ys = plant.measure(x, plant_rng)
+                stacked = plant.measure_stacked(x, plant_rng)
+                ys = [stacked[rows] for rows in sensor_slices]
                 states[k] = x
-                all_measurements[k] = concatenate(ys)
+                all_measurements[k] = stacked
                 if observer is not None:
                     observer.on_plant(k, x, ys)
                 shared["ys"] = ys

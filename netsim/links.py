@@ -1,16 +1,17 @@
 """Delayed links: time-stamped messages delivered by scheduled events.
 
-A link does not run a process per message: :meth:`Link.send` schedules one
-:class:`Delivery` event at the arrival time, with URGENT priority so that a message
-arriving exactly at a sampling instant is delivered before that instant's updates
-(DESIGN.md). The delivery's callback hands the message to the receiver.
+A link does not run a process per message: :meth:`Link.send` puts the message on
+the simulation's :class:`netsim.deliveries.DeliveryCalendar`, which schedules one
+URGENT event per arrival instant, so that a message arriving exactly at a sampling
+instant is delivered before that instant's updates (DESIGN.md), in sending order.
+The delivery hands the message to the receiver.
 
 :class:`Link` is the plain link (delays only, plus the availability hook): its
 per-message path is one delay draw, one :class:`Message` and one scheduled event.
 :class:`ConfiguredLink` adds what a :class:`models.linkmodels.LinkModel` asks for:
 outages, losses and a finite buffer of in-flight messages with a drop policy
 (definitions in :mod:`models.linkmodels`). Only links that have such a model pay for
-it. A cancelled delivery (drop-oldest, keep-latest) is not removed from SimPy's queue:
+it. A cancelled delivery (drop-oldest, keep-latest) is not removed from the calendar:
 the message leaves the link's in-flight table, and the arrival callback ignores
 deliveries whose message is no longer in it.
 
@@ -21,11 +22,12 @@ Drop reasons reported to ``on_drop`` (and traced): ``link down`` (availability),
 
 Lean path: a plain :class:`Link` whose ``receive`` hook is set (the receiver's
 ``message_arrived``), with no ``on_send`` and no ``availability`` hook and a delay
-model in steps, builds no :class:`Message` at all: its :class:`Delivery` carries
+model in steps, builds no :class:`Message` at all: its calendar entry carries
 ``(sent_step, payload)`` and its arrival calls ``receive(sender, sent_step, payload)``
 directly, counting refusals (stale messages) in :attr:`Link.discarded`. The kernel
 uses it when no observer and no message recording need the Message objects; the
-delay draw, the event and its time and priority are exactly those of the full path.
+delay draw, the arrival time and the delivery order are exactly those of the full
+path.
 """
 
 from __future__ import annotations
@@ -37,13 +39,12 @@ from typing import Any
 
 import numpy as np
 import simpy
-from simpy.core import URGENT
-from simpy.events import Event
 
 from models.delays import DelayModel, latency_to_steps
+from netsim.deliveries import DeliveryCalendar
 
 __all__ = [
-    "Message", "Delivery", "Link", "ConfiguredLink", "resolve_link",
+    "Message", "Link", "ConfiguredLink", "resolve_link",
     "REASON_LINK_DOWN", "REASON_DROP_TAIL", "REASON_DROP_OLDEST", "REASON_SUPERSEDED",
 ]
 
@@ -85,29 +86,6 @@ class Message:
     delay_steps: int
 
 
-class Delivery(simpy.events.Event):
-    """An already-triggered event processed at ``now + delay`` with URGENT priority.
-
-    Its value is the :class:`Message`, or ``(sent_step, payload)`` on a link's lean
-    path (see the module docstring).
-    """
-
-    __slots__ = ()
-
-    def __init__(self, env: simpy.Environment, delay: float, message: Message) -> None:
-        # Same construction as simpy.Timeout, but URGENT so deliveries precede the
-        # updates scheduled for the same instant.
-        self.env = env
-        self.callbacks: list = []
-        self._value = message
-        self._ok = True
-        env.schedule(self, URGENT, delay)
-
-
-#: Allocates a Delivery without running ``__init__`` (the lean path sets its fields).
-_new_event = Event.__new__
-
-
 class Link:
     """Directed link (sender -> receiver) with a delay model.
 
@@ -121,12 +99,17 @@ class Link:
         Called at the arrival time.
     sample_period : float
         Ts.
+    calendar : DeliveryCalendar, optional
+        The environment's delivery calendar, shared by all its links (the delivery
+        order across links is the sending order only within one calendar); default:
+        a calendar of this link's own.
     """
 
     __slots__ = (
         "env", "sender", "receiver", "delay_model", "_deliver",
         "sample_period", "sent", "delivered", "dropped", "_sequence", "on_send", "on_drop",
         "availability", "receive", "discarded", "_constant_wait", "_sample",
+        "calendar", "_schedule",
     )
 
     def __init__(
@@ -137,8 +120,11 @@ class Link:
         delay_model: DelayModel,
         deliver: Callable[[Message], None],
         sample_period: float = 1.0,
+        calendar: DeliveryCalendar | None = None,
     ) -> None:
         self.env = env
+        self.calendar = calendar if calendar is not None else DeliveryCalendar(env)
+        self._schedule = self.calendar.schedule
         self.sender = sender
         self.receiver = receiver
         self.delay_model = delay_model
@@ -201,8 +187,7 @@ class Link:
             return None
         message, wait, up = self._stamp(step, payload)
         if up:
-            event = Delivery(self.env, wait, message)
-            event.callbacks.append(self._arrive)
+            self._schedule(wait, self._arrive, message)
         return message
 
     @property
@@ -234,17 +219,12 @@ class Link:
         return self._send_lean
 
     def _send_lean(self, step: int, payload: np.ndarray) -> None:
-        # the same draw, arrival time and priority as _stamp + Delivery, no Message;
-        # a constant delay's wait, or the delay model's draw for this link (resolved
-        # by send_function)
+        # the same draw and arrival time as _stamp, no Message; a constant delay's
+        # wait, or the delay model's draw for this link (resolved by send_function)
         self._sequence += 1
         self.sent += 1
-        event = _new_event(Delivery)
-        event.callbacks = [self._arrive_lean]
-        event._value = (step, payload)
-        event._ok = True
-        self.env.schedule(event, URGENT,
-                          self._constant_wait or 1.0 + int(self._sample(step)))
+        self._schedule(self._constant_wait or 1.0 + int(self._sample(step)),
+                       self._arrive_lean, (step, payload))
 
     def drop(self, message: Message, reason: str) -> None:
         """Count a lost message and report it (drops are never silent)."""
@@ -252,14 +232,13 @@ class Link:
         if self.on_drop is not None:
             self.on_drop(message, reason)
 
-    def _arrive(self, event: simpy.events.Event) -> None:
+    def _arrive(self, message: Message) -> None:
         self.delivered += 1
-        self._deliver(event._value)
+        self._deliver(message)
 
-    def _arrive_lean(self, event: simpy.events.Event) -> None:
+    def _arrive_lean(self, stamped: tuple[int, np.ndarray]) -> None:
         self.delivered += 1
-        sent_step, payload = event._value
-        if not self.receive(self.sender, sent_step, payload):
+        if not self.receive(self.sender, *stamped):
             self.discarded += 1
 
 
@@ -315,12 +294,10 @@ class ConfiguredLink(Link):
             oldest = next(iter(in_flight))
             self.drop(in_flight.pop(oldest), REASON_DROP_OLDEST)
         in_flight[sequence] = message
-        event = Delivery(self.env, wait, message)
-        event.callbacks.append(self._arrive)
+        self._schedule(wait, self._arrive, message)
         return message
 
-    def _arrive(self, event: simpy.events.Event) -> None:
-        message = event._value
+    def _arrive(self, message: Message) -> None:
         if self.in_flight.pop(message.sequence, None) is None:
             return  # cancelled (dropped while in flight)
         if self.policy == "keep-latest":

@@ -106,13 +106,18 @@ class _ConsensusBase:
         self._operator_room = OPERATOR_CACHE_BYTES
         self._powers: list[np.ndarray] = [np.eye(params.A.shape[0]), params.A]
         self._estimate = np.asarray(params.prior, dtype=float).copy()
-        self._stored: dict[int, tuple[int, np.ndarray]] = {}
+        # the stored message of each in-neighbour, by its position in neighbours:
+        # time-stamp s_j (None: nothing arrived yet) and payload x-hat^j_{s_j|s_j}
+        self._position = {j: p for p, j in enumerate(self.neighbours)}
+        self._stamps: list[int | None] = [None] * len(self.neighbours)
+        self._payloads: list[np.ndarray | None] = [None] * len(self.neighbours)
+        self._silent = len(self.neighbours)
         self._started = False
         self.last_step: int | None = None
         self._last_delays: dict[int, int] = {}
-        # (k, copy of the stored messages) of the last update: last_delays is built
-        # from it only when someone reads it
-        self._used: tuple[int, dict[int, tuple[int, np.ndarray]]] | None = None
+        # (k, time-stamps) of the last update: last_delays is built from it only when
+        # someone reads it
+        self._used: tuple[int, tuple[int | None, ...]] | None = None
         #: Messages discarded on arrival by the freshest rule.
         self.discarded = 0
 
@@ -121,11 +126,11 @@ class _ConsensusBase:
         """Effective delay r_ij[k] = k - 1 - s_j used by the last update, per
         in-neighbour j (NO_MESSAGE when i substituted its own estimate)."""
         if self._used is not None:
-            k, stored = self._used
+            k, stamps = self._used
             self._used = None
             self._last_delays = {
-                j: NO_MESSAGE if j not in stored else k - 1 - stored[j][0]
-                for j in self.neighbours
+                j: NO_MESSAGE if s is None else k - 1 - s
+                for j, s in zip(self.neighbours, stamps, strict=True)
             }
         return self._last_delays
 
@@ -139,14 +144,20 @@ class _ConsensusBase:
         """Store a delivered estimate x-hat^j_{s|s}; return False if discarded.
 
         Freshest rule: with time-stamps, a message older than (or as old as) the
-        stored one from the same sender is discarded.
+        stored one from the same sender is discarded. A message from an agent that
+        is not an in-neighbour (p_ij = 0) is accepted and has no effect.
         """
-        if self.uses_timestamps:
-            current = self._stored.get(sender)
-            if current is not None and sent_step <= current[0]:
-                self.discarded += 1
-                return False
-        self._stored[sender] = (sent_step, payload)
+        position = self._position.get(sender)
+        if position is None:
+            return True
+        current = self._stamps[position]
+        if current is None:
+            self._silent -= 1
+        elif sent_step <= current and self.uses_timestamps:
+            self.discarded += 1
+            return False
+        self._stamps[position] = sent_step
+        self._payloads[position] = payload
         return True
 
     def outgoing(self, step: int) -> np.ndarray | None:
@@ -191,24 +202,20 @@ class _ConsensusBase:
         innovation) up to round-off; the vectorised engine computes the two-stage
         form and the differential tests compare them.
         """
-        stored = self._stored
-        compensates = self.compensates
+        stamps = self._stamps
         exponent, own = self._own_term()
-        lags: list[int] = []
-        vectors = [own]
-        for j in self.neighbours:
-            entry = stored.get(j)
-            if entry is None:
-                lags.append(NO_MESSAGE)
-                continue
-            sent_step, payload = entry
-            if sent_step >= k:
-                raise RuntimeError(
-                    f"agent {self.agent}: message from {j} stamped {sent_step} used at step {k}"
-                )
-            lags.append(k - sent_step if compensates else 1)
-            vectors.append(payload)
-        vectors.append(y)
+        if self._silent:
+            heard = [s for s in stamps if s is not None]
+            lags = [NO_MESSAGE if s is None else k - s if self.compensates else 1
+                    for s in stamps]
+            vectors = [own, *(v for v in self._payloads if v is not None), y]
+        else:
+            heard = stamps
+            lags = [k - s for s in stamps] if self.compensates else [1] * len(stamps)
+            vectors = [own, *self._payloads, y]
+        if heard and max(heard) >= k:
+            raise RuntimeError(
+                f"agent {self.agent}: a message stamped {max(heard)} used at step {k}")
         key = (exponent, *lags)
         operator = self._operators.get(key)
         if operator is None:
@@ -216,7 +223,7 @@ class _ConsensusBase:
             if self._operator_room >= operator.nbytes:
                 self._operator_room -= operator.nbytes
                 self._operators[key] = operator
-        self._used = (k, stored.copy())
+        self._used = (k, tuple(stamps))
         return operator.dot(np.concatenate(vectors))
 
     def _operator(self, exponent: int, lags: list[int]) -> np.ndarray:

@@ -108,8 +108,7 @@ class Link:
     __slots__ = (
         "env", "sender", "receiver", "delay_model", "_deliver",
         "sample_period", "sent", "delivered", "dropped", "_sequence", "on_send", "on_drop",
-        "availability", "receive", "discarded", "_constant_wait", "_sample",
-        "calendar", "_schedule",
+        "availability", "receive", "discarded", "calendar", "_schedule",
     )
 
     def __init__(
@@ -206,25 +205,29 @@ class Link:
         """
         if not self.lean:
             return self.send
+        # the same draw and arrival time as _stamp, no Message (the lean path numbers
+        # no messages); one call to the calendar per message
+        schedule = self._schedule
+        arrive = self._arrive_lean
         if self.delay_model.time_invariant:
             # a constant delay: drawn once (the model promises the same value for
             # every message of the link)
-            self._constant_wait = 1.0 + int(self.delay_model.draw(self.sender,
-                                                                   self.receiver, 0))
-            return self._send_lean
-        self._constant_wait = 0.0
-        sampler = getattr(self.delay_model, "sampler", None)
-        self._sample = (sampler(self.sender, self.receiver) if sampler is not None
-                        else partial(self.delay_model.draw, self.sender, self.receiver))
-        return self._send_lean
+            wait = 1.0 + int(self.delay_model.draw(self.sender, self.receiver, 0))
 
-    def _send_lean(self, step: int, payload: np.ndarray) -> None:
-        # the same draw and arrival time as _stamp, no Message; a constant delay's
-        # wait, or the delay model's draw for this link (resolved by send_function)
-        self._sequence += 1
-        self.sent += 1
-        self._schedule(self._constant_wait or 1.0 + int(self._sample(step)),
-                       self._arrive_lean, (step, payload))
+            def send_constant(step: int, payload: np.ndarray) -> None:
+                self.sent += 1
+                schedule(wait, arrive, (step, payload))
+
+            return send_constant
+        sampler = getattr(self.delay_model, "sampler", None)
+        sample = (sampler(self.sender, self.receiver) if sampler is not None
+                  else partial(self.delay_model.draw, self.sender, self.receiver))
+
+        def send_drawn(step: int, payload: np.ndarray) -> None:
+            self.sent += 1
+            schedule(1.0 + int(sample(step)), arrive, (step, payload))
+
+        return send_drawn
 
     def drop(self, message: Message, reason: str) -> None:
         """Count a lost message and report it (drops are never silent)."""

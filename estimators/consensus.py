@@ -213,12 +213,17 @@ class _ConsensusBase:
             heard = stamps
             lags = [k - s for s in stamps] if self.compensates else [1] * len(stamps)
             vectors = [own, *self._payloads, y]
-        if heard and max(heard) >= k:
+        if not self.compensates and heard and max(heard) >= k:
             raise RuntimeError(
                 f"agent {self.agent}: a message stamped {max(heard)} used at step {k}")
         key = (exponent, *lags)
         operator = self._operators.get(key)
         if operator is None:
+            # a lag k - s_j < 1 (a message used at or before the step it was sent) is
+            # never cached, so it is caught here
+            if any(lag < 1 for lag in lags if lag != NO_MESSAGE):
+                raise RuntimeError(f"agent {self.agent}: a message stamped {max(heard)} "
+                                   f"used at step {k}")
             operator = self._operator(exponent, lags)
             if self._operator_room >= operator.nbytes:
                 self._operator_room -= operator.nbytes

@@ -276,6 +276,8 @@ class Simulation:
         shared: dict[str, Any] = {"tick": env.event(), "ys": None, "diverged_at": None}
         done = env.event()
         threshold_sq = squared_threshold(self.divergence_threshold)
+        # each agent's estimate of the current step, recorded by the monitor
+        current: list[Any] = [None] * n_agents
         observer = self.observer
         sensor_slices = plant.sensor_slices
 
@@ -305,11 +307,10 @@ class Simulation:
             outgoing = getattr(estimator, "outgoing", None) if sends else None
             has_delays = hasattr(estimator, "last_delays")
             read_delays = has_delays and (delays is not None or observer is not None)
-            estimates_i = estimates[:, i]
             while True:
                 k = yield shared["tick"]
                 estimate = update(k, measure(shared["ys"]))
-                estimates_i[k] = estimate
+                current[i] = estimate
                 if read_delays:
                     used = estimator.last_delays
                     if delays is not None and used:
@@ -330,6 +331,7 @@ class Simulation:
             while True:
                 k = yield shared["tick"]
                 x = states[k]
+                estimates[k] = current  # every agent's update of step k (they run first)
                 err = estimates[k] - x
                 sq = np.einsum("ij,ij->i", err, err, out=sq_errors[k])
                 # diverged: an error is not finite or above max(threshold, the round-off

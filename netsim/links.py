@@ -23,7 +23,7 @@ Drop reasons reported to ``on_drop`` (and traced): ``link down`` (availability),
 Lean path: a plain :class:`Link` whose ``receive`` hook is set (the receiver's
 ``message_arrived``), with no ``on_send`` and no ``availability`` hook and a delay
 model in steps, builds no :class:`Message` at all: its calendar entry carries
-``(sent_step, payload)`` and its arrival calls ``receive(sender, sent_step, payload)``
+``(sender, sent_step, payload)`` and its arrival calls ``receive(sender, sent_step, payload)``
 directly, counting refusals (stale messages) in :attr:`Link.discarded`. The kernel
 uses it when no observer and no message recording need the Message objects; the
 delay draw, the arrival time and the delivery order are exactly those of the full
@@ -209,6 +209,7 @@ class Link:
         # no messages); one call to the calendar per message
         schedule = self._schedule
         arrive = self._arrive_lean
+        sender = self.sender
         if self.delay_model.time_invariant:
             # a constant delay: drawn once (the model promises the same value for
             # every message of the link)
@@ -216,7 +217,7 @@ class Link:
 
             def send_constant(step: int, payload: np.ndarray) -> None:
                 self.sent += 1
-                schedule(wait, arrive, (step, payload))
+                schedule(wait, arrive, (sender, step, payload))
 
             return send_constant
         sampler = getattr(self.delay_model, "sampler", None)
@@ -225,7 +226,7 @@ class Link:
 
         def send_drawn(step: int, payload: np.ndarray) -> None:
             self.sent += 1
-            schedule(1.0 + int(sample(step)), arrive, (step, payload))
+            schedule(1.0 + int(sample(step)), arrive, (sender, step, payload))
 
         return send_drawn
 
@@ -239,9 +240,10 @@ class Link:
         self.delivered += 1
         self._deliver(message)
 
-    def _arrive_lean(self, stamped: tuple[int, np.ndarray]) -> None:
+    def _arrive_lean(self, stamped: tuple[int, int, np.ndarray]) -> None:
+        # stamped = (sender, sent_step, payload)
         self.delivered += 1
-        if not self.receive(self.sender, *stamped):
+        if not self.receive(*stamped):
             self.discarded += 1
 
 

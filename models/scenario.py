@@ -27,6 +27,7 @@ import math
 import tomllib
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
+from functools import cached_property
 from importlib import resources
 from pathlib import Path
 from typing import Any
@@ -235,9 +236,10 @@ class Scenario:
     source: str = ""
     link_spec: LinksSpec | None = None
 
-    @property
+    @cached_property
     def graph(self) -> nx.DiGraph:
-        """Communication graph, edge (j, i): i receives from j."""
+        """Communication graph, edge (j, i): i receives from j (built once; do not
+        modify it)."""
         return graph_from_weights(self.weights)
 
     @property

@@ -7,12 +7,15 @@ arrival time t schedules one URGENT :class:`Delivery` event at t, and later mess
 for t join its list. When the event is processed, the messages are handed over one by
 one, in the order they were sent.
 
-That is exactly the order one event per message would give: SimPy pops events at
-equal time and priority in the order they were scheduled, every URGENT event at a
-time t > 0 is a delivery, and a list is taken off the calendar before it is handed
-over, so a message scheduled for t after that starts a new event (after the first,
-as its own event would be). The per-message cost is a dictionary lookup and an
-append instead of a heap push and pop.
+That is exactly the order one event per message would give, provided every URGENT
+event at a time t > 0 is a delivery: SimPy pops events at equal time and priority in
+the order they were scheduled, and a list is taken off the calendar before it is
+handed over, so a message scheduled for t after that starts a new event (after the
+first, as its own event would be). The kernel keeps that proviso: it starts no
+process during a run and stops on a NORMAL event. A process started inside a
+delivery, or ``env.run(until=t)`` (an URGENT stop event), would be ordered after all
+of t's pending messages rather than between them (tests/test_deliveries.py). The
+per-message cost is a dictionary lookup and an append instead of a heap push and pop.
 """
 
 from __future__ import annotations
@@ -93,5 +96,8 @@ class DeliveryCalendar:
             pending[index](pending[index + 1])
 
     def __len__(self) -> int:
-        """Messages scheduled and not yet handed over."""
+        """Messages scheduled for instants whose event has not been processed yet.
+
+        The rest of a batch being handed over is not counted.
+        """
         return sum(len(pending) for pending in self._pending.values()) // 2

@@ -146,11 +146,16 @@ class MessageSelection:
         the one already held); all False without time-stamps.
     max_lag : int
         Largest k - s over all used messages (0 when none is used).
+    uniform_delay : int or None
+        d when every link of every trial has the constant step delay d and a message
+        is sent every step (so the receiver holds the message sent at k - 1 - d from
+        step d + 1 on); None otherwise.
     """
 
     chosen: np.ndarray
     discarded: np.ndarray
     max_lag: int
+    uniform_delay: int | None = None
 
 
 def _draws(delays: DelayModel, sender: int, receiver: int, send_steps: np.ndarray
@@ -338,10 +343,22 @@ def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
     """
     send = schedule.send_steps
     T, L, S = schedule.fate.shape
-    limit = (np.arange(K + 1)[:, None, None] - 1
-             - schedule.constant_delay.T[None, :, :])  # (K+1, L, T): latest s usable
-    chosen = (np.searchsorted(send, limit, side="right") - 1).astype(np.int32)
     discarded = np.broadcast_to(np.zeros((1, 1, 1), dtype=bool), (T, L, S))
+    delay = schedule.constant_delay.T  # (L, T)
+    steps = np.arange(K + 1, dtype=np.int32)[:, None, None]
+    every_step = len(send) == K + 1 and bool(np.array_equal(send, np.arange(K + 1)))
+    if every_step and delay.size and bool(np.all(delay == delay.flat[0])):
+        # one delay d everywhere, a message every step: the message sent at k - 1 - d
+        # (index = step), the same for every link and trial (a broadcast view)
+        d = int(delay.flat[0])
+        column = np.maximum(steps - 1 - d, -1).astype(np.int32)
+        chosen = np.broadcast_to(column, (K + 1, L, T))
+        return MessageSelection(chosen, discarded, d + 1 if K >= d + 1 else 0, d)
+    limit = steps - 1 - delay[None, :, :].astype(np.int32)  # (K+1, L, T): latest s usable
+    if every_step:
+        chosen = np.maximum(limit, -1).astype(np.int32)  # index = step
+    else:
+        chosen = (np.searchsorted(send, limit, side="right") - 1).astype(np.int32)
     return MessageSelection(chosen, discarded, _max_lag(chosen, send))
 
 

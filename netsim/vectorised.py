@@ -209,22 +209,6 @@ def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     return (x.reshape(-1, x.shape[-1]) @ M).reshape(*x.shape[:-1], M.shape[1])
 
 
-def _apply_powers(powers_T: np.ndarray, lag: np.ndarray, payload: np.ndarray) -> np.ndarray:
-    """Return A^lag[e, t] x payload[e, t] for every (e, t), shape (E, T, n).
-
-    ``powers_T[r]`` is (A^r)^T. One matrix product per distinct lag (there are few:
-    at most the delay bound + 1 with fixed or bounded delays).
-    """
-    present = np.flatnonzero(np.bincount(lag.reshape(-1)))
-    if len(present) == 1:
-        return _times(payload, powers_T[present[0]])
-    out = np.empty_like(payload)
-    for r in present:
-        rows, cols = np.nonzero(lag == r)
-        out[rows, cols] = _times(payload[rows, cols], powers_T[r])
-    return out
-
-
 def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
                    steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
@@ -248,6 +232,11 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                           for i, j in zip(term_i, term_j, strict=True)], dtype=np.int64)
     E = len(term_i)
     aggregate = sp.csr_matrix((term_w, (term_i, np.arange(E))), shape=(N, E))
+    # one constant delay d on every link, a message every step: from step d + 1 on,
+    # every term uses the estimate of step k - 1 - d, so the neighbour sum is one
+    # sparse product with P minus its diagonal
+    uniform = selection.uniform_delay if E and not np.any(term_link < 0) else None
+    neighbour_matrix = sp.csr_matrix((term_w, (term_i, term_j)), shape=(N, N))
     own_weight = np.diag(P)[:, None, None]
     block = family == "block"
     period = scenario.delay_bound + 1 if block else 1
@@ -262,10 +251,14 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
     no_link = term_link < 0
     term_row = np.maximum(term_link, 0)
 
+    Cp_T = np.ascontiguousarray(Cp.transpose(0, 2, 1))  # (N, n, m)
+    Lp_T = np.ascontiguousarray(Lp.transpose(0, 2, 1))  # (N, m, n)
+
     def innovate(prior: np.ndarray, k: int) -> np.ndarray:
-        # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1})
-        innovation = Y[k] - np.einsum("imn,itn->itm", Cp, prior)
-        return prior + np.einsum("inm,itm->itn", Lp, innovation)
+        # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a
+        # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T
+        innovation = Y[k] - prior @ Cp_T
+        return prior + innovation @ Lp_T
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
     estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0)
@@ -285,6 +278,17 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                     own = _times(block_estimate, powers_T[period])
                 else:
                     own = _times(estimate, A_T)
+                if uniform is not None and k > uniform:
+                    sent_step = k - 1 - uniform
+                    summed = (neighbour_matrix @ history[sent_step % depth].reshape(N, -1)
+                              ).reshape(N, T, n)
+                    power = 1 if family == "uncompensated" else k - sent_step
+                    estimate = innovate(own_weight * own + _times(summed, powers_T[power]), k)
+                    block_estimate, block_step = estimate, k
+                    updated.append(k)
+                    history[k % depth] = estimate
+                    alive = outputs.record(k, estimate, batch.states[k])
+                    continue
                 held = selection.chosen[k][term_row]  # (E, T)
                 held[no_link] = -1
                 missing = held < 0
@@ -292,19 +296,36 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
                 # x-hat^j_{s|s} of every term, from the ring of past estimates
                 slot = ((sent % depth) * N + term_j[:, None]) * T + trials
                 payload = flat_history.take(slot, axis=0)  # (E, T, n)
-                if family == "uncompensated":
-                    neighbour = _times(payload, A_T)  # eq. (6): A, whatever the delay
-                else:
-                    # eq. (4): A^(k - s_j), one product per distinct lag
-                    lag = np.where(missing, 1, k - sent)
-                    neighbour = _apply_powers(powers_T, lag, payload)
+                # Sum the neighbour terms per lag before applying the power:
+                # sum_j p_ij A^r x_j = A^r (sum_j p_ij x_j), so one product per distinct
+                # lag on (N, T, n) rather than on every (term, trial).
                 if missing.any():
-                    # nothing from j yet: agent i's own prediction stands in
-                    rows, cols = np.nonzero(missing)
-                    neighbour[rows, cols] = own[term_i[rows], cols]
-                prior = own_weight * own
+                    # nothing from j yet: agent i's own prediction stands in, so j's
+                    # weight joins p_ii
+                    present = ~missing
+                    payload = payload * present[:, :, None]
+                    own_total = own_weight + (aggregate @ missing.astype(float))[:, :, None]
+                else:
+                    present = None
+                    own_total = own_weight
+                prior = own_total * own
                 if E:
-                    prior = prior + (aggregate @ neighbour.reshape(E, -1)).reshape(N, T, n)
+                    if family == "uncompensated":
+                        lag = None  # eq. (6): A, whatever the delay
+                        lags = (1,)
+                    else:
+                        # eq. (4): A^(k - s_j)
+                        lag = k - sent
+                        if present is not None:
+                            lag = np.where(present, lag, 0)
+                        lags = np.flatnonzero(np.bincount(lag.reshape(-1)))
+                        lags = lags[lags > 0]
+                    for r in lags:
+                        # with one lag every present term has it (missing ones are zero)
+                        part = (payload if len(lags) == 1
+                                else payload * (lag == r)[:, :, None])
+                        summed = (aggregate @ part.reshape(E, -1)).reshape(N, T, n)
+                        prior = prior + _times(summed, powers_T[r])
                 estimate = innovate(prior, k)
                 block_estimate, block_step = estimate, k
                 updated.append(k)

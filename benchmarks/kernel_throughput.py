@@ -43,8 +43,8 @@ process:
 * **profile** (``--profile``): one extra, untimed run per size and estimator under
   cProfile, its time split by where it is spent: SimPy's own machinery, the kernel
   (``netsim/kernel.py``), the links, the delivery calendar, the estimator, the delay
-  model, the plant, the benchmark's glue. Time in C functions (numpy, heapq, dict methods, ...) is charged
-  to the Python function that called them. cProfile slows Python-level calls more
+  model, the plant, the benchmark's glue. Time in C functions (numpy, heapq, dict
+  methods, ...) is charged to the Python function that called them. cProfile slows Python-level calls more
   than C work, so the shares are indicative, not wall-time fractions.
 
 The headline is the first table: at each N, the kernel's cost per simulation event

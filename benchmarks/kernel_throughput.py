@@ -44,8 +44,9 @@ process:
   cProfile, its time split by where it is spent: SimPy's own machinery, the kernel
   (``netsim/kernel.py``), the links, the delivery calendar, the estimator, the delay
   model, the plant, the benchmark's glue. Time in C functions (numpy, heapq, dict
-  methods, ...) is charged to the Python function that called them. cProfile slows Python-level calls more
-  than C work, so the shares are indicative, not wall-time fractions.
+  methods, ...) is charged to the Python function that called them. cProfile slows
+  Python-level calls more than C work, so the shares are indicative, not wall-time
+  fractions.
 
 The headline is the first table: at each N, the kernel's cost per simulation event
 over bare SimPy's cost per event (``bare-timeout``), for the real estimator, the

@@ -78,15 +78,27 @@ class BatchedDraws:
 
     def take(self, count: int) -> np.ndarray:
         """Return the next ``count`` values as an array, shape (count,)."""
-        out: list = []
-        while len(out) < count:
-            if self._pos >= len(self._buf):
-                self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
-                self._pos = 0
-            chunk = self._buf[self._pos:self._pos + count - len(out)]
+        # the same batches, in the same order, as next(); whole batches stay arrays
+        parts: list[np.ndarray] = []
+        need = count
+        if self._pos < len(self._buf):
+            chunk = self._buf[self._pos:self._pos + need]
             self._pos += len(chunk)
-            out.extend(chunk)
-        return np.asarray(out)
+            need -= len(chunk)
+            parts.append(np.asarray(chunk))
+        while need > 0:
+            batch = self._fn(self._rng, BATCH_SIZE)
+            if need >= BATCH_SIZE:
+                self._buf, self._pos = [], 0
+                parts.append(batch)
+                need -= BATCH_SIZE
+            else:
+                self._buf, self._pos = batch.tolist(), need
+                parts.append(batch[:need])
+                need = 0
+        if not parts:
+            return np.asarray([])
+        return parts[0] if len(parts) == 1 else np.concatenate(parts)
 
 
 def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:

@@ -205,31 +205,32 @@ class _ConsensusBase:
         stamps = self._stamps
         exponent, own = self._own_term()
         if self._silent:
-            heard = [s for s in stamps if s is not None]
-            lags = [NO_MESSAGE if s is None else k - s if self.compensates else 1
-                    for s in stamps]
+            lags = [NO_MESSAGE if s is None else k - s for s in stamps]
             vectors = [own, *(v for v in self._payloads if v is not None), y]
         else:
-            heard = stamps
-            lags = [k - s for s in stamps] if self.compensates else [1] * len(stamps)
+            lags = [k - s for s in stamps]
             vectors = [own, *self._payloads, y]
-        if not self.compensates and heard and max(heard) >= k:
-            raise RuntimeError(
-                f"agent {self.agent}: a message stamped {max(heard)} used at step {k}")
+        if not self.compensates:
+            # the lags were computed only for the check below: eq. (6) uses A
+            self._check_lags(k, lags)
+            lags = [lag if lag == NO_MESSAGE else 1 for lag in lags]
         key = (exponent, *lags)
         operator = self._operators.get(key)
         if operator is None:
-            # a lag k - s_j < 1 (a message used at or before the step it was sent) is
-            # never cached, so it is caught here
-            if any(lag < 1 for lag in lags if lag != NO_MESSAGE):
-                raise RuntimeError(f"agent {self.agent}: a message stamped {max(heard)} "
-                                   f"used at step {k}")
+            # a lag k - s_j < 1 is never cached, so checking here catches it
+            self._check_lags(k, lags)
             operator = self._operator(exponent, lags)
             if self._operator_room >= operator.nbytes:
                 self._operator_room -= operator.nbytes
                 self._operators[key] = operator
         self._used = (k, tuple(stamps))
         return operator.dot(np.concatenate(vectors))
+
+    def _check_lags(self, k: int, lags: list[int]) -> None:
+        """Fail loudly if a message would be used at or before the step it was sent."""
+        if any(lag < 1 for lag in lags if lag != NO_MESSAGE):
+            late = max(s for s in self._stamps if s is not None)
+            raise RuntimeError(f"agent {self.agent}: a message stamped {late} used at step {k}")
 
     def _operator(self, exponent: int, lags: list[int]) -> np.ndarray:
         """The stacked operator [G_i, G_j..., L_i] of :meth:`_update`, shape

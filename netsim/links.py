@@ -7,7 +7,7 @@ instant is delivered before that instant's updates (DESIGN.md), in sending order
 The delivery hands the message to the receiver.
 
 :class:`Link` is the plain link (delays only, plus the availability hook): its
-per-message path is one delay draw, one :class:`Message` and one scheduled event.
+per-message path is one delay draw, one :class:`Message` and one calendar entry.
 :class:`ConfiguredLink` adds what a :class:`models.linkmodels.LinkModel` asks for:
 outages, losses and a finite buffer of in-flight messages with a drop policy
 (definitions in :mod:`models.linkmodels`). Only links that have such a model pay for

@@ -235,7 +235,7 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
     # one constant delay d on every link, a message every step: from step d + 1 on,
     # every term uses the estimate of step k - 1 - d, so the neighbour sum is one
     # sparse product with P minus its diagonal
-    uniform = selection.uniform_delay if E and not np.any(term_link < 0) else None
+    uniform = selection.uniform_delay if not np.any(term_link < 0) else None
     neighbour_matrix = sp.csr_matrix((term_w, (term_i, term_j)), shape=(N, N))
     own_weight = np.diag(P)[:, None, None]
     block = family == "block"
@@ -260,6 +260,47 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
         innovation = Y[k] - prior @ Cp_T
         return prior + innovation @ Lp_T
 
+    def uniform_prior(k: int, own: np.ndarray) -> np.ndarray:
+        # every term holds the estimate of step s = k - 1 - d: one sparse product on
+        # the ring slot, then A^(k - s) (eq. 4) or A (eq. 6)
+        sent_step = k - 1 - uniform
+        summed = (neighbour_matrix @ history[sent_step % depth].reshape(N, -1)
+                  ).reshape(N, T, n)
+        power = 1 if family == "uncompensated" else k - sent_step
+        return own_weight * own + _times(summed, powers_T[power])
+
+    def scheduled_prior(k: int, own: np.ndarray) -> np.ndarray:
+        # the message each term holds at step k, from the link schedule
+        held = selection.chosen[k][term_row]  # (E, T)
+        held[no_link] = -1
+        missing = held < 0
+        sent = send[np.maximum(held, 0)]
+        # x-hat^j_{s|s} of every term, from the ring of past estimates
+        slot = ((sent % depth) * N + term_j[:, None]) * T + trials
+        payload = flat_history.take(slot, axis=0)  # (E, T, n)
+        own_total = own_weight
+        if missing.any():
+            # nothing from j yet: agent i's own prediction stands in, so j's weight
+            # joins p_ii and j's term is zero
+            payload = payload * ~missing[:, :, None]
+            own_total = own_weight + (aggregate @ missing.astype(float))[:, :, None]
+        prior = own_total * own
+        # The terms are summed per lag before the power is applied:
+        # sum_j p_ij A^r x_j = A^r (sum_j p_ij x_j), one product per distinct lag on
+        # (N, T, n) rather than on every (term, trial).
+        if family == "uncompensated":
+            groups = [(1, payload)]  # eq. (6): A, whatever the delay
+        else:
+            lag = np.where(missing, 0, k - sent)  # eq. (4): A^(k - s_j)
+            lags = np.flatnonzero(np.bincount(lag.reshape(-1)))
+            lags = lags[lags > 0]
+            groups = [(r, payload if len(lags) == 1 else payload * (lag == r)[:, :, None])
+                      for r in lags]
+        for r, part in groups:
+            summed = (aggregate @ part.reshape(E, -1)).reshape(N, T, n)
+            prior = prior + _times(summed, powers_T[r])
+        return prior
+
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
     estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0)
     block_estimate, block_step = estimate, 0
@@ -274,58 +315,15 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
             if block and k % period:
                 estimate = _times(block_estimate, powers_T[k - block_step])
             else:
-                if block:
-                    own = _times(block_estimate, powers_T[period])
+                # eq. (15)'s own term A^(tau+1) x-hat^i at the last block step, or A x-hat^i
+                own = (_times(block_estimate, powers_T[period]) if block
+                       else _times(estimate, A_T))
+                if not E:
+                    prior = own_weight * own
+                elif uniform is not None and k > uniform:
+                    prior = uniform_prior(k, own)
                 else:
-                    own = _times(estimate, A_T)
-                if uniform is not None and k > uniform:
-                    sent_step = k - 1 - uniform
-                    summed = (neighbour_matrix @ history[sent_step % depth].reshape(N, -1)
-                              ).reshape(N, T, n)
-                    power = 1 if family == "uncompensated" else k - sent_step
-                    estimate = innovate(own_weight * own + _times(summed, powers_T[power]), k)
-                    block_estimate, block_step = estimate, k
-                    updated.append(k)
-                    history[k % depth] = estimate
-                    alive = outputs.record(k, estimate, batch.states[k])
-                    continue
-                held = selection.chosen[k][term_row]  # (E, T)
-                held[no_link] = -1
-                missing = held < 0
-                sent = send[np.maximum(held, 0)]
-                # x-hat^j_{s|s} of every term, from the ring of past estimates
-                slot = ((sent % depth) * N + term_j[:, None]) * T + trials
-                payload = flat_history.take(slot, axis=0)  # (E, T, n)
-                # Sum the neighbour terms per lag before applying the power:
-                # sum_j p_ij A^r x_j = A^r (sum_j p_ij x_j), so one product per distinct
-                # lag on (N, T, n) rather than on every (term, trial).
-                if missing.any():
-                    # nothing from j yet: agent i's own prediction stands in, so j's
-                    # weight joins p_ii
-                    present = ~missing
-                    payload = payload * present[:, :, None]
-                    own_total = own_weight + (aggregate @ missing.astype(float))[:, :, None]
-                else:
-                    present = None
-                    own_total = own_weight
-                prior = own_total * own
-                if E:
-                    if family == "uncompensated":
-                        lag = None  # eq. (6): A, whatever the delay
-                        lags = (1,)
-                    else:
-                        # eq. (4): A^(k - s_j)
-                        lag = k - sent
-                        if present is not None:
-                            lag = np.where(present, lag, 0)
-                        lags = np.flatnonzero(np.bincount(lag.reshape(-1)))
-                        lags = lags[lags > 0]
-                    for r in lags:
-                        # with one lag every present term has it (missing ones are zero)
-                        part = (payload if len(lags) == 1
-                                else payload * (lag == r)[:, :, None])
-                        summed = (aggregate @ part.reshape(E, -1)).reshape(N, T, n)
-                        prior = prior + _times(summed, powers_T[r])
+                    prior = scheduled_prior(k, own)
                 estimate = innovate(prior, k)
                 block_estimate, block_step = estimate, k
                 updated.append(k)

@@ -314,3 +314,21 @@ def test_reference_follows_the_papers_on_a_hand_computed_case():
     prior = 0.5 * 4 + 0.3 * 4 + 0.2 * 4
     assert block.step(2, np.array([0.0])) == pytest.approx([0.5 * prior])
     assert block.last_delays == {1: -1, 2: 1}
+
+
+@pytest.mark.parametrize("family", ["compensated", "uncompensated", "block"])
+def test_a_message_used_at_its_own_step_is_an_error(family):
+    # a host that delivers a message stamped k before the update of step k is broken;
+    # the estimator says so instead of using a lag of 0 (also when its operator for
+    # the same lags is cached)
+    params = estimators.consensus.ConsensusParameters(
+        0, np.array([0.5, 0.5]), np.eye(2), np.ones((1, 2)), np.zeros((2, 1)), np.zeros(2))
+    cls = {"compensated": estimators.consensus.CompensatingEstimator,
+           "uncompensated": estimators.consensus.UncompensatedEstimator}.get(family)
+    est = cls(params) if cls else estimators.consensus.BlockUpdateEstimator(params, tau=0)
+    est.step(0, np.zeros(1))
+    est.message_arrived(1, 0, np.ones(2))
+    est.step(1, np.zeros(1))  # lag 1: fine, and its operator is now cached
+    est.message_arrived(1, 2, np.ones(2))
+    with pytest.raises(RuntimeError, match="stamped 2 used at step 2"):
+        est.step(2, np.zeros(1))

@@ -78,6 +78,7 @@ from collections import Counter
 from collections.abc import Callable
 from contextlib import contextmanager
 from dataclasses import dataclass
+from operator import itemgetter
 from typing import Any
 from unittest import mock
 
@@ -163,16 +164,6 @@ def build_scenario(n_agents: int, in_degree: float, tau: int, seed: int) -> Scen
     return Scenario(n_agents, graph, weights, plant, tau, seed)
 
 
-class _Select:
-    __slots__ = ("index",)
-
-    def __init__(self, index: int) -> None:
-        self.index = index
-
-    def __call__(self, ys):
-        return ys[self.index]
-
-
 class NullEstimator:
     """Hosts in the kernel like an estimator but does no arithmetic."""
 
@@ -214,7 +205,7 @@ def build_agents(scn: Scenario, estimator: str) -> list[AgentSpec]:
             est = NullEstimator(plant.n_states)
         else:
             raise ValueError(estimator)
-        agents.append(AgentSpec(est, _Select(i), sorted(scn.graph.successors(i))))
+        agents.append(AgentSpec(est, itemgetter(i), sorted(scn.graph.successors(i))))
     return agents
 
 

@@ -49,6 +49,7 @@ import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -357,16 +358,6 @@ class _TreeParents:
         return parents.get(i)
 
 
-class _Select:
-    __slots__ = ("index",)
-
-    def __init__(self, index: int) -> None:
-        self.index = index
-
-    def __call__(self, ys):
-        return ys[self.index]
-
-
 def build_aoi_agents(scenario: AoIScenario, family: str, design: AoIDesign,
                      trial_seed: SeedLike = 0) -> list[AgentSpec]:
     """The kernel agents of one family; out-links: every link ever up."""
@@ -386,7 +377,7 @@ def build_aoi_agents(scenario: AoIScenario, family: str, design: AoIDesign,
         else:
             raise ValueError(f"unknown AoI estimator family {family!r}; known: "
                              f"{', '.join(AOI_FAMILIES)}")
-        agents.append(AgentSpec(est, _Select(i), out[i]))
+        agents.append(AgentSpec(est, itemgetter(i), out[i]))
     return agents
 
 

@@ -34,6 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -68,18 +69,6 @@ __all__ = [
 ]
 
 ESTIMATOR_NAMES = ("local", "cse", "dkfe", "sdkfe", "odkfe", "centralized-kf")
-
-
-class _Select:
-    """Picklable measurement selector ys -> ys[i]."""
-
-    __slots__ = ("index",)
-
-    def __init__(self, index: int) -> None:
-        self.index = index
-
-    def __call__(self, ys: Sequence[np.ndarray]) -> np.ndarray:
-        return ys[self.index]
 
 
 def _no_measurement(ys: Sequence[np.ndarray]) -> None:
@@ -120,7 +109,7 @@ def build_fusion_agents(setup: dk.DkfeSetup, trial_seed: SeedLike, *,
                          direct=dict(enumerate(sinks)))
     ckf = CentralizedKalmanFilter(setup.A, np.vstack(setup.C), setup.Q,
                                   sla.block_diag(*setup.R), setup.x0_mean, setup.x0_cov)
-    agents = [AgentSpec(s, _Select(i), [L] if setup.delays[i] >= 1 else [])
+    agents = [AgentSpec(s, itemgetter(i), [L] if setup.delays[i] >= 1 else [])
               for i, s in enumerate(sinks)]
     agents.append(AgentSpec(centre, _no_measurement, ()))
     agents.append(AgentSpec(odkfe, _no_measurement, ()))

@@ -12,6 +12,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
+from operator import itemgetter
 from typing import Any
 
 import numpy as np
@@ -103,20 +104,8 @@ def build_agents(scenario: Scenario, family: str, gains: GainDesign | None) -> l
             estimator = BlockUpdateEstimator(params, scenario.delay_bound)
         else:
             raise ValueError(f"unknown estimator family {family!r}")
-        agents.append(AgentSpec(estimator, _Select(i), sorted(graph.successors(i))))
+        agents.append(AgentSpec(estimator, itemgetter(i), sorted(graph.successors(i))))
     return agents
-
-
-class _Select:
-    """Picklable measurement selector ys -> ys[i]."""
-
-    __slots__ = ("index",)
-
-    def __init__(self, index: int) -> None:
-        self.index = index
-
-    def __call__(self, ys: Sequence[np.ndarray]) -> np.ndarray:
-        return ys[self.index]
 
 
 def run_trial(

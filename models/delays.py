@@ -13,8 +13,10 @@ Every random model owns its generator(s), derived from one seed by name
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import partial
+from itertools import chain, islice
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -43,9 +45,9 @@ BATCH_SIZE = 256
 class BatchedDraws:
     """Values of ``fn(rng, size)`` handed out in order, drawn BATCH_SIZE at a time.
 
-    :meth:`next` (one value, for the event kernel) and :meth:`take` (many values at
-    once, for the vectorised engine) advance the same sequence, so a model gives the
-    same numbers whichever engine asks.
+    :meth:`next` and :attr:`sampler` (one value, for the event kernel) and :meth:`take`
+    (many values at once, for the vectorised engine) advance the same sequence, so a
+    model gives the same numbers whichever engine asks.
 
     Parameters
     ----------
@@ -55,13 +57,24 @@ class BatchedDraws:
         One batch of draws.
     """
 
-    __slots__ = ("_rng", "_fn", "_buf", "_pos")
+    __slots__ = ("_rng", "_fn", "_values", "_dtype", "sampler")
 
     def __init__(self, rng: np.random.Generator, fn: Any) -> None:
         self._rng = rng
         self._fn = fn
-        self._buf: list = []
-        self._pos = 0
+        self._dtype: Any = float
+        # the endless sequence of values (Python scalars), batch after batch
+        self._values = chain.from_iterable(self._batches())
+        #: The next value as a callable send_step -> value, at the cost of one C call:
+        #: ``next(values, send_step)``, whose second argument (a default for an
+        #: exhausted iterator) is never used since the sequence never ends.
+        self.sampler = partial(next, self._values)
+
+    def _batches(self) -> Iterator[list]:
+        while True:
+            batch = self._fn(self._rng, BATCH_SIZE)
+            self._dtype = batch.dtype
+            yield batch.tolist()
 
     def next(self, send_step: int | None = None) -> Any:
         """Return the next value (a Python scalar).
@@ -69,36 +82,12 @@ class BatchedDraws:
         ``send_step`` is ignored: it lets ``next`` serve as a per-link sampler
         send_step -> delay (see ``DelayModel``).
         """
-        if self._pos >= len(self._buf):
-            self._buf = self._fn(self._rng, BATCH_SIZE).tolist()
-            self._pos = 0
-        value = self._buf[self._pos]
-        self._pos += 1
-        return value
+        return next(self._values)
 
     def take(self, count: int) -> np.ndarray:
         """Return the next ``count`` values as an array, shape (count,)."""
-        # the same batches, in the same order, as next(); whole batches stay arrays
-        parts: list[np.ndarray] = []
-        need = count
-        if self._pos < len(self._buf):
-            chunk = self._buf[self._pos:self._pos + need]
-            self._pos += len(chunk)
-            need -= len(chunk)
-            parts.append(np.asarray(chunk))
-        while need > 0:
-            batch = self._fn(self._rng, BATCH_SIZE)
-            if need >= BATCH_SIZE:
-                self._buf, self._pos = [], 0
-                parts.append(batch)
-                need -= BATCH_SIZE
-            else:
-                self._buf, self._pos = batch.tolist(), need
-                parts.append(batch[:need])
-                need = 0
-        if not parts:
-            return np.asarray([])
-        return parts[0] if len(parts) == 1 else np.concatenate(parts)
+        values = list(islice(self._values, count))
+        return np.array(values, dtype=self._dtype)
 
 
 def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:
@@ -265,7 +254,7 @@ class AsynchronousRandomDelays:
 
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's draw as one callable send_step -> delay (the same sequence)."""
-        return self._source(sender, receiver).next
+        return self._source(sender, receiver).sampler
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """Delays of the link's next len(send_steps) messages."""

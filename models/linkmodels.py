@@ -562,7 +562,7 @@ class DistributionDelays:
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's ``draw`` as one callable send_step -> delay."""
         if self.mode == "asynchronous":
-            return self._sampler(sender, receiver).next
+            return self._sampler(sender, receiver).sampler
         return lambda send_step: self.draw(sender, receiver, send_step)
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:

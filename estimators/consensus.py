@@ -99,8 +99,11 @@ class _ConsensusBase:
         # I - L_i C_i, and per neighbour j the blocks (I - L_i C_i) p_ij A^r for
         # r = 0, 1, ... (filled on demand) of the update operators (see _update)
         self._closed_loop = np.eye(params.A.shape[0]) - params.L @ params.C
-        self._weighted: dict[int, list[np.ndarray]] = {j: [] for j in self.neighbours}
-        # own blocks (I - L_i C_i) (p_ii + silent weights) A^e per (e, silent set)
+        # (by neighbour position; every list as long as _lag_blocks)
+        self._weighted: list[list[np.ndarray]] = [[] for _ in self.neighbours]
+        self._lag_blocks = 0
+        # own blocks (I - L_i C_i) (p_ii + silent weights) A^e per (e, silent set;
+        # () when every neighbour has been heard from)
         self._own_blocks: dict[tuple[int, tuple[bool, ...]], np.ndarray] = {}
         self._operators: dict[tuple[int, ...], np.ndarray] = {}
         self._operator_room = OPERATOR_CACHE_BYTES
@@ -235,26 +238,26 @@ class _ConsensusBase:
     def _operator(self, exponent: int, lags: list[int]) -> np.ndarray:
         """The stacked operator [G_i, G_j..., L_i] of :meth:`_update`, shape
         (n, n (1 + number of neighbours heard from) + m_i)."""
-        closed = self._closed_loop
-        silent = tuple(lag == NO_MESSAGE for lag in lags)
+        deepest = max(lags, default=0)
+        weighted = self._weighted
+        while self._lag_blocks <= deepest:  # every neighbour's block for one more lag
+            r = self._lag_blocks
+            power = self._closed_loop.dot(self.power(r))
+            for matrices, (_, w) in zip(weighted, self._neighbour_weights, strict=True):
+                matrices.append(w * power)
+            self._lag_blocks += 1
+        silent = tuple(lag == NO_MESSAGE for lag in lags) if NO_MESSAGE in lags else ()
         own = self._own_blocks.get((exponent, silent))
         if own is None:
+            # silent weights join p_ii (silent is () when no neighbour is silent)
             own_weight = self._own_weight + sum(
-                w for (_, w), quiet in zip(self._neighbour_weights, silent, strict=True)
-                if quiet
-            )
-            own = self._own_blocks[(exponent, silent)] = closed.dot(
+                w for (_, w), quiet in zip(self._neighbour_weights, silent, strict=False)
+                if quiet)
+            own = self._own_blocks[(exponent, silent)] = self._closed_loop.dot(
                 own_weight * self.power(exponent))
-        blocks = [own]
-        for (j, w), lag in zip(self._neighbour_weights, lags, strict=True):
-            if lag == NO_MESSAGE:
-                continue
-            matrices = self._weighted[j]
-            while len(matrices) <= lag:
-                matrices.append(closed.dot(w * self.power(len(matrices))))
-            blocks.append(matrices[lag])
-        blocks.append(self._L)
-        return np.concatenate(blocks, axis=1)
+        return np.concatenate(
+            [own, *[matrices[lag] for matrices, lag in zip(weighted, lags, strict=True)
+                    if lag != NO_MESSAGE], self._L], axis=1)
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run the update of step ``k`` with the measurement y^i_k (shape (m_i,)).

@@ -185,15 +185,12 @@ class _ConsensusBase:
         # eq. (5): x_{k|k} = x_{k|k-1} + K_i C_i^T (y - C_i x_{k|k-1}), K_i C_i^T = L_i
         return prior + self._L.dot(y - self._C.dot(prior))
 
-    def _own_term(self) -> tuple[int, np.ndarray]:
-        """Agent i's own term (exponent e, vector v): A^e v = A x-hat^i_{k-1|k-1}.
-
-        The same term is substituted for a silent neighbour.
-        """
-        return 1, self._estimate
-
-    def _update(self, k: int, y: np.ndarray) -> np.ndarray:
+    def _update(self, k: int, y: np.ndarray, exponent: int, own: np.ndarray) -> np.ndarray:
         """Eqs. (4)-(5) of step k >= 1 as one product with a cached operator.
+
+        Agent i's own term is A^e v (``exponent`` e, ``own`` v): A x-hat^i_{k-1|k-1}
+        here, A^(tau+1) x-hat^i at the last block step for the block update; the same
+        term stands in for a silent neighbour.
 
         Eq. (4) is x_{k|k-1} = (p_ii + sum of silent p_ij) A^e v_i
         + sum_j p_ij A^(r_j) x-hat^j_{s_j|s_j} (r_j = k - s_j, or 1 without
@@ -206,7 +203,6 @@ class _ConsensusBase:
         form and the differential tests compare them.
         """
         stamps = self._stamps
-        exponent, own = self._own_term()
         if self._silent:
             lags = [NO_MESSAGE if s is None else k - s for s in stamps]
             vectors = [own, *(v for v in self._payloads if v is not None), y]
@@ -272,7 +268,7 @@ class _ConsensusBase:
             self.last_delays = {j: NO_MESSAGE for j in self.neighbours}
             self._estimate = self._innovate(self._estimate, y)
         else:
-            self._estimate = self._update(k, y)
+            self._estimate = self._update(k, y, 1, self._estimate)
         self.last_step = k
         return self._estimate
 
@@ -330,10 +326,6 @@ class BlockUpdateEstimator(_ConsensusBase):
         self._block_estimate = self._estimate
         self._block_step = 0
 
-    def _own_term(self) -> tuple[int, np.ndarray]:
-        """Agent i's own term A^(tau+1) x-hat^i at the previous block step (eq. 15)."""
-        return self.period, self._block_estimate
-
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run step ``k``: a full update at block steps, a prediction otherwise."""
         if not self._started or k % self.period == 0:
@@ -342,7 +334,8 @@ class BlockUpdateEstimator(_ConsensusBase):
                 self.last_delays = {j: NO_MESSAGE for j in self.neighbours}
                 self._block_estimate = self._innovate(self._estimate, y)
             else:
-                self._block_estimate = self._update(k, y)
+                # eq. (15): own term A^(tau+1) x-hat^i at the previous block step
+                self._block_estimate = self._update(k, y, self.period, self._block_estimate)
             self._block_step = k
             self._estimate = self._block_estimate
         else:

@@ -91,9 +91,9 @@ class DeliveryCalendar:
     def _hand_over(self, event: Event) -> None:
         # taken off the calendar first: a delivery scheduled for this instant from
         # here on starts a new event, after this one
-        pending = self._pending.pop(event._value)
-        for index in range(0, len(pending), 2):
-            pending[index](pending[index + 1])
+        entries = iter(self._pending.pop(event._value))
+        for arrive, value in zip(entries, entries, strict=False):  # (arrive, value) pairs
+            arrive(value)
 
     def __len__(self) -> int:
         """Messages scheduled for instants whose event has not been processed yet.

@@ -60,6 +60,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from models.augmented import delay_free_closed_loop, output_gain_matrix, spectral_radius
+from models.validation import check_system
 
 __all__ = [
     "CCL_AUTO_MAX_STATES",
@@ -194,39 +195,6 @@ class GainDesign:
 # ---------------------------------------------------------------------------
 # input handling
 # ---------------------------------------------------------------------------
-
-
-def _square(name: str, M: ArrayLike) -> np.ndarray:
-    arr = np.asarray(M, dtype=float)
-    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
-        raise ValueError(f"{name} must be a square 2-D array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains non-finite entries")
-    return arr
-
-
-def _system(
-    P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike]
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Validate ``(P, A, C)``; return ``P`` (N, N), ``A`` (n, n), ``C_i`` (m_i, n)."""
-    P_arr = _square("P", P)
-    A_arr = _square("A", A)
-    n = A_arr.shape[0]
-    C_list: list[np.ndarray] = []
-    for i, Ci in enumerate(C):
-        arr = np.asarray(Ci, dtype=float)
-        if arr.ndim == 1:
-            arr = arr.reshape(1, -1)
-        if arr.ndim != 2 or arr.shape[1] != n:
-            raise ValueError(f"C[{i}] (agent {i}) must have shape (m_i, {n}), got {arr.shape}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"C[{i}] (agent {i}) contains non-finite entries")
-        C_list.append(arr)
-    if len(C_list) != P_arr.shape[0]:
-        raise ValueError(
-            f"C has {len(C_list)} output matrices but P is {P_arr.shape[0]}x{P_arr.shape[0]}"
-        )
-    return P_arr, A_arr, C_list
 
 
 def _tau1(tau1: Any) -> int:
@@ -383,7 +351,7 @@ def is_observable(
     reason : str
         Empty if observable, otherwise a description of the unobservable modes.
     """
-    P_arr, A_arr, C_list = _system(P, A, C)
+    P_arr, A_arr, C_list = check_system(P, A, C)
     reason = _observability_reason(P_arr, A_arr, C_list, rtol, "P kron A")
     return (not reason), reason
 
@@ -1166,7 +1134,7 @@ def design_gains(
     ValueError
         On inconsistent shapes or invalid parameters.
     """
-    P_arr, A_arr, C_list = _system(P, A, C)
+    P_arr, A_arr, C_list = check_system(P, A, C)
     kind = _normalise_method(method)
     if rate is not None and not (np.isfinite(rate) and rate > 0):
         raise ValueError(f"rate must be a positive finite number, got {rate}")
@@ -1359,7 +1327,7 @@ def refine_gains(
     from scipy.linalg import eig
     from scipy.optimize import minimize
 
-    P_arr, A_arr, C_list = _system(P, A, C)
+    P_arr, A_arr, C_list = check_system(P, A, C)
     tau = _tau1(tau1)
     if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
         raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
@@ -1522,7 +1490,7 @@ def gains_from_matrices(
         If the number or shapes of the ``K_i`` are inconsistent (the message
         names the agent).
     """
-    P_arr, A_arr, C_list = _system(P, A, C)
+    P_arr, A_arr, C_list = check_system(P, A, C)
     n = A_arr.shape[0]
     K_list = list(K)
     if len(K_list) != len(C_list):

@@ -59,6 +59,10 @@ from numpy.typing import ArrayLike
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
 
+from models.validation import as_outputs as _as_outputs
+from models.validation import as_square as _as_square
+from models.validation import check_system as _check_system
+
 __all__ = [
     "ARPACK_K",
     "ARPACK_MAXITER",
@@ -136,37 +140,6 @@ GROWTH_BLOCK: int = 8
 # ---------------------------------------------------------------------------
 
 
-def _as_square(name: str, M: ArrayLike) -> np.ndarray:
-    """Return ``M`` as a 2-D square float array or raise ValueError."""
-    arr = np.asarray(M, dtype=float)
-    if arr.ndim != 2 or arr.shape[0] != arr.shape[1]:
-        raise ValueError(f"{name} must be a square 2-D array, got shape {arr.shape}")
-    if not np.all(np.isfinite(arr)):
-        raise ValueError(f"{name} contains non-finite entries")
-    return arr
-
-
-def _as_outputs(C: Sequence[ArrayLike], n: int | None = None) -> list[np.ndarray]:
-    """Return the output matrices as a list of 2-D ``(m_i, n)`` float arrays."""
-    out: list[np.ndarray] = []
-    for i, Ci in enumerate(C):
-        arr = np.asarray(Ci, dtype=float)
-        if arr.ndim == 1:
-            arr = arr.reshape(1, -1)
-        if arr.ndim != 2:
-            raise ValueError(f"C[{i}] must be a 1-D or 2-D array, got shape {arr.shape}")
-        if n is None:
-            n = arr.shape[1]
-        if arr.shape[1] != n:
-            raise ValueError(f"C[{i}] has {arr.shape[1]} columns, expected n={n}")
-        if not np.all(np.isfinite(arr)):
-            raise ValueError(f"C[{i}] contains non-finite entries")
-        out.append(arr)
-    if not out:
-        raise ValueError("C must contain at least one output matrix")
-    return out
-
-
 def _as_gains(L: Sequence[ArrayLike], C: list[np.ndarray]) -> list[np.ndarray]:
     """Return the gains ``L_i`` as ``(n, m_i)`` float arrays matching ``C``."""
     if len(L) != len(C):
@@ -183,20 +156,6 @@ def _as_gains(L: Sequence[ArrayLike], C: list[np.ndarray]) -> list[np.ndarray]:
             raise ValueError(f"L[{i}] contains non-finite entries")
         out.append(arr)
     return out
-
-
-def _check_system(
-    P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike]
-) -> tuple[np.ndarray, np.ndarray, list[np.ndarray]]:
-    """Validate ``P``, ``A`` and ``C`` together and return them as arrays."""
-    P_arr = _as_square("P", P)
-    A_arr = _as_square("A", A)
-    C_list = _as_outputs(C, A_arr.shape[0])
-    if len(C_list) != P_arr.shape[0]:
-        raise ValueError(
-            f"C has {len(C_list)} output matrices but P is {P_arr.shape[0]}x{P_arr.shape[0]}"
-        )
-    return P_arr, A_arr, C_list
 
 
 def _block_diag(blocks: Sequence[np.ndarray]) -> np.ndarray:

@@ -89,7 +89,7 @@ from tables import format_table, si
 
 import netsim.kernel
 from estimators.consensus import CompensatingEstimator, ConsensusParameters
-from models.delays import AsynchronousRandomDelays, DelayModel, latency_to_steps
+from models.delays import AsynchronousRandomDelays, DelayModel
 from models.network import random_strongly_connected, random_weights
 from models.plant import LinearPlant
 from models.seeding import stream
@@ -219,7 +219,7 @@ def delay_model(scn: Scenario) -> DelayModel:
 class ProcessPerMessageLink(Link):
     """A link that starts one SimPy process per message (the alternative design).
 
-    ``send`` mirrors :meth:`netsim.links.Link.send` (same delay draw, same Message),
+    ``send`` is :meth:`netsim.links.Link.send` (same delay draw, same Message),
     but instead of scheduling one URGENT ``Delivery`` event it starts
     ``env.process(gen)`` where ``gen`` yields ``env.timeout(wait)`` and then
     delivers. Deliveries still precede the updates of their arrival step (their
@@ -230,30 +230,10 @@ class ProcessPerMessageLink(Link):
     __slots__ = ()
 
     def send(self, step: int, payload: np.ndarray) -> Message:
-        raw = self.delay_model.draw(self.sender, self.receiver, step)
-        ts = self.sample_period
-        if self.delay_model.unit == "steps":
-            d = int(raw)
-            wait = 1.0 + d
-        else:
-            d = latency_to_steps(float(raw), ts)
-            wait = float(raw) / ts
-        now = self.env.now
-        message = Message(
-            self.sender,
-            self.receiver,
-            step,
-            self._sequence,
-            payload,
-            now * ts,
-            (now + wait) * ts,
-            d,
-        )
-        self._sequence += 1
-        self.sent += 1
-        self.env.process(self._carry(wait, message))
-        if self.on_send is not None:
-            self.on_send(message)
+        # the link's own delay draw and Message (Link._stamp), then a process
+        message, wait, up = self._stamp(step, payload)
+        if up:
+            self.env.process(self._carry(wait, message))
         return message
 
     def _carry(self, wait: float, message: Message):

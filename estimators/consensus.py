@@ -203,19 +203,21 @@ class _ConsensusBase:
         form and the differential tests compare them.
         """
         stamps = self._stamps
-        if self._silent:
+        if self._silent or not self.compensates:
             lags = [NO_MESSAGE if s is None else k - s for s in stamps]
+            if not self.compensates:
+                # the lags were computed only for the check below: eq. (6) uses A
+                self._check_lags(k, lags)
+                lags = [lag if lag == NO_MESSAGE else 1 for lag in lags]
+            key = (exponent, *lags)
             vectors = [own, *(v for v in self._payloads if v is not None), y]
         else:
-            lags = [k - s for s in stamps]
+            # every neighbour heard from: the lags k - s_j, straight into the key
+            key = (exponent, *map(k.__sub__, stamps))
             vectors = [own, *self._payloads, y]
-        if not self.compensates:
-            # the lags were computed only for the check below: eq. (6) uses A
-            self._check_lags(k, lags)
-            lags = [lag if lag == NO_MESSAGE else 1 for lag in lags]
-        key = (exponent, *lags)
         operator = self._operators.get(key)
         if operator is None:
+            lags = list(key[1:])
             # a lag k - s_j < 1 is never cached, so checking here catches it
             self._check_lags(k, lags)
             operator = self._operator(exponent, lags)

@@ -12,7 +12,24 @@ from functools import cached_property
 
 import numpy as np
 
-__all__ = ["LinearPlant"]
+__all__ = ["LinearPlant", "PlantTrajectory"]
+
+
+@dataclass(frozen=True)
+class PlantTrajectory:
+    """States and measurements of one or more realisations of the plant.
+
+    Attributes
+    ----------
+    states : numpy.ndarray, shape (K+1, T, n)
+        x_0..x_K of each of T realisations.
+    measurements : numpy.ndarray, shape (K+1, T, M)
+        All sensors' y^i_k stacked (sensor i in the rows of ``sensor_slices[i]``),
+        M = sum of m_i.
+    """
+
+    states: np.ndarray
+    measurements: np.ndarray
 
 
 @dataclass(frozen=True)
@@ -109,6 +126,64 @@ class LinearPlant:
         C, factor, diagonal, _ = self._stacked_measurement
         z = rng.standard_normal(C.shape[0])
         return C @ x + (factor * z if diagonal else factor @ z)
+
+    @property
+    def noise_width(self) -> int:
+        """Standard normals one step draws: n process noise, then sum m_i sensor noise."""
+        return self.n_states + sum(C.shape[0] for C in self.C)
+
+    def standard_noise(self, rng: np.random.Generator, steps: int) -> np.ndarray:
+        """Draw the standard normals of steps 0..``steps``, shape (steps+1, n+M).
+
+        Row k holds step k's draws in the order :meth:`step` (:meth:`sample_initial`
+        at k = 0) and :meth:`measure_stacked` take them from ``rng``, so the rows are
+        the numbers a step-by-step simulation with the same stream draws.
+        """
+        width = self.noise_width
+        return rng.standard_normal((steps + 1) * width).reshape(steps + 1, width)
+
+    def simulate(self, noise: np.ndarray) -> PlantTrajectory:
+        """Simulate x_k = A x_{k-1} + nu_k and y^i_k = C_i x_k + zeta^i_k (eq. 1).
+
+        Parameters
+        ----------
+        noise : numpy.ndarray, shape (K+1, T, n+M)
+            Standard normals of T realisations, each laid out as by
+            :meth:`standard_noise`: x_0 = x0_mean + F_0 z, nu_k = F_Q z, zeta = F_R z
+            with F F^T the covariances.
+
+        Returns
+        -------
+        PlantTrajectory
+            States (K+1, T, n) and stacked measurements (K+1, T, M). The same
+            numbers as :meth:`sample_initial`, :meth:`step` and
+            :meth:`measure_stacked` step by step, up to the order of
+            floating-point additions.
+        """
+        import scipy.sparse as sp
+
+        n = self.n_states
+        # fresh copies: matrices unpickled on a Dask worker are views into a receive
+        # buffer, aligned differently (16 rather than 64 bytes here), and the BLAS
+        # kernels then round differently; the same seed must give the same numbers
+        # on every executor (tests/test_sweep.py)
+        F0, FQ, FR = self._factors
+        F0_T, FQ_T, A_T = (np.array(F.T, order="C") for F in (F0, FQ, self.A))
+        C_T = np.array(self.C_stacked.T, order="C")
+        noise = np.require(noise, dtype=float, requirements=["C", "A"])
+        K1, T, _ = noise.shape
+        states = np.empty((K1, T, n))
+        states[0] = np.array(self.x0_mean, dtype=float) + noise[0, :, :n] @ F0_T
+        process = noise[1:, :, :n] @ FQ_T
+        for k in range(1, K1):
+            states[k] = states[k - 1] @ A_T + process[k - 1]
+        measurements = states @ C_T
+        M = measurements.shape[2]
+        if M:
+            z = noise[:, :, n:].reshape(K1 * T, M)
+            # the block-diagonal noise factor as a sparse matrix: M can be thousands
+            measurements += (sp.block_diag(FR, format="csr") @ z.T).T.reshape(K1, T, M)
+        return PlantTrajectory(states, measurements)
 
     def measure(self, x: np.ndarray, rng: np.random.Generator) -> list[np.ndarray]:
         """Return each sensor's y^i_k = C_i x_k + zeta^i_k, shapes (m_i,).

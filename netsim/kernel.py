@@ -5,7 +5,9 @@ Event order within a sampling instant k (simulation time k, in units of Ts):
 
 1. deliveries arriving at k, in sending order (one URGENT event per arrival instant
    on the shared :class:`netsim.deliveries.DeliveryCalendar`);
-2. the plant process makes x_k and every sensor's y^i_k, then fires the step's tick;
+2. the plant process publishes x_k and every sensor's y^i_k, then fires the step's
+   tick (the plant does not depend on the estimators, so its trajectory is drawn from
+   its stream and simulated up front, :meth:`models.plant.LinearPlant.simulate`);
 3. every agent process, in agent order, runs its estimator's update for step k;
    then, in the same order, sends its new estimate on its out-links;
 4. the monitor process records each agent's error and checks for divergence.
@@ -261,13 +263,15 @@ class Simulation:
         plant_rng = self.plant_rng
         n = plant.n_states
         n_agents = len(self.agents)
-        states = np.full((steps + 1, n), np.nan)
-        # all sensors' y^i_k side by side, one row per step; split per sensor at the end
-        widths = [C.shape[0] for C in plant.C]
-        offsets = np.cumsum([0, *widths])
-        all_measurements = np.full((steps + 1, int(offsets[-1])), np.nan)
+        # The plant does not depend on the estimators: its whole trajectory is drawn
+        # and simulated up front, from the same stream in the same order as step by
+        # step; the plant process publishes it one step at a time. Steps after a
+        # divergence are not reached and are set to NaN at the end.
+        trajectory = plant.simulate(plant.standard_noise(plant_rng, steps)[:, None, :])
+        states = trajectory.states[:, 0]
+        all_measurements = trajectory.measurements[:, 0]
+        offsets = np.cumsum([0] + [C.shape[0] for C in plant.C])
         estimates = np.full((steps + 1, n_agents, n), np.nan)
-        sq_errors = np.full((steps + 1, n_agents), np.nan)
         delays = (
             np.full((steps + 1, n_agents, n_agents), NOT_USED, dtype=np.int32)
             if self.record_delays
@@ -282,17 +286,12 @@ class Simulation:
         sensor_slices = plant.sensor_slices
 
         def plant_process():
-            x = plant.sample_initial(plant_rng)
             for k in range(steps + 1):
                 interrupt.check()  # a requested Ctrl-C stops here, between steps
-                if k > 0:
-                    x = plant.step(x, plant_rng)
-                stacked = plant.measure_stacked(x, plant_rng)
+                stacked = all_measurements[k]
                 ys = [stacked[rows] for rows in sensor_slices]
-                states[k] = x
-                all_measurements[k] = stacked
                 if observer is not None:
-                    observer.on_plant(k, x, ys)
+                    observer.on_plant(k, states[k], ys)
                 shared["ys"] = ys
                 tick, shared["tick"] = shared["tick"], env.event()
                 tick.succeed(k)
@@ -328,27 +327,34 @@ class Simulation:
                             send(k, payload)
 
         def monitor_process():
+            # Divergence test of step k: one sum of squares over all agents first.
+            # Every agent's squared error is at most the sum, so a sum within the
+            # threshold clears the step; otherwise (inf, NaN, or no threshold and an
+            # infinite sum) the exact per-agent test.
+            # The per-agent squared errors are computed for all steps at the end.
+            difference = np.empty((n_agents, n))
+            flat = difference.reshape(-1)
             while True:
                 k = yield shared["tick"]
-                x = states[k]
                 estimates[k] = current  # every agent's update of step k (they run first)
-                err = estimates[k] - x
-                sq = np.einsum("ij,ij->i", err, err, out=sq_errors[k])
-                # diverged: an error is not finite or above max(threshold, the round-off
-                # floor). max propagates NaN and NaN <= t is False; the floor (x @ x) is
-                # only computed when the threshold is exceeded.
-                worst = sq.max(initial=0.0)
-                if worst == math.inf or not (
-                    worst <= threshold_sq
-                    or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x)
-                ):
+                np.subtract(estimates[k], states[k], out=difference)
+                if not flat.dot(flat) < threshold_sq and diverged(k):
                     shared["diverged_at"] = k
-                    sq_errors[k] = np.where(np.isfinite(sq), sq, np.inf)
                     done.succeed()
                     return
                 if k == steps:
                     done.succeed()
                     return
+
+        def diverged(k: int) -> bool:
+            # an error is not finite or above max(threshold, the round-off floor). max
+            # propagates NaN and NaN <= t is False; the floor (x @ x) is only computed
+            # when the threshold is exceeded
+            x = states[k]
+            err = estimates[k] - x
+            worst = np.einsum("ij,ij->i", err, err).max(initial=0.0)
+            return worst == math.inf or not (
+                worst <= threshold_sq or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
 
         # Agents and the monitor start (and wait on the first tick) before the plant
         # fires it; their order is the order their updates run in at every step.
@@ -359,6 +365,17 @@ class Simulation:
         with np.errstate(over="ignore", invalid="ignore"):
             env.run(until=done)
 
+            last = shared["diverged_at"]
+            if last is None:
+                last = steps
+            states[last + 1:] = np.nan
+            all_measurements[last + 1:] = np.nan
+            err = estimates[: last + 1] - states[: last + 1, None, :]
+            sq_errors = np.full((steps + 1, n_agents), np.nan)
+            np.einsum("kij,kij->ki", err, err, out=sq_errors[: last + 1])
+            if shared["diverged_at"] is not None:
+                sq_errors[last] = np.where(np.isfinite(sq_errors[last]), sq_errors[last],
+                                           np.inf)
         links = self.links.values()
         return TrialResult(
             states=states,

@@ -93,25 +93,12 @@ def simulate_plant(scenario: Scenario, trial_seeds: Sequence[SeedLike], steps: i
     k = 0), then each sensor's m_i measurement-noise values.
     """
     plant = scenario.plant
-    n = plant.n_states
     sizes = [C.shape[0] for C in plant.C]
-    M = int(sum(sizes))
-    K = int(steps)
-    T = len(trial_seeds)
-    noise = np.empty((K + 1, T, n + M))
+    noise = np.empty((int(steps) + 1, len(trial_seeds), plant.noise_width))
     for t, seed in enumerate(trial_seeds):
-        noise[:, t, :] = stream(seed, "plant").standard_normal((K + 1) * (n + M)).reshape(
-            K + 1, n + M)
-    F0, FQ, FR = plant._factors
-    states = np.empty((K + 1, T, n))
-    states[0] = plant.x0_mean + noise[0, :, :n] @ F0.T
-    A_T, FQ_T = plant.A.T, FQ.T
-    for k in range(1, K + 1):
-        states[k] = states[k - 1] @ A_T + noise[k, :, :n] @ FQ_T
-    R_factor = sp.block_diag(FR, format="csr")
-    measurements = states @ plant.C_stacked.T
-    z = noise[:, :, n:].reshape(-1, M)
-    measurements += (R_factor @ z.T).T.reshape(K + 1, T, M)
+        noise[:, t, :] = plant.standard_noise(stream(seed, "plant"), int(steps))
+    trajectory = plant.simulate(noise)
+    states, measurements = trajectory.states, trajectory.measurements
     return PlantBatch(states, measurements, np.concatenate([[0], np.cumsum(sizes)]))
 
 

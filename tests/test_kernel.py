@@ -166,3 +166,105 @@ def test_divergence_is_reported_with_its_step(scenario):
     assert np.all(norms <= 50.0)
     assert np.sqrt(run.squared_errors[k]).max() > 50.0
     assert np.all(np.isnan(run.squared_errors[k + 1:]))
+
+
+# --- the plant drawn up front, the monitor's divergence test --------------------------
+
+
+class _Scripted:
+    """Hosted estimator whose estimates are the true state plus a scripted error."""
+
+    def __init__(self, errors: dict[int, np.ndarray], states: np.ndarray) -> None:
+        self.errors = errors
+        self.states = states
+        self._estimate = np.zeros(states.shape[1])
+
+    def message_arrived(self, sender, sent_step, payload) -> bool:
+        return True
+
+    def step(self, k, y):
+        self._estimate = self.states[k] + self.errors.get(k, 0.0)
+        return self._estimate
+
+    @property
+    def estimate(self):
+        return self._estimate
+
+
+def _scripted_run(scenario, errors_by_agent, threshold, steps=12):
+    """Run the kernel with scripted errors; the states come from a first run."""
+    from operator import itemgetter
+
+    from models.delays import FixedDelays
+    from models.seeding import stream
+    from netsim.kernel import AgentSpec, Simulation
+
+    plant = scenario.plant
+
+    def simulation(estimators):
+        agents = [AgentSpec(e, itemgetter(i)) for i, e in enumerate(estimators)]
+        return Simulation(plant, agents, FixedDelays(), stream(3, "plant"),
+                          divergence_threshold=threshold)
+
+    n_agents = len(errors_by_agent)
+    truth = simulation([_Scripted({}, np.zeros((steps + 1, plant.n_states)))
+                        for _ in range(n_agents)]).run(steps).states
+    estimators = [_Scripted(errors, truth) for errors in errors_by_agent]
+    return simulation(estimators).run(steps)
+
+
+def test_kernel_plant_is_the_step_by_step_recursion_of_its_stream(scenario):
+    """x_k = A x_{k-1} + nu_k and y^i_k from stream(seed, 'plant'), drawn step by step."""
+    from models.seeding import stream
+
+    seed = child_sequence(9, "trial", 0)
+    run = run_trial(scenario, "compensated", scenario_gains(scenario), seed, STEPS)
+    plant = scenario.plant
+    rng = stream(seed, "plant")
+    x = plant.sample_initial(rng)
+    for k in range(STEPS + 1):
+        if k:
+            x = plant.step(x, rng)
+        ys = plant.measure(x, rng)
+        np.testing.assert_allclose(run.states[k], x, rtol=1e-12, atol=1e-12)
+        for i, y in enumerate(ys):
+            np.testing.assert_allclose(run.measurements[i][k], y, rtol=1e-12, atol=1e-12)
+
+
+def test_steps_after_a_divergence_are_not_reported(scenario):
+    """The trajectory is simulated up front, but steps after the stop are NaN."""
+    n = scenario.plant.n_states
+    run = _scripted_run(scenario, [{5: np.full(n, 100.0)}, {}], threshold=50.0)
+    assert run.diverged_at == 5
+    assert np.all(np.isfinite(run.states[:6])) and np.all(np.isnan(run.states[6:]))
+    assert all(np.all(np.isnan(m[6:])) and np.all(np.isfinite(m[:6]))
+               for m in run.measurements)
+    assert np.all(np.isnan(run.squared_errors[6:]))
+    np.testing.assert_allclose(run.squared_errors[5], [100.0**2 * n, 0.0], rtol=1e-9)
+
+
+def test_errors_whose_sum_exceeds_the_threshold_are_not_a_divergence(scenario):
+    """Each agent's error within the threshold: no divergence, however many agents."""
+    n = scenario.plant.n_states
+    error = np.zeros(n)
+    error[0] = 49.0  # each squared error 2401 <= 2500, the sum over 4 agents is 9604
+    run = _scripted_run(scenario, [{k: error for k in range(13)}] * 4, threshold=50.0)
+    assert run.diverged_at is None
+    np.testing.assert_allclose(run.squared_errors, 49.0**2)
+
+
+@pytest.mark.parametrize("bad", [np.inf, np.nan])
+def test_non_finite_errors_diverge_even_without_a_threshold(scenario, bad):
+    n = scenario.plant.n_states
+    run = _scripted_run(scenario, [{}, {7: np.full(n, bad)}], threshold=np.inf)
+    assert run.diverged_at == 7
+    assert run.squared_errors[7, 1] == np.inf and run.squared_errors[7, 0] == 0.0
+
+
+def test_no_threshold_and_finite_squared_errors_is_no_divergence(scenario):
+    """Each agent's squared error is finite; only their sum overflows."""
+    n = scenario.plant.n_states
+    error = np.full(n, np.sqrt(1.5e308 / n))
+    run = _scripted_run(scenario, [{3: error}, {3: error}], threshold=np.inf)
+    assert run.diverged_at is None
+    assert np.all(np.isfinite(run.squared_errors))

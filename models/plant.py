@@ -174,14 +174,18 @@ class LinearPlant:
         K1, T, _ = noise.shape
         states = np.empty((K1, T, n))
         states[0] = np.array(self.x0_mean, dtype=float) + noise[0, :, :n] @ F0_T
-        process = noise[1:, :, :n] @ FQ_T
+        process = (noise[1:, :, :n].reshape(-1, n) @ FQ_T).reshape(K1 - 1, T, n)
         for k in range(1, K1):
             states[k] = states[k - 1] @ A_T + process[k - 1]
-        measurements = states @ C_T
-        M = measurements.shape[2]
-        if M:
-            z = noise[:, :, n:].reshape(K1 * T, M)
+        M = C_T.shape[1]
+        measurements = (states.reshape(-1, n) @ C_T).reshape(K1, T, M)
+        z = noise[:, :, n:]
+        _, factor, diagonal, _ = self._stacked_measurement
+        if diagonal:  # one output per sensor: the factor is a vector
+            measurements += z * factor
+        elif M:
             # the block-diagonal noise factor as a sparse matrix: M can be thousands
+            z = z.reshape(K1 * T, M)
             measurements += (sp.block_diag(FR, format="csr") @ z.T).T.reshape(K1, T, M)
         return PlantTrajectory(states, measurements)
 

@@ -30,7 +30,7 @@ from models.delays import DelayModel
 from models.plant import LinearPlant
 from netsim import interrupt
 from netsim.deliveries import DeliveryCalendar
-from netsim.links import ConfiguredLink, Link, Message, resolve_link
+from netsim.links import ConfiguredLink, Link, Message, resolve_link, sender_function
 
 __all__ = [
     "KernelObserver",
@@ -302,8 +302,9 @@ class Simulation:
             estimator = spec.estimator
             update = estimator.step
             measure = spec.measure
-            sends = [link.send_function() for link in self._out_links[i]]
-            outgoing = getattr(estimator, "outgoing", None) if sends else None
+            links = self._out_links[i]
+            send = sender_function(links) if links else None
+            outgoing = getattr(estimator, "outgoing", None) if links else None
             has_delays = hasattr(estimator, "last_delays")
             read_delays = has_delays and (delays is not None or observer is not None)
             while True:
@@ -320,11 +321,10 @@ class Simulation:
                         observer.on_update(i, k, estimate, used or {})
                 elif observer is not None:
                     observer.on_update(i, k, estimate, {})
-                if sends:
+                if send is not None:
                     payload = estimate if outgoing is None else outgoing(k)
                     if payload is not None:
-                        for send in sends:
-                            send(k, payload)
+                        send(k, payload)
 
         def monitor_process():
             # Divergence test of step k: one sum of squares over all agents first.

@@ -27,12 +27,13 @@ model in steps, builds no :class:`Message` at all: its calendar entry carries
 directly, counting refusals (stale messages) in :attr:`Link.discarded`. The kernel
 uses it when no observer and no message recording need the Message objects; the
 delay draw, the arrival time and the delivery order are exactly those of the full
-path.
+path. :func:`sender_function` sends on all out-links of one agent in one call (the
+kernel's per-agent send); lean links then share one entry value.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import partial
 from typing import Any
@@ -44,7 +45,7 @@ from models.delays import DelayModel, latency_to_steps
 from netsim.deliveries import DeliveryCalendar
 
 __all__ = [
-    "Message", "Link", "ConfiguredLink", "resolve_link",
+    "Message", "Link", "ConfiguredLink", "resolve_link", "sender_function",
     "REASON_LINK_DOWN", "REASON_DROP_TAIL", "REASON_DROP_OLDEST", "REASON_SUPERSEDED",
 ]
 
@@ -205,30 +206,22 @@ class Link:
         """
         if not self.lean:
             return self.send
-        # the same draw and arrival time as _stamp, no Message (the lean path numbers
-        # no messages); one call to the calendar per message
-        schedule = self._schedule
-        arrive = self._arrive_lean
-        sender = self.sender
+        return sender_function([self])
+
+    def _lane(self) -> tuple[Link, Callable[[int], Any] | None, float, Callable[[Any], None]]:
+        """(link, delay sampler or None, constant wait, arrival) of the lean path.
+
+        The same draw and arrival time as :meth:`_stamp`, without a Message: a
+        time-invariant delay model is drawn once (it promises the same value for every
+        message of the link), otherwise each message draws from the link's sampler.
+        """
         if self.delay_model.time_invariant:
-            # a constant delay: drawn once (the model promises the same value for
-            # every message of the link)
             wait = 1.0 + int(self.delay_model.draw(self.sender, self.receiver, 0))
-
-            def send_constant(step: int, payload: np.ndarray) -> None:
-                self.sent += 1
-                schedule(wait, arrive, (sender, step, payload))
-
-            return send_constant
+            return self, None, wait, self._arrive_lean
         sampler = getattr(self.delay_model, "sampler", None)
         sample = (sampler(self.sender, self.receiver) if sampler is not None
                   else partial(self.delay_model.draw, self.sender, self.receiver))
-
-        def send_drawn(step: int, payload: np.ndarray) -> None:
-            self.sent += 1
-            schedule(1.0 + int(sample(step)), arrive, (sender, step, payload))
-
-        return send_drawn
+        return self, sample, 0.0, self._arrive_lean
 
     def drop(self, message: Message, reason: str) -> None:
         """Count a lost message and report it (drops are never silent)."""
@@ -312,6 +305,43 @@ class ConfiguredLink(Link):
             self._newest_delivered = message.sequence
         self.delivered += 1
         self._deliver(message)
+
+
+def sender_function(links: Sequence[Link]) -> Callable[[int, np.ndarray], None]:
+    """Return one function that sends a payload on each of ``links`` in turn.
+
+    ``send(step, payload)`` is the same as calling every link's
+    :meth:`Link.send_function` in order (same draws, same calendar entries, same
+    order). When every link takes the lean path -- one sender's out-links, the usual
+    case in the kernel -- the loop over the links runs inside one function and the
+    links share one ``(sender, step, payload)`` entry value, so a message costs one
+    delay draw and one calendar call.
+    """
+    links = list(links)
+    if not all(link.lean for link in links):
+        sends = [link.send_function() for link in links]
+
+        def send_each(step: int, payload: np.ndarray) -> None:
+            for send in sends:
+                send(step, payload)
+
+        return send_each
+    senders = {link.sender for link in links}
+    if len(senders) > 1:
+        raise ValueError(f"lean links of one send function must share a sender, got {senders}")
+    sender = senders.pop() if senders else -1
+    schedule = links[0].calendar.schedule if links else None
+    if any(link.calendar.schedule != schedule for link in links):
+        raise ValueError("links of one send function must share a delivery calendar")
+    lanes = [link._lane() for link in links]
+
+    def send_lean(step: int, payload: np.ndarray) -> None:
+        value = (sender, step, payload)
+        for link, sample, wait, arrive in lanes:
+            link.sent += 1
+            schedule(wait if sample is None else 1.0 + int(sample(step)), arrive, value)
+
+    return send_lean
 
 
 def resolve_link(delay_model: DelayModel, sender: int, receiver: int,

@@ -216,6 +216,15 @@ def _configured_pass(model, send_steps: np.ndarray, wait: np.ndarray, fate: np.n
     deliver_until(math.inf)
 
 
+def _same_model(model: DelayModel, first: DelayModel) -> bool:
+    """Whether two delay models are equal as values (dataclass equality), not just the
+    same object; models without value equality compare as different."""
+    try:
+        return type(model) is type(first) and bool(model == first)
+    except (TypeError, ValueError):  # e.g. == on arrays inside a model
+        return False
+
+
 def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[int, int]],
                      send_steps: np.ndarray) -> LinkSchedule | None:
     """The schedule of constant integer step delays on lossless links, or None.
@@ -227,6 +236,9 @@ def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[i
     T, L, S = len(delay_models), len(links), len(send_steps)
     d = np.zeros((T, L, 1))
     for t, model in enumerate(delay_models):
+        if t and _same_model(model, delay_models[0]):
+            d[t] = d[0]  # e.g. homogeneous delays: every trial has the same model
+            continue
         for l_, (j, i) in enumerate(links):
             delays, configured = resolve_link(model, j, i)
             if configured is not None or not delays.time_invariant or delays.unit != "steps":

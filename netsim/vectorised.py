@@ -137,6 +137,7 @@ class _Outputs:
         self.estimates = np.full((K + 1, T, N, n), np.nan) if record_estimates else None
         self.diverged_at = np.full(T, -1, dtype=np.int64)
         self.alive = np.ones(T, dtype=bool)
+        self.all_alive = True
         self.threshold_sq = squared_threshold(threshold)
 
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
@@ -144,9 +145,19 @@ class _Outputs:
         err = estimates - state[None]
         sq = np.einsum("itj,itj->ti", err, err)
         alive = self.alive
-        self.sq[k, alive] = sq[alive]
-        if self.estimates is not None:
-            self.estimates[k, alive] = estimates.transpose(1, 0, 2)[alive]
+        if self.all_alive:
+            self.sq[k] = sq
+            if self.estimates is not None:
+                self.estimates[k] = estimates.transpose(1, 0, 2)
+            # every error finite and within the threshold (NaN fails the comparisons):
+            # no trial diverges at k, whatever the round-off floor
+            worst = sq.max(initial=0.0)
+            if worst <= self.threshold_sq and worst < np.inf:
+                return True
+        else:
+            self.sq[k, alive] = sq[alive]
+            if self.estimates is not None:
+                self.estimates[k, alive] = estimates.transpose(1, 0, 2)[alive]
         state_sq = np.einsum("tj,tj->t", state, state)
         floor = np.maximum(self.threshold_sq, ROUNDOFF_RELATIVE_ERROR ** 2 * state_sq)
         bad = ~np.all(np.isfinite(sq), axis=1) | np.any(sq > floor[:, None], axis=1)
@@ -155,6 +166,7 @@ class _Outputs:
             self.diverged_at[newly] = k
             self.sq[k, newly] = np.where(np.isfinite(sq[newly]), sq[newly], np.inf)
             self.alive = alive & ~newly
+            self.all_alive = False
         return bool(np.any(self.alive))
 
 

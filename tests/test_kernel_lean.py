@@ -117,3 +117,61 @@ def test_last_delays_reflect_the_update_not_later_arrivals():
     assert est.last_delays == {1: 2, 2: NO_MESSAGE}
     est.step(4, np.zeros(1))
     assert est.last_delays == {1: 3, 2: 1}
+
+
+def _send_program(build_send, kinds):
+    """Send 30 steps on links 0 -> r with the given kinds; return what arrived when."""
+    from models.delays import FixedDelays
+    from netsim.deliveries import DeliveryCalendar
+
+    env = simpy.Environment()
+    calendar = DeliveryCalendar(env)
+    arrivals = []
+    links = []
+    for r, kind in enumerate(kinds, start=1):
+        model = AsynchronousRandomDelays(3, seed=r) if kind != "fixed" else FixedDelays(default=2)
+        link = Link(env, 0, r, model, lambda m, r=r: arrivals.append((env.now, r, m.sent_step)),
+                    calendar=calendar)
+        if kind != "full":  # lean: the receiver's message_arrived
+            link.receive = lambda sender, step, payload, r=r: \
+                arrivals.append((env.now, r, step)) or True
+        links.append(link)
+    send = build_send(links)
+
+    def sender():
+        for k in range(30):
+            send(k, np.full(2, float(k)))
+            yield env.timeout(1)
+
+    env.process(sender())
+    env.run()
+    return arrivals, [(link.sent, link.delivered) for link in links]
+
+
+@pytest.mark.parametrize("kinds", [("random", "random", "fixed"), ("random", "full", "fixed"),
+                                   ("full",), ()])
+def test_sender_function_is_each_links_send_in_turn(kinds):
+    """One send for all out-links delivers what the links' own sends deliver, in order."""
+    from netsim.links import sender_function
+
+    def each(links):
+        sends = [link.send_function() for link in links]
+        return lambda k, payload: [send(k, payload) for send in sends]
+
+    together, counts = _send_program(sender_function, kinds)
+    separately, expected_counts = _send_program(each, kinds)
+    assert together == separately
+    assert counts == expected_counts
+    assert len(together) == 30 * len(kinds) and all(c == (30, 30) for c in counts)
+
+
+def test_sender_function_refuses_lean_links_of_different_senders():
+    from netsim.links import sender_function
+
+    env = simpy.Environment()
+    links = [Link(env, s, 2, AsynchronousRandomDelays(1, seed=0), lambda m: None)
+             for s in (0, 1)]
+    for link in links:
+        link.receive = lambda sender, step, payload: True
+    with pytest.raises(ValueError, match="share a sender"):
+        sender_function(links)

@@ -10,7 +10,8 @@ Event order within a sampling instant k (simulation time k, in units of Ts):
    its stream and simulated up front, :meth:`models.plant.LinearPlant.simulate`);
 3. every agent process, in agent order, runs its estimator's update for step k;
    then, in the same order, sends its new estimate on its out-links;
-4. the monitor process records each agent's error and checks for divergence.
+4. the monitor (a callback of the tick, after the agents') records every agent's
+   estimate and checks for divergence.
 
 Deliveries scheduled during step 3 for time k (zero latency) are processed after
 all updates of step k, so a message is never used at the step it was sent.
@@ -294,6 +295,8 @@ class Simulation:
                     observer.on_plant(k, states[k], ys)
                 shared["ys"] = ys
                 tick, shared["tick"] = shared["tick"], env.event()
+                # the agents wait on the tick already: the monitor runs after them
+                tick.callbacks.append(monitor)
                 tick.succeed(k)
                 yield env.timeout(1.0)
 
@@ -326,25 +329,24 @@ class Simulation:
                     if payload is not None:
                         send(k, payload)
 
-        def monitor_process():
-            # Divergence test of step k: one sum of squares over all agents first.
-            # Every agent's squared error is at most the sum, so a sum within the
-            # threshold clears the step; otherwise (inf, NaN, or no threshold and an
-            # infinite sum) the exact per-agent test.
-            # The per-agent squared errors are computed for all steps at the end.
-            difference = np.empty((n_agents, n))
-            flat = difference.reshape(-1)
-            while True:
-                k = yield shared["tick"]
-                estimates[k] = current  # every agent's update of step k (they run first)
-                np.subtract(estimates[k], states[k], out=difference)
-                if not flat.dot(flat) < threshold_sq and diverged(k):
-                    shared["diverged_at"] = k
-                    done.succeed()
-                    return
-                if k == steps:
-                    done.succeed()
-                    return
+        # Divergence test of step k: one sum of squares over all agents first. Every
+        # agent's squared error is at most the sum, so a sum within the threshold
+        # clears the step; otherwise (inf, NaN, or no threshold and an infinite sum)
+        # the exact per-agent test. The per-agent squared errors are computed for all
+        # steps at the end.
+        difference = np.empty((n_agents, n))
+        flat = difference.reshape(-1)
+
+        def monitor(tick: simpy.Event) -> None:
+            # a callback of every step's tick, after the agents' updates
+            k = tick._value
+            estimates[k] = current
+            np.subtract(estimates[k], states[k], out=difference)
+            if not flat.dot(flat) < threshold_sq and diverged(k):
+                shared["diverged_at"] = k
+                done.succeed()
+            elif k == steps:
+                done.succeed()
 
         def diverged(k: int) -> bool:
             # an error is not finite or above max(threshold, the round-off floor). max
@@ -356,11 +358,10 @@ class Simulation:
             return worst == math.inf or not (
                 worst <= threshold_sq or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
 
-        # Agents and the monitor start (and wait on the first tick) before the plant
-        # fires it; their order is the order their updates run in at every step.
+        # The agents start (and wait on the first tick) before the plant fires it;
+        # their order is the order their updates run in at every step.
         for i, spec in enumerate(self.agents):
             env.process(agent_process(i, spec))
-        env.process(monitor_process())
         env.process(plant_process())
         with np.errstate(over="ignore", invalid="ignore"):
             env.run(until=done)

@@ -21,6 +21,7 @@ prior x-hat_{0|-1} = x0_mean):
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -217,9 +218,11 @@ class _ConsensusBase:
             vectors = [own, *self._payloads, y]
         operator = self._operators.get(key)
         if operator is None:
-            lags = list(key[1:])
-            # a lag k - s_j < 1 is never cached, so checking here catches it
-            self._check_lags(k, lags)
+            lags = key[1:]
+            # a lag k - s_j < 1 is never cached, so checking here catches it (the
+            # full check only when some lag is below 1: a silent neighbour's is -1)
+            if min(lags, default=1) < 1:
+                self._check_lags(k, lags)
             operator = self._operator(exponent, lags)
             if self._operator_room >= operator.nbytes:
                 self._operator_room -= operator.nbytes
@@ -227,13 +230,13 @@ class _ConsensusBase:
         self._used = (k, tuple(stamps))
         return operator.dot(np.concatenate(vectors))
 
-    def _check_lags(self, k: int, lags: list[int]) -> None:
+    def _check_lags(self, k: int, lags: Sequence[int]) -> None:
         """Fail loudly if a message would be used at or before the step it was sent."""
         if any(lag < 1 for lag in lags if lag != NO_MESSAGE):
             late = max(s for s in self._stamps if s is not None)
             raise RuntimeError(f"agent {self.agent}: a message stamped {late} used at step {k}")
 
-    def _operator(self, exponent: int, lags: list[int]) -> np.ndarray:
+    def _operator(self, exponent: int, lags: Sequence[int]) -> np.ndarray:
         """The stacked operator [G_i, G_j..., L_i] of :meth:`_update`, shape
         (n, n (1 + number of neighbours heard from) + m_i)."""
         deepest = max(lags, default=0)
@@ -244,7 +247,13 @@ class _ConsensusBase:
             for matrices, (_, w) in zip(weighted, self._neighbour_weights, strict=True):
                 matrices.append(w * power)
             self._lag_blocks += 1
-        silent = tuple(lag == NO_MESSAGE for lag in lags) if NO_MESSAGE in lags else ()
+        if NO_MESSAGE in lags:
+            silent = tuple(lag == NO_MESSAGE for lag in lags)
+            blocks = [matrices[lag] for matrices, lag in zip(weighted, lags, strict=True)
+                      if lag != NO_MESSAGE]
+        else:  # every neighbour heard from (the usual case): one C-level map
+            silent = ()
+            blocks = list(map(list.__getitem__, weighted, lags))
         own = self._own_blocks.get((exponent, silent))
         if own is None:
             # silent weights join p_ii (silent is () when no neighbour is silent)
@@ -253,9 +262,7 @@ class _ConsensusBase:
                 if quiet)
             own = self._own_blocks[(exponent, silent)] = self._closed_loop.dot(
                 own_weight * self.power(exponent))
-        return np.concatenate(
-            [own, *[matrices[lag] for matrices, lag in zip(weighted, lags, strict=True)
-                    if lag != NO_MESSAGE], self._L], axis=1)
+        return np.concatenate([own, *blocks, self._L], axis=1)
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run the update of step ``k`` with the measurement y^i_k (shape (m_i,)).

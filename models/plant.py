@@ -164,9 +164,9 @@ class LinearPlant:
 
         n = self.n_states
         # fresh copies: matrices unpickled on a Dask worker are views into a receive
-        # buffer, aligned differently (16 rather than 64 bytes here), and the BLAS
-        # kernels then round differently; the same seed must give the same numbers
-        # on every executor (tests/test_sweep.py)
+        # buffer (aligned to 16 rather than 32 bytes here), and products with them
+        # rounded differently than in a local process; with copies the same seed gives
+        # the same numbers on every executor (tests/test_sweep.py)
         F0, FQ, FR = self._factors
         F0_T, FQ_T, A_T = (np.array(F.T, order="C") for F in (F0, FQ, self.A))
         C_T = np.array(self.C_stacked.T, order="C")

@@ -8,10 +8,14 @@ import pytest
 import scipy.linalg
 import scipy.stats
 from helpers import lcsys
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from estimators.kalman import CentralizedKalmanFilter
 from models.delays import (
+    BATCH_SIZE,
     AsynchronousRandomDelays,
+    BatchedDraws,
     SynchronousRandomDelays,
     heterogeneous_delays,
     latency_to_steps,
@@ -213,3 +217,39 @@ def test_kalman_filter_error_matches_its_covariance_monte_carlo():
     expected = np.trace(kf.covariance)
     stderr = np.sqrt(2 * np.trace(kf.covariance @ kf.covariance) / trials)
     assert abs(sq.mean() - expected) < 4 * stderr
+
+
+# --- batched draws: every way of asking gives the same sequence -------------------------
+
+_asks = st.lists(st.one_of(st.just(("next", 1)), st.just(("sampler", 1)),
+                           st.tuples(st.just("take"), st.integers(0, 3 * BATCH_SIZE + 7))),
+                 max_size=12)
+
+
+@settings(max_examples=150, deadline=None)
+@given(_asks, st.sampled_from(["integers", "uniform"]), st.integers(0, 2**32 - 1))
+def test_batched_draws_give_one_sequence_however_they_are_asked(asks, kind, seed):
+    """next, sampler and take, interleaved, hand out the numbers of one stream drawn
+    BATCH_SIZE at a time, in order (the event kernel asks one at a time, the vectorised
+    engine many at once)."""
+    def fn(g, size):
+        return g.integers(0, 5, size=size) if kind == "integers" else g.uniform(size=size)
+
+    draws = BatchedDraws(np.random.default_rng(seed), fn)
+    got = []
+    for how, count in asks:
+        if how == "next":
+            got.append(draws.next())
+        elif how == "sampler":
+            got.append(draws.sampler(17))
+        else:
+            taken = draws.take(count)
+            assert taken.shape == (count,)
+            got.extend(taken.tolist())
+    # the reference: the same stream, drawn in batches by hand
+    rng = np.random.default_rng(seed)
+    batches = -(-len(got) // BATCH_SIZE) if got else 0
+    expected = np.concatenate([fn(rng, BATCH_SIZE) for _ in range(batches)] or [[]])
+    assert got == expected[:len(got)].tolist()
+    if got:
+        assert all(type(v) is type(expected[:1].tolist()[0]) for v in got)

@@ -17,6 +17,7 @@ from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import partial
 from itertools import chain, islice
+from operator import length_hint
 from typing import Any, Literal, Protocol
 
 import numpy as np
@@ -57,12 +58,16 @@ class BatchedDraws:
         One batch of draws.
     """
 
-    __slots__ = ("_rng", "_fn", "_values", "_dtype", "sampler")
+    __slots__ = ("_rng", "_fn", "_values", "_dtype", "_current", "_carry", "sampler")
 
     def __init__(self, rng: np.random.Generator, fn: Any) -> None:
         self._rng = rng
         self._fn = fn
         self._dtype: Any = float
+        #: iterator over the rest of the batch being handed out (None before the first)
+        self._current: Iterator[Any] | None = None
+        #: the rest of a batch that :meth:`take` drew and cut, to be handed out next
+        self._carry: list[Any] | None = None
         # the endless sequence of values (Python scalars), batch after batch
         self._values = chain.from_iterable(self._batches())
         #: The next value as a callable send_step -> value, at the cost of one C call:
@@ -70,11 +75,16 @@ class BatchedDraws:
         #: exhausted iterator) is never used since the sequence never ends.
         self.sampler = partial(next, self._values)
 
-    def _batches(self) -> Iterator[list]:
+    def _batches(self) -> Iterator[Iterator[Any]]:
         while True:
-            batch = self._fn(self._rng, BATCH_SIZE)
-            self._dtype = batch.dtype
-            yield batch.tolist()
+            if self._carry is not None:
+                values, self._carry = self._carry, None
+            else:
+                batch = self._fn(self._rng, BATCH_SIZE)
+                self._dtype = batch.dtype
+                values = batch.tolist()
+            self._current = iter(values)
+            yield self._current
 
     def next(self, send_step: int | None = None) -> Any:
         """Return the next value (a Python scalar).
@@ -85,9 +95,32 @@ class BatchedDraws:
         return next(self._values)
 
     def take(self, count: int) -> np.ndarray:
-        """Return the next ``count`` values as an array, shape (count,)."""
-        values = list(islice(self._values, count))
-        return np.array(values, dtype=self._dtype)
+        """Return the next ``count`` values as an array, shape (count,).
+
+        The rest of the batch being handed out comes first; whole batches are then
+        drawn as arrays (the same ``fn(rng, BATCH_SIZE)`` calls as one at a time), and
+        the part of the last one not taken is handed out next.
+        """
+        left = length_hint(self._current) if self._current is not None else 0
+        head = list(islice(self._values, min(left, count)))
+        if self._carry is not None and len(head) < count:
+            # a cut batch not yet handed out: it comes next
+            cut = count - len(head)
+            head += self._carry[:cut]
+            self._carry = self._carry[cut:] or None
+        batches = []
+        need = count - len(head)
+        while need > 0:
+            batch = self._fn(self._rng, BATCH_SIZE)
+            self._dtype = batch.dtype
+            if need < BATCH_SIZE:
+                self._carry = batch[need:].tolist()
+                batch = batch[:need]
+            batches.append(batch)
+            need -= len(batch)
+        if not batches:
+            return np.array(head, dtype=self._dtype)
+        return np.concatenate([np.array(head, dtype=self._dtype), *batches])
 
 
 def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:

@@ -291,7 +291,7 @@ class AsynchronousRandomDelays:
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """Delays of the link's next len(send_steps) messages."""
-        return self._source(sender, receiver).take(len(send_steps)).astype(np.int64)
+        return self._source(sender, receiver).take(len(send_steps)).astype(np.int64, copy=False)
 
 
 @dataclass(frozen=True)

@@ -29,6 +29,7 @@ from models.network import (
     random_weights,
     uniform_weights,
 )
+from models.plant import LinearPlant
 from models.seeding import child_sequence, stream
 from netsim.runner import run_trial
 
@@ -253,3 +254,41 @@ def test_batched_draws_give_one_sequence_however_they_are_asked(asks, kind, seed
     assert got == expected[:len(got)].tolist()
     if got:
         assert all(type(v) is type(expected[:1].tolist()[0]) for v in got)
+
+
+# --- the plant simulated in one go ------------------------------------------------------
+
+
+@pytest.mark.parametrize("outputs", [(1, 1, 1), (2, 1, 3), (0, 2)])
+def test_plant_simulate_is_the_step_by_step_recursion(outputs):
+    """LinearPlant.simulate on T streams equals sample_initial / step / measure called
+    step by step on each stream: sensors with one, several (correlated noise) and no
+    outputs."""
+    rng = np.random.default_rng(11)
+    n = 3
+    A = rng.normal(size=(n, n)) / 2
+    C = tuple(rng.normal(size=(m, n)) for m in outputs)
+
+    def covariance(m):
+        F = rng.normal(size=(m, m))
+        return F @ F.T + 0.1 * np.eye(m)
+
+    plant = LinearPlant(A=A, C=C, Q=covariance(n), R=tuple(covariance(m) for m in outputs),
+                        x0_mean=rng.normal(size=n), x0_cov=covariance(n))
+    steps, seeds = 25, [3, 4, 5]
+    noise = np.stack([plant.standard_noise(np.random.default_rng(s), steps) for s in seeds],
+                     axis=1)
+    trajectory = plant.simulate(noise)
+    assert trajectory.states.shape == (steps + 1, len(seeds), n)
+    assert trajectory.measurements.shape == (steps + 1, len(seeds), sum(outputs))
+    for t, seed in enumerate(seeds):
+        g = np.random.default_rng(seed)
+        x = plant.sample_initial(g)
+        for k in range(steps + 1):
+            if k:
+                x = plant.step(x, g)
+            y = plant.measure(x, g)
+            np.testing.assert_allclose(trajectory.states[k, t], x, rtol=1e-12, atol=1e-12)
+            np.testing.assert_allclose(trajectory.measurements[k, t],
+                                       np.concatenate([*y, np.zeros(0)]),
+                                       rtol=1e-12, atol=1e-12)

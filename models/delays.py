@@ -118,8 +118,6 @@ class BatchedDraws:
                 batch = batch[:need]
             batches.append(batch)
             need -= len(batch)
-        if not batches:
-            return np.array(head, dtype=self._dtype)
         return np.concatenate([np.array(head, dtype=self._dtype), *batches])
 
 

@@ -271,7 +271,6 @@ class Simulation:
         trajectory = plant.simulate(plant.standard_noise(plant_rng, steps)[:, None, :])
         states = trajectory.states[:, 0]
         all_measurements = trajectory.measurements[:, 0]
-        offsets = np.cumsum([0] + [C.shape[0] for C in plant.C])
         estimates = np.full((steps + 1, n_agents, n), np.nan)
         delays = (
             np.full((steps + 1, n_agents, n_agents), NOT_USED, dtype=np.int32)
@@ -340,21 +339,20 @@ class Simulation:
         def monitor(tick: simpy.Event) -> None:
             # a callback of every step's tick, after the agents' updates
             k = tick._value
-            estimates[k] = current
-            np.subtract(estimates[k], states[k], out=difference)
-            if not flat.dot(flat) < threshold_sq and diverged(k):
+            row = estimates[k]
+            row[...] = current
+            np.subtract(row, states[k], out=difference)
+            if not flat.dot(flat) < threshold_sq and diverged(states[k]):
                 shared["diverged_at"] = k
                 done.succeed()
             elif k == steps:
                 done.succeed()
 
-        def diverged(k: int) -> bool:
-            # an error is not finite or above max(threshold, the round-off floor). max
-            # propagates NaN and NaN <= t is False; the floor (x @ x) is only computed
-            # when the threshold is exceeded
-            x = states[k]
-            err = estimates[k] - x
-            worst = np.einsum("ij,ij->i", err, err).max(initial=0.0)
+        def diverged(x: np.ndarray) -> bool:
+            # the step's errors are in ``difference``: one is not finite or above
+            # max(threshold, the round-off floor). max propagates NaN and NaN <= t is
+            # False; the floor (x @ x) is only computed when the threshold is exceeded
+            worst = np.einsum("ij,ij->i", difference, difference).max(initial=0.0)
             return worst == math.inf or not (
                 worst <= threshold_sq or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
 
@@ -380,10 +378,7 @@ class Simulation:
         links = self.links.values()
         return TrialResult(
             states=states,
-            measurements=[
-                all_measurements[:, a:b].copy()
-                for a, b in zip(offsets[:-1], offsets[1:], strict=True)
-            ],
+            measurements=[all_measurements[:, rows].copy() for rows in sensor_slices],
             estimates=estimates,
             squared_errors=sq_errors,
             effective_delays=delays,

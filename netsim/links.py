@@ -329,10 +329,13 @@ def sender_function(links: Sequence[Link]) -> Callable[[int, np.ndarray], None]:
     senders = {link.sender for link in links}
     if len(senders) > 1:
         raise ValueError(f"lean links of one send function must share a sender, got {senders}")
-    sender = senders.pop() if senders else -1
-    schedule = links[0].calendar.schedule if links else None
-    if any(link.calendar.schedule != schedule for link in links):
+    calendars = {id(link.calendar): link.calendar for link in links}
+    if len(calendars) > 1:
         raise ValueError("links of one send function must share a delivery calendar")
+    if not links:
+        return lambda step, payload: None
+    sender = senders.pop()
+    schedule = links[0].calendar.schedule
     lanes = [link._lane() for link in links]
 
     def send_lean(step: int, payload: np.ndarray) -> None:

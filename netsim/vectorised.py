@@ -391,7 +391,7 @@ def run_batch(
     record_delays: bool | Collection[int] = False,
     record_estimates: bool = True,
     progress: Callable[[int], None] | None = None,
-) -> list[TrialResult]:
+) -> VectorisedBatch:
     """Run a batch of trials of one estimator family in lockstep.
 
     Parameters

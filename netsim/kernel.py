@@ -285,11 +285,14 @@ class Simulation:
         observer = self.observer
         sensor_slices = plant.sensor_slices
 
+        # every step's y^i_k (views of the trajectory), as the agents' ``measure`` takes them
+        measurements_by_step = list(zip(*(all_measurements[:, rows] for rows in sensor_slices),
+                                        strict=True))
+        check_interrupt = interrupt.check
+
         def plant_process():
-            for k in range(steps + 1):
-                interrupt.check()  # a requested Ctrl-C stops here, between steps
-                stacked = all_measurements[k]
-                ys = [stacked[rows] for rows in sensor_slices]
+            for k, ys in enumerate(measurements_by_step):
+                check_interrupt()  # a requested Ctrl-C stops here, between steps
                 if observer is not None:
                     observer.on_plant(k, states[k], ys)
                 shared["ys"] = ys
@@ -335,12 +338,22 @@ class Simulation:
         # steps at the end.
         difference = np.empty((n_agents, n))
         flat = difference.reshape(-1)
+        state_norms = np.sqrt(np.einsum("ki,ki->k", states, states)).tolist()
+        # below this, sqrt(sum_i ||x-hat^i||^2) + ||x|| bounds every agent's error
+        # within the threshold (the margin covers round-off in the bound)
+        norm_bound = math.sqrt(threshold_sq) * (1.0 - 1e-6)
+        flat_estimates = estimates.reshape(steps + 1, -1)
 
         def monitor(tick: simpy.Event) -> None:
             # a callback of every step's tick, after the agents' updates
             k = tick._value
             row = estimates[k]
             row[...] = current
+            flat_row = flat_estimates[k]
+            if math.sqrt(flat_row.dot(flat_row)) + state_norms[k] < norm_bound:
+                if k == steps:
+                    done.succeed()
+                return
             np.subtract(row, states[k], out=difference)
             if not flat.dot(flat) < threshold_sq and diverged(states[k]):
                 shared["diverged_at"] = k

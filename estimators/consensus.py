@@ -235,7 +235,7 @@ class _ConsensusBase:
             vectors = [own, *(v for v in self._payloads if v is not None), y]
         else:
             # every neighbour heard from: the lags k - s_j, straight into the key
-            key = (exponent, *map(k.__sub__, stamps))
+            key = (exponent, *[k - s for s in stamps])
             vectors = [own, *self._payloads, y]
         operator = self._operators.get(key)
         if operator is None:

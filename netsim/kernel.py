@@ -277,7 +277,10 @@ class Simulation:
             if self.record_delays
             else None
         )
-        shared: dict[str, Any] = {"tick": env.event(), "ys": None, "diverged_at": None}
+        # the step's tick (the agents wait on it) and measurements, set by the plant
+        tick_event = env.event()
+        step_measurements: Sequence[np.ndarray] = ()
+        diverged_at: int | None = None
         done = env.event()
         threshold_sq = squared_threshold(self.divergence_threshold)
         # each agent's estimate of the current step, recorded by the monitor
@@ -291,12 +294,13 @@ class Simulation:
         check_interrupt = interrupt.check
 
         def plant_process():
+            nonlocal tick_event, step_measurements
             for k, ys in enumerate(measurements_by_step):
                 check_interrupt()  # a requested Ctrl-C stops here, between steps
                 if observer is not None:
                     observer.on_plant(k, states[k], ys)
-                shared["ys"] = ys
-                tick, shared["tick"] = shared["tick"], env.event()
+                step_measurements = ys
+                tick, tick_event = tick_event, env.event()
                 # the agents wait on the tick already: the monitor runs after them
                 tick.callbacks.append(monitor)
                 tick.succeed(k)
@@ -313,8 +317,8 @@ class Simulation:
             has_delays = hasattr(estimator, "last_delays")
             read_delays = has_delays and (delays is not None or observer is not None)
             while True:
-                k = yield shared["tick"]
-                estimate = update(k, measure(shared["ys"]))
+                k = yield tick_event
+                estimate = update(k, measure(step_measurements))
                 current[i] = estimate
                 if read_delays:
                     used = estimator.last_delays
@@ -346,6 +350,7 @@ class Simulation:
 
         def monitor(tick: simpy.Event) -> None:
             # a callback of every step's tick, after the agents' updates
+            nonlocal diverged_at
             k = tick._value
             row = estimates[k]
             row[...] = current
@@ -356,7 +361,7 @@ class Simulation:
                 return
             np.subtract(row, states[k], out=difference)
             if not flat.dot(flat) < threshold_sq and diverged(states[k]):
-                shared["diverged_at"] = k
+                diverged_at = k
                 done.succeed()
             elif k == steps:
                 done.succeed()
@@ -377,7 +382,7 @@ class Simulation:
         with np.errstate(over="ignore", invalid="ignore"):
             env.run(until=done)
 
-            last = shared["diverged_at"]
+            last = diverged_at
             if last is None:
                 last = steps
             states[last + 1:] = np.nan
@@ -385,7 +390,7 @@ class Simulation:
             err = estimates[: last + 1] - states[: last + 1, None, :]
             sq_errors = np.full((steps + 1, n_agents), np.nan)
             np.einsum("kij,kij->ki", err, err, out=sq_errors[: last + 1])
-            if shared["diverged_at"] is not None:
+            if diverged_at is not None:
                 sq_errors[last] = np.where(np.isfinite(sq_errors[last]), sq_errors[last],
                                            np.inf)
         links = self.links.values()
@@ -395,7 +400,7 @@ class Simulation:
             estimates=estimates,
             squared_errors=sq_errors,
             effective_delays=delays,
-            diverged_at=shared["diverged_at"],
+            diverged_at=diverged_at,
             messages_sent=sum(link.sent for link in links),
             messages_delivered=sum(link.delivered for link in links),
             messages_dropped=sum(link.dropped for link in links),

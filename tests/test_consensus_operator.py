@@ -332,3 +332,66 @@ def test_a_message_used_at_its_own_step_is_an_error(family):
     est.message_arrived(1, 2, np.ones(2))
     with pytest.raises(RuntimeError, match="stamped 2 used at step 2"):
         est.step(2, np.zeros(1))
+
+
+# -- the input vector: float64 bytes, or numpy.concatenate for anything else -----------
+
+
+def _program(seed: int, family: str):
+    """A random run with integer-valued payloads and measurements (exact in any dtype)."""
+    rng = np.random.default_rng(seed)
+    agent, weights, A, C, L, prior = random_system(rng, 3, 2, 4, 1.1)
+    params = ConsensusParameters(agent=agent, weights=weights, A=A, C=C, L=L, prior=prior)
+    arrivals = random_arrivals(rng, agent, 4, 40)
+    payloads = [[rng.integers(-9, 10, size=3) for _ in step] for step in arrivals]
+    ys = [rng.integers(-9, 10, size=2) for _ in arrivals]
+    return params, arrivals, payloads, ys
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+@pytest.mark.parametrize("layout", ["int64", "float32", "list", "strided", "big-endian"])
+def test_inputs_of_any_real_dtype_and_layout_give_the_same_estimates(family, layout):
+    """The update reads float64 payloads and measurements as raw bytes; anything else
+    (other dtypes, lists, non-contiguous views) must give the same numbers, bit for bit,
+    as float64 arrays holding the same values. An int64 read as float64 bytes would
+    not."""
+
+    def convert(values: np.ndarray):
+        if layout == "list":
+            return values.tolist()
+        if layout == "strided":  # every other element of a longer float64 array
+            wide = np.zeros(2 * len(values))
+            wide[::2] = values
+            return wide[::2]
+        dtype = {"int64": np.int64, "float32": np.float32, "big-endian": ">f8"}[layout]
+        return values.astype(dtype)
+
+    for seed in range(5):
+        params, arrivals, payloads, ys = _program(seed, family)
+        plain, other = build(family, params, 2), build(family, params, 2)
+        for k, (step_arrivals, step_payloads, y) in enumerate(
+                zip(arrivals, payloads, ys, strict=True)):
+            for (sender, stamp), payload in zip(step_arrivals, step_payloads, strict=True):
+                plain.message_arrived(sender, stamp, payload.astype(float))
+                other.message_arrived(sender, stamp, convert(payload))
+            want = plain.step(k, y.astype(float))
+            got = other.step(k, convert(y))
+            assert got.dtype == np.float64 and np.array_equal(got, want), (seed, k)
+
+
+def test_a_complex_payload_is_not_read_as_float64_bytes():
+    """A complex payload keeps its imaginary part (numpy.concatenate), as the equations
+    say, instead of being cut to float64."""
+    weights = np.array([0.5, 0.5])
+    A, C, L = np.array([[2.0]]), np.array([[1.0]]), np.array([[0.5]])
+    params = ConsensusParameters(0, weights, A, C, L, np.array([1.0]))
+    estimator = CompensatingEstimator(params)
+    reference = Reference("compensated", 0, weights, A, C, L, np.array([1.0]))
+    for k in range(4):
+        if k:
+            payload = np.array([1.0 + 2.0j * k])
+            estimator.message_arrived(1, k - 1, payload)
+            reference.message_arrived(1, k - 1, payload)
+        y = np.array([float(k)])
+        np.testing.assert_allclose(estimator.step(k, y), reference.step(k, y), rtol=1e-12)
+    assert np.iscomplexobj(estimator.estimate) and estimator.estimate.imag[0] != 0.0

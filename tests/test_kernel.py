@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from helpers import lcsys, lockstep_compensated, with_delays
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from models.seeding import child_sequence
 from netsim.runner import run_trial, scenario_gains
@@ -268,3 +270,64 @@ def test_no_threshold_and_finite_squared_errors_is_no_divergence(scenario):
     run = _scripted_run(scenario, [{3: error}, {3: error}], threshold=np.inf)
     assert run.diverged_at is None
     assert np.all(np.isfinite(run.squared_errors))
+
+
+class _Drawn:
+    """Hosted estimator reporting drawn estimates: a * x_k + e_k (a in {0, 1})."""
+
+    def __init__(self, estimates: np.ndarray) -> None:
+        self.estimates = estimates
+        self._estimate = estimates[0]
+
+    def message_arrived(self, sender, sent_step, payload) -> bool:
+        return True
+
+    def step(self, k, y):
+        self._estimate = self.estimates[k]
+        return self._estimate
+
+    @property
+    def estimate(self):
+        return self._estimate
+
+
+@settings(max_examples=120, deadline=None,
+          suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(seed=st.integers(0, 2**32 - 1), log_threshold=st.floats(-12.0, 3.0))
+def test_divergence_step_is_the_first_step_an_agent_fails_the_test(
+        scenario, seed, log_threshold):
+    """The monitor's fast paths (a norm bound, a sum of squares) against the test as
+    defined, agent by agent: an error that is not finite, or above both the threshold
+    and the round-off floor ROUNDOFF_RELATIVE_ERROR * |x_k|. Estimates are drawn around
+    the threshold, some near the state, some far from it, some not finite."""
+    from operator import itemgetter
+
+    from models.delays import FixedDelays
+    from models.seeding import stream
+    from netsim.kernel import ROUNDOFF_RELATIVE_ERROR, AgentSpec, Simulation
+
+    plant, steps, n_agents = scenario.plant, 12, 3
+    threshold = 10.0**log_threshold
+    rng = np.random.default_rng(seed)
+
+    def simulation(estimators):
+        agents = [AgentSpec(e, itemgetter(i)) for i, e in enumerate(estimators)]
+        return Simulation(plant, agents, FixedDelays(), stream(seed, "plant"),
+                          divergence_threshold=threshold)
+
+    n = plant.n_states
+    states = simulation([_Drawn(np.zeros((steps + 1, n)))] * n_agents).run(steps).states
+    sizes = threshold * 10.0 ** rng.uniform(-3.0, 0.5, (steps + 1, n_agents, 1))
+    errors = sizes * rng.normal(size=(steps + 1, n_agents, n)) / np.sqrt(n)
+    near = rng.random((steps + 1, n_agents, 1)) < 0.7
+    estimates = np.where(near, states[:, None, :], 0.0) + errors
+    estimates[rng.random((steps + 1, n_agents)) < 0.02] = rng.choice([np.inf, np.nan])
+    run = simulation([_Drawn(estimates[:, i]) for i in range(n_agents)]).run(steps)
+
+    last = steps if run.diverged_at is None else run.diverged_at
+    for k in range(last + 1):
+        x = run.states[k]
+        sq = np.sum((run.estimates[k] - x) ** 2, axis=1)
+        fails = ~np.isfinite(sq) | ((sq > threshold**2)
+                                    & (sq > ROUNDOFF_RELATIVE_ERROR**2 * (x @ x)))
+        assert fails.any() == (k == run.diverged_at), (k, sq, threshold**2)

@@ -207,7 +207,16 @@ class _ConsensusBase:
         # eq. (5): x_{k|k} = x_{k|k-1} + K_i C_i^T (y - C_i x_{k|k-1}), K_i C_i^T = L_i
         return prior + self._L.dot(y - self._C.dot(prior))
 
-    def _update(self, k: int, y: np.ndarray, exponent: int, own: np.ndarray) -> np.ndarray:
+    @staticmethod
+    def _written(value: np.ndarray, out: np.ndarray | None) -> np.ndarray:
+        """``value`` copied into ``out`` and ``out`` returned, if it is float64 (see step)."""
+        if out is None or value.dtype is not _FLOAT64:
+            return value
+        out[...] = value
+        return out
+
+    def _update(self, k: int, y: np.ndarray, exponent: int, own: np.ndarray,
+                out: np.ndarray | None = None) -> np.ndarray:
         """Eqs. (4)-(5) of step k >= 1 as one product with a cached operator.
 
         Agent i's own term is A^e v (``exponent`` e, ``own`` v): A x-hat^i_{k-1|k-1}
@@ -222,7 +231,8 @@ class _ConsensusBase:
         The operator is cached per pattern, so an update costs one concatenation and
         one matrix-vector product. The value equals the two-stage form (prior, then
         innovation) up to round-off; the vectorised engine computes the two-stage
-        form and the differential tests compare them.
+        form and the differential tests compare them. The product is written into
+        ``out`` when given and the inputs are float64 (see :meth:`step`).
         """
         stamps = self._stamps
         if self._silent or not self.compensates:
@@ -251,10 +261,10 @@ class _ConsensusBase:
         self._used = (k, tuple(stamps))
         if self._float_inputs and getattr(y, "dtype", None) is _FLOAT64:
             try:
-                return operator.dot(_from_bytes(_join_bytes(vectors)))
+                return operator.dot(_from_bytes(_join_bytes(vectors)), out)
             except TypeError:  # a vector that is not contiguous
                 pass
-        return operator.dot(np.concatenate(vectors))
+        return self._written(operator.dot(np.concatenate(vectors)), out)
 
     def _check_lags(self, k: int, lags: Sequence[int]) -> None:
         """Fail loudly if a message would be used at or before the step it was sent."""
@@ -290,8 +300,22 @@ class _ConsensusBase:
                 own_weight * self.power(exponent))
         return np.concatenate([own, *blocks, self._L], axis=1)
 
-    def step(self, k: int, y: np.ndarray) -> np.ndarray:
+    def step(self, k: int, y: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
         """Run the update of step ``k`` with the measurement y^i_k (shape (m_i,)).
+
+        Parameters
+        ----------
+        k : int
+            The step.
+        y : numpy.ndarray, shape (m_i,)
+            Agent i's measurement y^i_k.
+        out : numpy.ndarray, shape (n,), float64, optional
+            Where to put the new estimate (a host's record of it, e.g. the event
+            kernel's row of estimates): the same numbers, bit for bit, as without it.
+            The estimate returned is then ``out`` itself, which the estimator keeps as
+            its estimate and sends, so the host must not write to it again. When the
+            numbers are not float64 (complex inputs) a new array is returned and
+            ``out`` is left alone.
 
         Returns
         -------
@@ -301,9 +325,9 @@ class _ConsensusBase:
         if not self._started:
             self._started = True
             self.last_delays = {j: NO_MESSAGE for j in self.neighbours}
-            self._estimate = self._innovate(self._estimate, y)
+            self._estimate = self._written(self._innovate(self._estimate, y), out)
         else:
-            self._estimate = self._update(k, y, 1, self._estimate)
+            self._estimate = self._update(k, y, 1, self._estimate, out)
         self.last_step = k
         return self._estimate
 
@@ -361,21 +385,29 @@ class BlockUpdateEstimator(_ConsensusBase):
         self._block_estimate = self._estimate
         self._block_step = 0
 
-    def step(self, k: int, y: np.ndarray) -> np.ndarray:
-        """Run step ``k``: a full update at block steps, a prediction otherwise."""
+    def step(self, k: int, y: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+        """Run step ``k``: a full update at block steps, a prediction otherwise.
+
+        ``y`` and ``out`` as in :meth:`_ConsensusBase.step`.
+        """
         if not self._started or k % self.period == 0:
             if not self._started:
                 self._started = True
                 self.last_delays = {j: NO_MESSAGE for j in self.neighbours}
-                self._block_estimate = self._innovate(self._estimate, y)
+                self._block_estimate = self._written(self._innovate(self._estimate, y), out)
             else:
                 # eq. (15): own term A^(tau+1) x-hat^i at the previous block step
-                self._block_estimate = self._update(k, y, self.period, self._block_estimate)
+                self._block_estimate = self._update(
+                    k, y, self.period, self._block_estimate, out)
             self._block_step = k
             self._estimate = self._block_estimate
         else:
             self.last_delays = {}
-            self._estimate = self.power(k - self._block_step).dot(self._block_estimate)
+            prediction, block = self.power(k - self._block_step), self._block_estimate
+            if out is not None and self._float_inputs and block.dtype is _FLOAT64:
+                self._estimate = prediction.dot(block, out)
+            else:
+                self._estimate = prediction.dot(block)
         self.last_step = k
         return self._estimate
 

@@ -19,6 +19,7 @@ all updates of step k, so a message is never used at the step it was sent.
 
 from __future__ import annotations
 
+import inspect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -59,8 +60,11 @@ class HostedEstimator(Protocol):
     """What the kernel needs from an estimator object.
 
     Optional, used when present: ``outgoing(k)`` (the payload to send after step k,
-    None for nothing; default: the estimate) and ``last_delays`` (dict j -> r_ij[k]
-    of the last update).
+    None for nothing; default: the estimate), ``last_delays`` (dict j -> r_ij[k]
+    of the last update), and an ``out`` parameter of ``step``: ``step(k, y, out)``
+    may put the estimate into ``out`` (the kernel's row of estimates for this agent
+    and step, shape (n,), float64) and return it, saving the kernel a copy (see
+    :meth:`estimators.consensus.CompensatingEstimator.step`).
     """
 
     def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool: ...
@@ -69,6 +73,14 @@ class HostedEstimator(Protocol):
 
     @property
     def estimate(self) -> np.ndarray: ...
+
+
+def _takes_out(estimator: Any) -> bool:
+    """Whether the estimator's ``step`` has an ``out`` parameter (HostedEstimator)."""
+    try:
+        return "out" in inspect.signature(estimator.step).parameters
+    except (TypeError, ValueError):  # no signature to read
+        return False
 
 
 def squared_threshold(threshold: float) -> float:
@@ -283,8 +295,10 @@ class Simulation:
         diverged_at: int | None = None
         done = env.event()
         threshold_sq = squared_threshold(self.divergence_threshold)
-        # each agent's estimate of the current step, recorded by the monitor
+        # each agent's estimate of the current step, recorded by the monitor, unless
+        # every estimator writes its estimate into its row of ``estimates`` itself
         current: list[Any] = [None] * n_agents
+        in_place = all(_takes_out(spec.estimator) for spec in self.agents)
         observer = self.observer
         sensor_slices = plant.sensor_slices
 
@@ -316,10 +330,17 @@ class Simulation:
             outgoing = getattr(estimator, "outgoing", None) if links else None
             has_delays = hasattr(estimator, "last_delays")
             read_delays = has_delays and (delays is not None or observer is not None)
+            own_rows = estimates[:, i] if in_place else None
             while True:
                 k = yield tick_event
-                estimate = update(k, measure(step_measurements))
-                current[i] = estimate
+                if own_rows is not None:
+                    row = own_rows[k]
+                    estimate = update(k, measure(step_measurements), row)
+                    if estimate is not row:
+                        row[...] = estimate
+                else:
+                    estimate = update(k, measure(step_measurements))
+                    current[i] = estimate
                 if read_delays:
                     used = estimator.last_delays
                     if delays is not None and used:
@@ -353,7 +374,8 @@ class Simulation:
             nonlocal diverged_at
             k = tick._value
             row = estimates[k]
-            row[...] = current
+            if not in_place:
+                row[...] = current
             flat_row = flat_estimates[k]
             if math.sqrt(flat_row.dot(flat_row)) + state_norms[k] < norm_bound:
                 if k == steps:

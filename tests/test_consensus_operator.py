@@ -395,3 +395,37 @@ def test_a_complex_payload_is_not_read_as_float64_bytes():
         y = np.array([float(k)])
         np.testing.assert_allclose(estimator.step(k, y), reference.step(k, y), rtol=1e-12)
     assert np.iscomplexobj(estimator.estimate) and estimator.estimate.imag[0] != 0.0
+
+
+@pytest.mark.parametrize("family", FAMILIES)
+def test_an_estimate_written_into_out_is_the_same_estimate(family):
+    """step(k, y, out) puts the estimate into out, bit for bit the one step(k, y)
+    returns, keeps out as its estimate, and never writes to an earlier row again."""
+    for seed in range(5):
+        params, arrivals, payloads, ys = _program(seed, family)
+        plain, writing = build(family, params, 2), build(family, params, 2)
+        rows = np.full((len(arrivals), params.A.shape[0]), np.nan)
+        wanted = []
+        for k, (step_arrivals, step_payloads, y) in enumerate(
+                zip(arrivals, payloads, ys, strict=True)):
+            for (sender, stamp), payload in zip(step_arrivals, step_payloads, strict=True):
+                plain.message_arrived(sender, stamp, payload.astype(float))
+                writing.message_arrived(sender, stamp, payload.astype(float))
+            wanted.append(plain.step(k, y.astype(float)).copy())
+            out = rows[k]
+            got = writing.step(k, y.astype(float), out)
+            assert got is out and writing.estimate is out, (seed, k)
+            assert np.array_equal(out, wanted[-1]), (seed, k)
+        assert np.array_equal(rows, np.array(wanted)), seed
+
+
+def test_a_complex_estimate_leaves_out_alone():
+    weights = np.array([0.5, 0.5])
+    params = ConsensusParameters(0, weights, np.array([[2.0]]), np.array([[1.0]]),
+                                 np.array([[0.5]]), np.array([1.0]))
+    estimator = CompensatingEstimator(params)
+    estimator.step(0, np.array([0.0]), np.zeros(1))
+    estimator.message_arrived(1, 0, np.array([1.0 + 1.0j]))
+    out = np.zeros(1)
+    got = estimator.step(1, np.array([0.0]), out)
+    assert np.iscomplexobj(got) and got is not out and out[0] == 0.0

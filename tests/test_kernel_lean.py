@@ -175,3 +175,29 @@ def test_sender_function_refuses_lean_links_of_different_senders():
         link.receive = lambda sender, step, payload: True
     with pytest.raises(ValueError, match="share a sender"):
         sender_function(links)
+
+
+@pytest.mark.parametrize("family", ["compensated", "uncompensated", "block"])
+def test_estimates_written_in_place_are_the_copied_ones(scenario, gains, family,
+                                                         monkeypatch):
+    """The consensus estimators write into the kernel's rows of estimates (step's out);
+    a kernel that copies every returned estimate instead gives the same run, bit for
+    bit, with or without an observer."""
+    import netsim.kernel
+
+    seed = child_sequence(12, "trial", 0)
+    assert netsim.kernel._takes_out(CompensatingEstimator(ConsensusParameters(
+        0, np.ones(1), np.eye(1), np.eye(1), np.eye(1), np.zeros(1))))
+    in_place = run_trial(scenario, family, gains, seed, STEPS)
+    observed = run_trial(scenario, family, gains, seed, STEPS, observer=_Updates())
+    monkeypatch.setattr(netsim.kernel, "_takes_out", lambda estimator: False)
+    copied = run_trial(scenario, family, gains, seed, STEPS)
+    for other in (copied, observed):
+        assert in_place.estimates.tobytes() == other.estimates.tobytes()
+        assert np.array_equal(in_place.squared_errors, other.squared_errors, equal_nan=True)
+        assert np.array_equal(in_place.effective_delays, other.effective_delays)
+        assert (in_place.messages_sent, in_place.messages_delivered,
+                in_place.messages_discarded, in_place.diverged_at) == (
+            other.messages_sent, other.messages_delivered, other.messages_discarded,
+            other.diverged_at)
+    assert np.all(np.isfinite(in_place.estimates))

@@ -33,7 +33,10 @@ process:
 * **ratio**: kernel cost per simulation event / bare cost per event.
 * **null estimator**: the same kernel run with an estimator that does no
   arithmetic (``step`` returns a constant), to separate the kernel's own
-  machinery from the estimators' numpy work.
+  machinery from the estimators' numpy work. It does not take ``step``'s ``out``,
+  so the kernel's monitor copies its estimates into the record (one numpy
+  assignment per step), where the compensating estimator writes its estimate into
+  the kernel's row itself: the difference slightly understates the estimators' work.
 * **process per message**: the same scenario with links that start one SimPy
   process per message (``env.process(gen)``, the generator yields
   ``env.timeout(wait)`` then delivers) instead of the delivery calendar. Its
@@ -787,7 +790,10 @@ def render(report: dict[str, Any]) -> str:
         "bare-process: one process yielding that many env.timeout(1). "
         "ratio = kernel us/event / bare us/event.",
         "- null-est: the same kernel run with an estimator doing no arithmetic (kernel "
-        "machinery + plant + monitor); 'null wall share' = its wall time / the kernel's. "
+        "machinery + plant + monitor; it does not take step's out, so the monitor copies "
+        "its estimates, one numpy assignment per step, where the compensating estimator "
+        "writes into the kernel's row itself); 'null wall share' = its wall time / the "
+        "kernel's. "
         "'estimator work / bare' = (kernel - null-est us/event) / bare-timeout us/event: "
         "what the estimators' arithmetic adds, a floor under the kernel's ratio that no "
         "kernel work removes (ratio (kernel) = ratio (null estimator) + this).",

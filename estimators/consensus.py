@@ -2,7 +2,8 @@
 
 An estimator object is agent i's update rule. The host (the event kernel, a test,
 a vectorised engine) calls :meth:`message_arrived` for every delivered message and
-:meth:`step` once per sampling step with the agent's own measurement, and reads
+:meth:`step` once per sampling step with the agent's own measurement (optionally
+with an array to put the new estimate in, which spares the host a copy), and reads
 :attr:`estimate`, :meth:`outgoing` and :attr:`last_delays`. The time the data
 refers to (the message's time-stamp ``sent_step``) is kept apart from the time it
 arrived (the order of :meth:`message_arrived` calls).

@@ -404,11 +404,8 @@ class BlockUpdateEstimator(_ConsensusBase):
             self._estimate = self._block_estimate
         else:
             self.last_delays = {}
-            prediction, block = self.power(k - self._block_step), self._block_estimate
-            if out is not None and self._float_inputs and block.dtype is _FLOAT64:
-                self._estimate = prediction.dot(block, out)
-            else:
-                self._estimate = prediction.dot(block)
+            self._estimate = self._written(
+                self.power(k - self._block_step).dot(self._block_estimate), out)
         self.last_step = k
         return self._estimate
 

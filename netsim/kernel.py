@@ -373,15 +373,14 @@ class Simulation:
             # a callback of every step's tick, after the agents' updates
             nonlocal diverged_at
             k = tick._value
-            row = estimates[k]
             if not in_place:
-                row[...] = current
+                estimates[k] = current
             flat_row = flat_estimates[k]
             if math.sqrt(flat_row.dot(flat_row)) + state_norms[k] < norm_bound:
                 if k == steps:
                     done.succeed()
                 return
-            np.subtract(row, states[k], out=difference)
+            np.subtract(estimates[k], states[k], out=difference)
             if not flat.dot(flat) < threshold_sq and diverged(states[k]):
                 diverged_at = k
                 done.succeed()

@@ -133,9 +133,9 @@ class _ConsensusBase:
         self._started = False
         self.last_step: int | None = None
         self._last_delays: dict[int, int] = {}
-        # (k, time-stamps) of the last update: last_delays is built from it only when
-        # someone reads it
-        self._used: tuple[int, tuple[int | None, ...]] | None = None
+        # (exponent, lag k - s_j or NO_MESSAGE per neighbour) of the last update:
+        # last_delays is built from it only when someone reads it
+        self._used: tuple[int, ...] | None = None
         #: Messages discarded on arrival by the freshest rule.
         self.discarded = 0
 
@@ -144,11 +144,11 @@ class _ConsensusBase:
         """Effective delay r_ij[k] = k - 1 - s_j used by the last update, per
         in-neighbour j (NO_MESSAGE when i substituted its own estimate)."""
         if self._used is not None:
-            k, stamps = self._used
+            lags = self._used[1:]
             self._used = None
             self._last_delays = {
-                j: NO_MESSAGE if s is None else k - 1 - s
-                for j, s in zip(self.neighbours, stamps, strict=True)
+                j: NO_MESSAGE if lag == NO_MESSAGE else lag - 1
+                for j, lag in zip(self.neighbours, lags, strict=True)
             }
         return self._last_delays
 
@@ -238,15 +238,15 @@ class _ConsensusBase:
         stamps = self._stamps
         if self._silent or not self.compensates:
             lags = [NO_MESSAGE if s is None else k - s for s in stamps]
+            used = key = (exponent, *lags)
             if not self.compensates:
-                # the lags were computed only for the check below: eq. (6) uses A
+                # the lags k - s_j are recorded and checked, but eq. (6) uses A
                 self._check_lags(k, lags)
-                lags = [lag if lag == NO_MESSAGE else 1 for lag in lags]
-            key = (exponent, *lags)
+                key = (exponent, *[lag if lag == NO_MESSAGE else 1 for lag in lags])
             vectors = [own, *(v for v in self._payloads if v is not None), y]
         else:
             # every neighbour heard from: the lags k - s_j, straight into the key
-            key = (exponent, *[k - s for s in stamps])
+            used = key = (exponent, *[k - s for s in stamps])
             vectors = [own, *self._payloads, y]
         operator = self._operators.get(key)
         if operator is None:
@@ -259,7 +259,7 @@ class _ConsensusBase:
             if self._operator_room >= operator.nbytes:
                 self._operator_room -= operator.nbytes
                 self._operators[key] = operator
-        self._used = (k, tuple(stamps))
+        self._used = used
         if self._float_inputs and getattr(y, "dtype", None) is _FLOAT64:
             try:
                 return operator.dot(_from_bytes(_join_bytes(vectors)), out)

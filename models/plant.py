@@ -175,8 +175,13 @@ class LinearPlant:
         states = np.empty((K1, T, n))
         states[0] = np.array(self.x0_mean, dtype=float) + noise[0, :, :n] @ F0_T
         process = (noise[1:, :, :n].reshape(-1, n) @ FQ_T).reshape(K1 - 1, T, n)
-        for k in range(1, K1):
-            states[k] = states[k - 1] @ A_T + process[k - 1]
+        # x_k = x_{k-1} A^T + nu_k row by row, written in place; ndarray.dot is the
+        # same BLAS product as ``@`` (bit for bit) at under half its call overhead
+        previous = states[0]
+        for current, nu in zip(states[1:], process):
+            previous.dot(A_T, current)
+            current += nu
+            previous = current
         M = C_T.shape[1]
         measurements = (states.reshape(-1, n) @ C_T).reshape(K1, T, M)
         z = noise[:, :, n:]

@@ -330,11 +330,12 @@ class Simulation:
             outgoing = getattr(estimator, "outgoing", None) if links else None
             has_delays = hasattr(estimator, "last_delays")
             read_delays = has_delays and (delays is not None or observer is not None)
-            own_rows = estimates[:, i] if in_place else None
+            # this agent's row of every step, in step order (views made as needed)
+            own_rows = iter(estimates[:, i]) if in_place else None
             while True:
                 k = yield tick_event
                 if own_rows is not None:
-                    row = own_rows[k]
+                    row = next(own_rows)
                     estimate = update(k, measure(step_measurements), row)
                     if estimate is not row:
                         row[...] = estimate
@@ -367,7 +368,7 @@ class Simulation:
         # below this, sqrt(sum_i ||x-hat^i||^2) + ||x|| bounds every agent's error
         # within the threshold (the margin covers round-off in the bound)
         norm_bound = math.sqrt(threshold_sq) * (1.0 - 1e-6)
-        flat_estimates = estimates.reshape(steps + 1, -1)
+        flat_rows = iter(estimates.reshape(steps + 1, -1))
 
         def monitor(tick: simpy.Event) -> None:
             # a callback of every step's tick, after the agents' updates
@@ -375,7 +376,7 @@ class Simulation:
             k = tick._value
             if not in_place:
                 estimates[k] = current
-            flat_row = flat_estimates[k]
+            flat_row = next(flat_rows)
             if math.sqrt(flat_row.dot(flat_row)) + state_norms[k] < norm_bound:
                 if k == steps:
                     done.succeed()

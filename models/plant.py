@@ -178,7 +178,7 @@ class LinearPlant:
         # x_k = x_{k-1} A^T + nu_k row by row, written in place; ndarray.dot is the
         # same BLAS product as ``@`` (bit for bit) at under half its call overhead
         previous = states[0]
-        for current, nu in zip(states[1:], process):
+        for current, nu in zip(states[1:], process, strict=True):
             previous.dot(A_T, current)
             current += nu
             previous = current

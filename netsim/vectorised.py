@@ -253,10 +253,18 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
     Cp_T = np.ascontiguousarray(Cp.transpose(0, 2, 1))  # (N, n, m)
     Lp_T = np.ascontiguousarray(Lp.transpose(0, 2, 1))  # (N, m, n)
 
+    # one output per agent (m = 1): L_i (y - C_i x) is one product per entry, here
+    # against the gain repeated over the trials (the same numbers as the (T, 1) @
+    # (1, n) matmul, at half its time)
+    gain_rows = (np.ascontiguousarray(np.broadcast_to(Lp_T, (N, T, n)))
+                 if Lp_T.shape[1] == 1 else None)
+
     def innovate(prior: np.ndarray, k: int) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a
         # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T
         innovation = Y[k] - prior @ Cp_T
+        if gain_rows is not None:
+            return prior + innovation * gain_rows
         return prior + innovation @ Lp_T
 
     def uniform_prior(k: int, own: np.ndarray) -> np.ndarray:
@@ -449,9 +457,14 @@ def run_batch(
     ends = np.where(outputs.diverged_at >= 0, outputs.diverged_at, K)
     if schedule is not None:
         all_counts = schedule.counts(ends)
-        arrived = (schedule.arrival <= ends[:, None, None]) & (
-            schedule.send_steps[None, None, :] <= ends[:, None, None])
-        all_discarded = np.count_nonzero(selection.discarded & arrived, axis=(1, 2))
+        if schedule.constant_delay is not None:
+            # every link delivers in sending order: the freshest rule discards nothing
+            # (select_messages), and the (T, L, S) arrival times are not needed
+            all_discarded = np.zeros(T, dtype=np.int64)
+        else:
+            arrived = (schedule.arrival <= ends[:, None, None]) & (
+                schedule.send_steps[None, None, :] <= ends[:, None, None])
+            all_discarded = np.count_nonzero(selection.discarded & arrived, axis=(1, 2))
     results = []
     for t in range(T):
         end = int(ends[t])

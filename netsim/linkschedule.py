@@ -157,6 +157,20 @@ class MessageSelection:
     max_lag: int
     uniform_delay: int | None = None
 
+    def discarded_by(self, schedule: LinkSchedule, ends: np.ndarray) -> np.ndarray:
+        """Messages discarded by each trial's end, shape (T,), int.
+
+        Those that arrived (and were sent) by the trial's last step ``ends[t]``, as
+        the kernel counts them for a run that stopped there. With constant delays
+        every link delivers in sending order and nothing is discarded
+        (:func:`_select_constant`), so the (T, L, S) arrival times are not built.
+        """
+        if schedule.constant_delay is not None:
+            return np.zeros(len(ends), dtype=np.int64)
+        end = np.asarray(ends)[:, None, None]
+        arrived = (schedule.arrival <= end) & (schedule.send_steps[None, None, :] <= end)
+        return np.count_nonzero(self.discarded & arrived, axis=(1, 2))
+
 
 def _draws(delays: DelayModel, sender: int, receiver: int, send_steps: np.ndarray
            ) -> np.ndarray | float:

@@ -457,14 +457,7 @@ def run_batch(
     ends = np.where(outputs.diverged_at >= 0, outputs.diverged_at, K)
     if schedule is not None:
         all_counts = schedule.counts(ends)
-        if schedule.constant_delay is not None:
-            # every link delivers in sending order: the freshest rule discards nothing
-            # (select_messages), and the (T, L, S) arrival times are not needed
-            all_discarded = np.zeros(T, dtype=np.int64)
-        else:
-            arrived = (schedule.arrival <= ends[:, None, None]) & (
-                schedule.send_steps[None, None, :] <= ends[:, None, None])
-            all_discarded = np.count_nonzero(selection.discarded & arrived, axis=(1, 2))
+        all_discarded = selection.discarded_by(schedule, ends)
     results = []
     for t in range(T):
         end = int(ends[t])

@@ -149,7 +149,7 @@ def lcsys_variant(agents: int, topology: str, tau: int, delays: str = "homogeneo
 
 def synthetic_scenario(agents: int, states: int, tau: int, seed: int):
     """Random n x n plant (spectral radius 1.0), one unit-norm output per agent."""
-    from models.scenario import parse_scenario
+    from netsim.models.scenario import parse_scenario
 
     rng = np.random.default_rng([seed, agents, states])
     A = rng.normal(size=(states, states))
@@ -175,7 +175,7 @@ def simple_gains(scenario) -> types.SimpleNamespace:
 
 
 def trial_seeds(scenario, count: int) -> list:
-    from models.seeding import child_sequence
+    from netsim.models.seeding import child_sequence
 
     return [child_sequence(scenario.seed, "trial", t) for t in range(count)]
 
@@ -251,7 +251,8 @@ def measure_engine_ratio(quick: bool, repeat: int) -> list[dict[str, Any]]:
 
 
 def fig1_run(engine: str, executor: str, workers: int) -> dict[str, Any]:
-    from models.scenario import resolve_scenario
+    from netsim.models.scenario import resolve_scenario
+
     from netsim.bench import FAMILIES, PRESETS, run_delay_tolerance
     from netsim.runner import scenario_gains
 

@@ -7,10 +7,10 @@ For each size N the script builds one problem like the LCSYS2022 example, scaled
   blocks (sizes 2, 2, 1, 1 for n = 6), random entries, scaled so rho(A) = 1.04;
 * one scalar output per sensor: sensor i measures one random state of block
   ``i mod 4``, so every block is measured and no sensor observes A on its own;
-* a random strongly-connected digraph (``models.network.random_strongly_connected``,
+* a random strongly-connected digraph (``netsim.models.network.random_strongly_connected``,
   a Hamiltonian cycle plus extra edges with probability 2/(N-1): about 3
   in-neighbours per agent) with random row-stochastic weights
-  (``models.network.random_weights``).
+  (``netsim.models.network.random_weights``).
 
 Every measurement runs in a fresh Python subprocess, so the peak resident set size
 ``ru_maxrss`` (``resource.getrusage``) includes the solvers' C/Rust memory, which
@@ -64,8 +64,7 @@ GOAL_SECONDS = 300.0  # issue 3: block-diagonal design for N = 200, n = 6 within
 def make_problem(n_agents: int, n_states: int = 6, seed: int = 0):
     """Return ``(P, A, C)`` as described in the module docstring."""
     import numpy as np
-
-    from models.network import random_strongly_connected, random_weights
+    from netsim.models.network import random_strongly_connected, random_weights
 
     rng = np.random.default_rng([seed, n_agents, n_states])
     n = n_states
@@ -97,9 +96,8 @@ def make_problem(n_agents: int, n_states: int = 6, seed: int = 0):
 
 def _child(spec: dict[str, Any]) -> dict[str, Any]:
     import numpy as np
+    from netsim.estimators.gains import GainDesignError, design_gains, is_observable
     from scipy.linalg import block_diag
-
-    from estimators.gains import GainDesignError, design_gains, is_observable
 
     N, n = spec["N"], spec["n"]
     P, A, C = make_problem(N, n, spec["seed"])

@@ -88,14 +88,14 @@ from unittest import mock
 import networkx as nx
 import numpy as np
 import simpy
+from netsim.estimators.consensus import CompensatingEstimator, ConsensusParameters
+from netsim.models.delays import AsynchronousRandomDelays, DelayModel
+from netsim.models.network import random_strongly_connected, random_weights
+from netsim.models.plant import LinearPlant
+from netsim.models.seeding import stream
 from tables import format_table, si
 
 import netsim.kernel
-from estimators.consensus import CompensatingEstimator, ConsensusParameters
-from models.delays import AsynchronousRandomDelays, DelayModel
-from models.network import random_strongly_connected, random_weights
-from models.plant import LinearPlant
-from models.seeding import stream
 from netsim.deliveries import DeliveryCalendar
 from netsim.kernel import AgentSpec, Simulation, TrialResult
 from netsim.links import Link, Message

@@ -16,7 +16,7 @@ instance:
 and computes the spectral radius of the compensated augmented closed loop
 (LCSYS2022 eq. 10) in one run:
 
-* **structured**: ``models.augmented.augmented_spectral_radius(...,
+* **structured**: ``netsim.models.augmented.augmented_spectral_radius(...,
   method="structured")`` (matrix-free companion operator, ARPACK), best of
   ``--repeat`` wall times (``time.perf_counter``), in this process;
 * **dense**: ``numpy.linalg.eigvals`` of the dense ``D x D`` matrix from
@@ -87,7 +87,7 @@ def build_instance(N: int, n: int, tau: int, in_degree: int, seed: int):
 
 def dense_worker(spec: dict[str, Any]) -> dict[str, Any]:
     """Child-process body: dense eigvals of the augmented closed loop."""
-    from models.augmented import augmented_closed_loop
+    from netsim.models.augmented import augmented_closed_loop
 
     P, A, C, L, delays = build_instance(
         spec["N"], spec["n"], spec["tau"], spec["in_degree"], spec["seed"]
@@ -127,7 +127,7 @@ def _first_row(aug, P, A, C, L, delays, tau):
 
 
 def run_structured(spec: dict[str, Any], repeat: int) -> dict[str, Any]:
-    import models.augmented as aug
+    import netsim.models.augmented as aug
 
     P, A, C, L, delays = build_instance(
         spec["N"], spec["n"], spec["tau"], spec["in_degree"], spec["seed"]

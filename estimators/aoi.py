@@ -3,7 +3,7 @@
 Mitra, Richards, Bagchi, Sundaram, "Finite-time distributed state estimation over
 time-varying graphs: exploiting the age-of-information". The state is estimated in
 the coordinates z = T^T x of the Lemma 1 decomposition
-(:func:`models.decomposition.multi_sensor_decomposition`): substate z^(j) has node j
+(:func:`netsim.models.decomposition.multi_sensor_decomposition`): substate z^(j) has node j
 as its source. Agent i keeps an estimate z-hat_i (all substates) and, per substate j,
 a freshness index tau_i^(j) in {omega} u N (here: ``OMEGA = -1``).
 
@@ -71,9 +71,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from netsim.models.decomposition import MultiSensorDecomposition, multi_sensor_decomposition
 from numpy.typing import ArrayLike
-
-from models.decomposition import MultiSensorDecomposition, multi_sensor_decomposition
 
 __all__ = [
     "OMEGA",
@@ -700,7 +699,7 @@ class NaiveConsensusObserver(_SubstateObserverBase):
         source j (open loop when i has no parent or did not hear it).
     parent : callable(j, i, k) -> int or None
         Needed for ``tree`` (global knowledge of G[k]; see
-        :func:`models.topology.bfs_parents`).
+        :func:`netsim.models.topology.bfs_parents`).
     """
 
     def __init__(self, agent: int, design: AoIDesign, *, weights: str = "uniform",

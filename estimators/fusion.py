@@ -35,8 +35,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
-
-from models.dkfe import DkfeSetup, SelectionScheme
+from netsim.models.dkfe import DkfeSetup, SelectionScheme
 
 __all__ = [
     "LocalGains",
@@ -758,7 +757,7 @@ def covariances_for(setup: DkfeSetup) -> tuple[FusionCovariance, FusionCovarianc
 class BatchedKalmanFilter:
     """Centralised Kalman filter on all sinks' measurements, for (B, m) batches.
 
-    The same recursion as :class:`estimators.kalman.CentralizedKalmanFilter`; the
+    The same recursion as :class:`netsim.estimators.kalman.CentralizedKalmanFilter`; the
     covariance sequence ``covariances`` is deterministic.
     """
 
@@ -816,10 +815,10 @@ def run_lockstep(setup: DkfeSetup, steps: int, trials: int, seed: Any, *,
     """Run ``trials`` independent trials in lock-step (vectorised), no event kernel.
 
     Messages follow the paper's timing (a selection made at s is used at s + d_i);
-    randomness from :func:`models.seeding.stream` of ``seed``: ``"lockstep/plant"`` and
+    randomness from :func:`netsim.models.seeding.stream` of ``seed``: ``"lockstep/plant"`` and
     ``"lockstep/sink/<i>/selection"``.
     """
-    from models.seeding import stream
+    from netsim.models.seeding import stream
 
     A, n, L = setup.A, setup.n, setup.n_sinks
     cov, ocov, gains = covariances if covariances is not None else covariances_for(setup)

@@ -57,10 +57,9 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from netsim.models.augmented import delay_free_closed_loop, output_gain_matrix, spectral_radius
+from netsim.models.validation import check_system
 from numpy.typing import ArrayLike
-
-from models.augmented import delay_free_closed_loop, output_gain_matrix, spectral_radius
-from models.validation import check_system
 
 __all__ = [
     "CCL_AUTO_MAX_STATES",

@@ -55,13 +55,12 @@ from functools import lru_cache
 
 import numpy as np
 import scipy.sparse as sp
+from netsim.models.validation import as_outputs as _as_outputs
+from netsim.models.validation import as_square as _as_square
+from netsim.models.validation import check_system as _check_system
 from numpy.typing import ArrayLike
 from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
-
-from models.validation import as_outputs as _as_outputs
-from models.validation import as_square as _as_square
-from models.validation import check_system as _check_system
 
 __all__ = [
     "ARPACK_K",

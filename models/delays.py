@@ -7,7 +7,7 @@ s + 1 + d, DESIGN.md); models in *time* return a continuous latency l >= 0 in th
 unit of the sampling period Ts, which maps to d = ceil(l / Ts) - 1 clamped at 0.
 
 Every random model owns its generator(s), derived from one seed by name
-(:mod:`models.seeding`), so two models, or two links, never share a stream.
+(:mod:`netsim.models.seeding`), so two models, or two links, never share a stream.
 """
 
 from __future__ import annotations
@@ -21,8 +21,7 @@ from operator import length_hint
 from typing import Any, Literal, Protocol
 
 import numpy as np
-
-from models.seeding import SeedLike, stream
+from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "BATCH_SIZE",

@@ -5,7 +5,7 @@ estimation with dimensionality reduction in cyber-physical systems"
 (``../shared/papers/dkfe-dimensionality-reduction-delays.txt``).
 
 What is here (numpy/cvxpy mathematics only; the estimators are in
-:mod:`estimators.fusion`, the SimPy agents in :mod:`netsim.fusion`):
+:mod:`netsim.estimators.fusion`, the SimPy agents in :mod:`netsim.fusion`):
 
 - :class:`SelectionScheme`: the categorical choice of which r_i of the n components
   sink i sends (eqs. 10-13, 16-17, 22), with its moments H_i = E{H_i(t)} (eq. 23) and
@@ -131,9 +131,8 @@ from typing import Any, Literal
 
 import numpy as np
 import scipy.linalg as sla
-
-from models.plant import LinearPlant
-from models.seeding import SeedLike, stream
+from netsim.models.plant import LinearPlant
+from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "SelectionScheme",

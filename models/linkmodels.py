@@ -2,7 +2,7 @@
 
 Everything here is plain numpy (and scipy for quantiles); the event kernel
 (:mod:`netsim.links`) applies it. Every random sampler owns its generator, derived
-by name from a seed with :func:`models.seeding.stream`, so adding a link, a loss
+by name from a seed with :func:`netsim.models.seeding.stream`, so adding a link, a loss
 model or a delay model never changes the numbers another one sees.
 
 Delays
@@ -13,7 +13,7 @@ A *delay distribution* (:class:`DelayDistribution`) draws raw delays in one unit
   the receiver's update at step s + 1 + d (DESIGN.md).
 * ``"time"``: continuous latencies l >= 0 in the time unit of the sampling period
   Ts; the step delay is d = max(ceil(l / Ts) - 1, 0)
-  (:func:`models.delays.latency_to_steps`).
+  (:func:`netsim.models.delays.latency_to_steps`).
 
 Available: :class:`ConstantDelay`, :class:`UniformDelay` (steps or time),
 :class:`GeometricDelay` (steps), :class:`ShiftedGamma` and :class:`ShiftedPareto`
@@ -23,7 +23,7 @@ the per-link delays *and* losses recorded in an earlier MCAP trace, message by
 message by per-link sequence number).
 
 :class:`DistributionDelays` turns a distribution into a kernel delay model
-(:class:`models.delays.DelayModel`) with one of three *modes*, the cases of the
+(:class:`netsim.models.delays.DelayModel`) with one of three *modes*, the cases of the
 delay-tolerant paper's Fig. 2:
 
 * ``"asynchronous"`` (time-varying): an independent draw per link per message, from
@@ -94,9 +94,8 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-
-from models.delays import BatchedDraws, DelayModel, latency_to_steps
-from models.seeding import SeedLike, stream
+from netsim.models.delays import BatchedDraws, DelayModel, latency_to_steps
+from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "DELAY_DISTRIBUTIONS",
@@ -792,7 +791,7 @@ class TraceReplay:
 def load_trace_replay(path: str | Path) -> TraceReplay:
     """Read the link events of an MCAP trace written by netsim into a :class:`TraceReplay`.
 
-    This is the one place ``models`` reads a trace; it imports :mod:`traces.reader`
+    This is the one place ``models`` reads a trace; it imports :mod:`netsim.traces.reader`
     when called (``traces`` imports ``models``, never the reverse at import time).
 
     Raises
@@ -801,7 +800,7 @@ def load_trace_replay(path: str | Path) -> TraceReplay:
         Naming the file: not readable as a netsim trace, no link topics, or a link
         whose sequence numbers do not start at 0.
     """
-    from traces.reader import TraceError, read_trace
+    from netsim.traces.reader import TraceError, read_trace
 
     try:
         trace = read_trace(path)
@@ -924,7 +923,7 @@ class LinkModel:
 class NetworkLinks:
     """The delay model of a run whose links have their own models.
 
-    A :class:`models.delays.DelayModel` (so code that only needs delays keeps working)
+    A :class:`netsim.models.delays.DelayModel` (so code that only needs delays keeps working)
     whose :meth:`link` gives the kernel each link's :class:`LinkModel`.
 
     Parameters

@@ -14,8 +14,7 @@ import math
 
 import networkx as nx
 import numpy as np
-
-from models.seeding import SeedLike, stream
+from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "NetworkError",

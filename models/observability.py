@@ -23,7 +23,7 @@ Structural (generic-rank) tests, structured systems theory (LCSYS2022 footnote 3
 Conventions
     The *system digraph* of a square matrix ``M`` has the edge ``j -> i`` whenever
     ``M[i, j] != 0`` (state ``j`` drives state ``i``). For a consensus matrix ``P`` this
-    is exactly the communication graph of :mod:`models.network` (edge ``(j, i)``:
+    is exactly the communication graph of :mod:`netsim.models.network` (edge ``(j, i)``:
     ``i`` receives from ``j``), with self-loops for the diagonal. A sparsity pattern is
     ``|M| > atol`` with ``atol = DEFAULT_PATTERN_ATOL = 0`` (exact zeros) by default.
 """

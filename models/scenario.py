@@ -11,7 +11,7 @@ distributions (uniform, geometric, shifted gamma / Pareto, empirical from a CSV,
 of a recorded trace) in asynchronous, synchronous or fixed mode, Bernoulli or
 Gilbert-Elliott loss, outages, finite buffers with a drop policy, and serialisation
 from a bandwidth and a message size; defaults for every link plus a ``per_link`` list
-(:mod:`models.linkmodels` defines each model; relative file paths are relative to the
+(:mod:`netsim.models.linkmodels` defines each model; relative file paths are relative to the
 scenario file). Without it, links only delay, as ``[delays]`` says.
 
 Agents are numbered from 0. A link ``[j, i]`` means agent i receives from agent j.
@@ -34,8 +34,7 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
-
-from models.delays import (
+from netsim.models.delays import (
     AsynchronousRandomDelays,
     DelayModel,
     FixedDelays,
@@ -44,7 +43,7 @@ from models.delays import (
     heterogeneous_delays,
     homogeneous_delays,
 )
-from models.linkmodels import (
+from netsim.models.linkmodels import (
     BUFFER_POLICIES,
     DELAY_DISTRIBUTIONS,
     DELAY_MODES,
@@ -63,7 +62,7 @@ from models.linkmodels import (
     load_latency_csv,
     load_trace_replay,
 )
-from models.network import (
+from netsim.models.network import (
     NetworkError,
     check_consensus_matrix,
     directed_cycle,
@@ -74,8 +73,8 @@ from models.network import (
     random_weights,
     uniform_weights,
 )
-from models.plant import LinearPlant
-from models.seeding import SeedLike
+from netsim.models.plant import LinearPlant
+from netsim.models.seeding import SeedLike
 
 __all__ = [
     "ScenarioError",
@@ -301,7 +300,7 @@ class Scenario:
     def delay_model(self, trial_seed: SeedLike) -> DelayModel:
         """Build the delay model; random models draw from the trial's streams.
 
-        With a ``[links]`` table this is a :class:`models.linkmodels.NetworkLinks`
+        With a ``[links]`` table this is a :class:`netsim.models.linkmodels.NetworkLinks`
         (a delay model whose ``link(j, i)`` gives the kernel each link's model).
         """
         base = self._base_delay_model(trial_seed)
@@ -913,7 +912,7 @@ def load_scenario(path: str | Path) -> Scenario:
 
 def builtin_scenarios() -> dict[str, Path]:
     """Return the built-in scenario files by name."""
-    folder = resources.files("models") / "scenarios"
+    folder = resources.files("netsim.models") / "scenarios"
     return {
         Path(entry.name).stem: Path(str(entry))
         for entry in sorted(folder.iterdir(), key=lambda e: e.name)

@@ -1,6 +1,6 @@
 """Time-varying communication topologies: graph sequences, link schedules, checks.
 
-Conventions (as in :mod:`models.network`): agents are ``0..N-1``; an edge
+Conventions (as in :mod:`netsim.models.network`): agents are ``0..N-1``; an edge
 ``(j, i)`` means agent ``i`` receives from agent ``j`` at that step (the aoi paper
 writes ``(j, i) in E[k]``: "node j can send information directly to node i at time
 step k", so ``j`` is in ``N_i[k]``). Self-loops are never stored.
@@ -40,8 +40,7 @@ from typing import Any, Protocol
 
 import networkx as nx
 import numpy as np
-
-from models.seeding import SeedLike, stream
+from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "Edge",

@@ -22,14 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from estimators.gains import GainDesign
-from models.augmented import (
+from netsim.estimators.gains import GainDesign
+from netsim.models.augmented import (
     augmented_spectral_radius,
     delay_bound_lcsys,
     tau_star_report,
 )
-from models.jsonsafe import json_tree as _jsonable
-from models.scenario import Scenario
+from netsim.models.jsonsafe import json_tree as _jsonable
+from netsim.models.scenario import Scenario
 
 __all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "BoundRow", "AnalysisReport", "analyze"]
 

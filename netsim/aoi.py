@@ -16,12 +16,12 @@ Built-in scenarios (:data:`AOI_SCENARIOS`):
 * ``aoi-random`` -- a random jointly strongly connected sequence (Assumption 1 with a
   given T, single graphs not connected) and a random jointly observable system.
 
-Estimator families: ``aoi`` (:class:`estimators.aoi.FreshnessObserver`),
-``naive-uniform`` and ``naive-tree`` (:class:`estimators.aoi.NaiveConsensusObserver`,
+Estimator families: ``aoi`` (:class:`netsim.estimators.aoi.FreshnessObserver`),
+``naive-uniform`` and ``naive-tree`` (:class:`netsim.estimators.aoi.NaiveConsensusObserver`,
 the paper's two naive weight choices, with the same source update).
 
 Timing: links are delay-free by default (d = 0: a message sent at step s is used at
-s + 1), which is the paper's model exactly (see :mod:`estimators.aoi`); the topology
+s + 1), which is the paper's model exactly (see :mod:`netsim.estimators.aoi`); the topology
 enters the kernel as its ``availability`` hook, so messages on links that are down at
 their sending step are dropped and counted.
 
@@ -33,7 +33,7 @@ largest agent error over the second half (least-squares fit of its log):
 ``diverging`` if g^(half) > 2, ``converging`` if g^(half) < 1/2, ``bounded`` otherwise.
 
 Traces: :func:`record_aoi_run` writes one MCAP file per run with
-:class:`traces.recorder.TraceRecorder`. After every update of an ``aoi`` agent the
+:class:`netsim.traces.recorder.TraceRecorder`. After every update of an ``aoi`` agent the
 kernel observer calls the recorder's ``on_freshness(agent, k, freshness, adopted_from,
 substate_dims)`` when the recorder has that hook: ``freshness[j]`` = tau_i^(j)[k]
 (-1 for omega), ``adopted_from[j]`` = the neighbour whose substate j was adopted at
@@ -54,16 +54,17 @@ from typing import Any
 
 import numpy as np
 
-from estimators.aoi import (
+from netsim.estimators.aoi import (
     OMEGA,
     AoIDesign,
     FreshnessObserver,
     NaiveConsensusObserver,
 )
-from models.delays import homogeneous_delays
-from models.plant import LinearPlant
-from models.seeding import SeedLike, child_sequence, stream
-from models.topology import (
+from netsim.kernel import AgentSpec, Simulation, TrialResult
+from netsim.models.delays import homogeneous_delays
+from netsim.models.plant import LinearPlant
+from netsim.models.seeding import SeedLike, child_sequence, stream
+from netsim.models.topology import (
     ConnectivityReport,
     GraphSequence,
     LinkSchedule,
@@ -73,7 +74,6 @@ from models.topology import (
     connectivity_report,
     random_jointly_connected,
 )
-from netsim.kernel import AgentSpec, Simulation, TrialResult
 
 __all__ = [
     "AOI_FAMILIES",
@@ -241,7 +241,7 @@ def random_jointly_observable_system(
     and C_i are i.i.d. normal (C_i on a random subset of the states). A is scaled to
     the given spectral radius; draws are repeated until (A, C) is observable.
     """
-    from models.decomposition import NotObservableError, multi_sensor_decomposition
+    from netsim.models.decomposition import NotObservableError, multi_sensor_decomposition
 
     n, N = int(n_states), int(n_agents)
     for _ in range(200):
@@ -863,9 +863,9 @@ def record_aoi_run(path: str, scenario: AoIScenario, family: str, *,
     the topology as JSON) and the matrices A, C_i, Q, R_i, x0, plus ``aoi_T``,
     ``aoi_A_bar``, ``aoi_dims`` and ``aoi_L_<j>`` (z coordinates). Freshness indices
     are written if the recorder implements ``on_freshness`` (``recorder_class``:
-    default :class:`traces.recorder.TraceRecorder`). Returns (trial, path).
+    default :class:`netsim.traces.recorder.TraceRecorder`). Returns (trial, path).
     """
-    from traces.recorder import TraceRecorder, trace_path
+    from netsim.traces.recorder import TraceRecorder, trace_path
 
     if recorder_class is None:
         recorder_class = TraceRecorder

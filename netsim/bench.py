@@ -9,7 +9,7 @@ event kernel, and puts next to each other:
 * measured: the steady-state network MSE (mean over the last ``steady_state_fraction``
   of the steps, trials that blew up left out), the fitted MSE growth per step over the
   second half, and the empirical decay factor of the error norm per step
-  (``traces.analysis.decay_fit``: exp(slope/2) of log MSE over the transient);
+  (``netsim.traces.analysis.decay_fit``: exp(slope/2) of log MSE over the transient);
   ``stable`` / ``diverging`` / ``diverged`` exactly as ``netsim run`` decides;
 * exact: for time-invariant delays the spectral radius of the augmented closed loop
   of the realised delays (LCSYS2022 eq. 9-10 for ``compensated``, the delay-tolerant
@@ -17,7 +17,7 @@ event kernel, and puts next to each other:
   state; for ``block`` its own per-step rate rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)),
   exact when every message arrives within its block); for time-varying delays (or
   lossy links) the realised growth factor of the product A-hat[k]...A-hat[1] along
-  trial 0's effective delays (``traces.analysis.growth_rates``; second-half rate);
+  trial 0's effective delays (``netsim.traces.analysis.growth_rates``; second-half rate);
 * the papers' bounds at tau: LCSYS2022 eq. (26) and Theorem 1 (tau*), the delay-
   tolerant paper's rho(A-hat)^(1/(tau+1)) (its Theorem 1 / Lemma 5);
 * a verdict per cell: ``stable`` (measured stable, as the bound predicts),
@@ -54,8 +54,8 @@ from typing import Any
 
 import numpy as np
 
-from models.scenario import DelaySpec, Scenario
-from models.seeding import child_sequence
+from netsim.models.scenario import DelaySpec, Scenario
+from netsim.models.seeding import child_sequence
 
 __all__ = [
     "DELAY_SETTINGS",
@@ -207,7 +207,7 @@ def _curve(mse: np.ndarray) -> dict[str, list]:
 def _measure(results: list, steps: int, fraction: float) -> dict[str, Any]:
     """Monte Carlo summary with ``netsim run``'s definitions, plus the decay fit."""
     from netsim.runner import GROWTH_TOLERANCE
-    from traces.analysis import decay_fit
+    from netsim.traces.analysis import decay_fit
 
     diverged = [(t, int(r.diverged_at)) for t, r in enumerate(results)
                 if r.diverged_at is not None]
@@ -256,7 +256,7 @@ def _measure(results: list, steps: int, fraction: float) -> dict[str, Any]:
 def _analytics(variant: Scenario, gains: Any, family: str, tau: int,
                first: Any) -> dict[str, Any]:
     """Exact rho (fixed delays) or realised growth (time-varying), bounds, prediction."""
-    from models.augmented import (
+    from netsim.models.augmented import (
         augmented_spectral_radius,
         delay_bound_lcsys,
         delay_bound_tolerant,
@@ -304,12 +304,12 @@ def _realised_growth(P: np.ndarray, A: np.ndarray, C: Sequence[np.ndarray],
     """Realised growth factor of A-hat[k] ... A-hat[h] over the second half of the steps
     after start-up (every neighbour heard from), from one trial's effective delays.
 
-    ``models.augmented.closed_loop_sequence_growth`` (matrix-free; exact up to rounding
+    ``netsim.models.augmented.closed_loop_sequence_growth`` (matrix-free; exact up to rounding
     for augmented dimension <= 600, a random 8-vector block above): exp of
     (1/m) log ||A-hat[K] ... A-hat[h]||, h = the middle of the post-start-up steps.
     """
-    from models.augmented import closed_loop_sequence_growth
     from netsim.kernel import NOT_USED
+    from netsim.models.augmented import closed_loop_sequence_growth
 
     edge = (P != 0) & ~np.eye(P.shape[0], dtype=bool)
     seq = []
@@ -1071,7 +1071,7 @@ _GAIN_CACHE: dict[str, Any] = {}
 
 
 def _scenario_data(name_or_path: str) -> tuple[dict[str, Any], str]:
-    from models.scenario import ScenarioError, builtin_scenarios
+    from netsim.models.scenario import ScenarioError, builtin_scenarios
 
     builtins = builtin_scenarios()
     if name_or_path in builtins:
@@ -1090,7 +1090,7 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
     """The scenario of one sweep cell: ``delays`` (a delay setting or ``delays.model``),
     ``tau``, ``topology``, ``agents`` (agent i carries sensor i mod m of the base plant),
     ``seed`` (run seed)."""
-    from models.scenario import parse_scenario
+    from netsim.models.scenario import parse_scenario
 
     data = copy.deepcopy(data)
     net = data.setdefault("network", {})
@@ -1134,8 +1134,8 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
     ``context``: ``{"data": TOML dict, "source": str, "families": [...], "trials": M,
     "steps": K}``. Gains are designed per variant (cached per worker process).
     """
-    from estimators.gains import GainDesignError
-    from models.scenario import ScenarioError
+    from netsim.estimators.gains import GainDesignError
+    from netsim.models.scenario import ScenarioError
     from netsim.runner import run_monte_carlo, scenario_gains
 
     try:
@@ -1346,9 +1346,9 @@ def _executor(args: Any) -> dict[str, Any]:
 
 
 def _cmd_delay_tolerance(args: Any) -> int:
-    from estimators.gains import GainDesignError
-    from models.scenario import ScenarioError, resolve_scenario
     from netsim.cli import EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
+    from netsim.estimators.gains import GainDesignError
+    from netsim.models.scenario import ScenarioError, resolve_scenario
     from netsim.runner import scenario_gains
     from netsim.sweep import SweepInterrupted
 
@@ -1433,8 +1433,8 @@ def _strict(value: Any) -> Any:
 
 
 def _cmd_sweep(args: Any) -> int:
-    from models.scenario import ScenarioError
     from netsim.cli import EXIT_INTERRUPTED, CommandError
+    from netsim.models.scenario import ScenarioError
     from netsim.sweep import SweepInterrupted
 
     for option in ("trials", "steps"):

@@ -15,7 +15,7 @@ from typing import Any
 
 import numpy as np
 
-from models.jsonsafe import json_number as _num
+from netsim.models.jsonsafe import json_number as _num
 
 __all__ = ["main", "build_parser"]
 
@@ -222,8 +222,8 @@ def _positive(value: int | None, option: str) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from estimators.gains import GainDesignError
-    from models.scenario import ScenarioError, resolve_scenario
+    from netsim.estimators.gains import GainDesignError
+    from netsim.models.scenario import ScenarioError, resolve_scenario
     from netsim.runner import run_monte_carlo, scenario_gains
 
     _positive(args.steps, "--steps")
@@ -233,7 +233,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from netsim.aoi import aoi_command, is_aoi_scenario
 
     if is_aoi_scenario(args.scenario):
-        from estimators.aoi import GainDesignError as AoIDesignError
+        from netsim.estimators.aoi import GainDesignError as AoIDesignError
 
         if args.engine == "vectorised":
             raise CommandError(f"--engine vectorised: scenario {args.scenario} runs the "
@@ -389,7 +389,7 @@ def _format_run(data: dict[str, Any]) -> str:
 
 
 def _load(name: str, tau: int | None = None):
-    from models.scenario import ScenarioError, resolve_scenario
+    from netsim.models.scenario import ScenarioError, resolve_scenario
 
     try:
         scenario = resolve_scenario(name)
@@ -417,9 +417,9 @@ def _design_dict(design) -> dict[str, Any]:
 
 
 def _cmd_design(args: argparse.Namespace) -> int:
-    from estimators.gains import GainDesignError, design_gains, refine_gains
-    from models.augmented import tau_star_report
-    from models.observability import observability_report
+    from netsim.estimators.gains import GainDesignError, design_gains, refine_gains
+    from netsim.models.augmented import tau_star_report
+    from netsim.models.observability import observability_report
 
     if args.tau1 < 0:
         raise CommandError(f"--tau1 must be a non-negative integer, got {args.tau1}")
@@ -476,14 +476,14 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
 
 def _cmd_analyze(args: argparse.Namespace) -> int:
-    from estimators.gains import GainDesignError
     from netsim.analysis import analyze
+    from netsim.estimators.gains import GainDesignError
     from netsim.runner import scenario_gains
 
     if args.tau_max < 0:
         raise CommandError(f"--tau-max must be a non-negative integer, got {args.tau_max}")
     if args.scenario.endswith(".mcap"):
-        from traces.analysis import analyze_trace
+        from netsim.traces.analysis import analyze_trace
 
         report = analyze_trace(_read(args.scenario))
         return _emit(args, report.to_dict(), report.format_text())
@@ -540,7 +540,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def _read(path: str):
-    from traces.reader import TraceError, read_trace
+    from netsim.traces.reader import TraceError, read_trace
 
     try:
         return read_trace(path)
@@ -558,14 +558,14 @@ def _emit(args: argparse.Namespace, data: dict[str, Any], text: str) -> int:
 
 
 def _cmd_replay(args: argparse.Namespace) -> int:
-    from traces.replay import replay_trace
+    from netsim.traces.replay import replay_trace
 
     report = replay_trace(_read(args.trace))
     return _emit(args, report.to_dict(), report.format_text())
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
-    from traces.plot import plot_traces
+    from netsim.traces.plot import plot_traces
 
     if not args.output.lower().endswith(".png"):
         raise CommandError(f"-o {args.output}: the output must be a .png file")
@@ -579,8 +579,8 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_inspect(args: argparse.Namespace) -> int:
-    from traces.inspect import inspect_trace
-    from traces.reader import TraceError, read_trace
+    from netsim.traces.inspect import inspect_trace
+    from netsim.traces.reader import TraceError, read_trace
 
     try:
         trace = read_trace(args.trace)
@@ -596,7 +596,7 @@ def _cmd_inspect(args: argparse.Namespace) -> int:
 
 
 def _cmd_scenarios(args: argparse.Namespace) -> int:
-    from models.scenario import ScenarioError, builtin_scenarios, load_scenario
+    from netsim.models.scenario import ScenarioError, builtin_scenarios, load_scenario
 
     items = []
     for name, path in builtin_scenarios().items():

@@ -2,10 +2,10 @@
 
 Agents of one trial (in this order, which is the order of their updates at each step):
 
-- ``0 .. L-1``: the sink nodes (:class:`estimators.fusion.SinkNode`), each measuring its
+- ``0 .. L-1``: the sink nodes (:class:`netsim.estimators.fusion.SinkNode`), each measuring its
   own sensor (the plant's C_i), running its local Kalman filter and choosing the r_i
   components to send;
-- ``L``: the fusion centre (:class:`estimators.fusion.FusionCentre`) with the example's
+- ``L``: the fusion centre (:class:`netsim.estimators.fusion.FusionCentre`) with the example's
   delays d_i; its estimate is the DKFE, and it also computes the SDKFE;
 - ``L + 1``: the ODKFE centre (the same sinks' selections with d_i = 0);
 - ``L + 2``: the centralised Kalman filter on all measurements.
@@ -15,7 +15,7 @@ kernel link delivers a message sent at step s with delay d for the update at ste
 s + 1 + d, so sink i's link to the centre has delay d_i - 1 (:func:`fusion_delay_model`).
 A sink with d_i = 0 has no link: the centre reads its payload directly at the same step
 (the sinks update first). With ``time_varying=True`` each message on sink i's link gets
-a uniform random delay in 0..d_i - 1 (:class:`models.dkfe.UniformLinkDelays`, messages
+a uniform random delay in 0..d_i - 1 (:class:`netsim.models.dkfe.UniformLinkDelays`, messages
 may be reordered) and the centre pads it back to d_i with its buffer (Remark 1): the
 fused estimates are then identical to the constant-delay run with the same seed.
 
@@ -24,7 +24,7 @@ stream ``"plant"``, sink i's selections from ``("sink", i, "selection")``, rando
 delays from ``"delays/dkfe-link/<i>-<L>"``.
 
 Example 2's steady-state weights differ from the printed (94) by up to 0.1326; the
-comparison with every printed number is in the docstring of :mod:`models.dkfe`.
+comparison with every printed number is in the docstring of :mod:`netsim.models.dkfe`.
 Traces (``--trace``) are not supported for these runs: the payloads are selections, not
 estimates.
 """
@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg as sla
 
-from estimators.fusion import (
+from netsim.estimators.fusion import (
     FusionCentre,
     FusionCovariance,
     LocalGains,
@@ -50,11 +50,11 @@ from estimators.fusion import (
     run_lockstep,
     weights_as_printed_79,
 )
-from estimators.kalman import CentralizedKalmanFilter
-from models import dkfe as dk
-from models.delays import DelayModel, FixedDelays
-from models.seeding import SeedLike, child_sequence, stream
+from netsim.estimators.kalman import CentralizedKalmanFilter
 from netsim.kernel import AgentSpec, Simulation, TrialResult
+from netsim.models import dkfe as dk
+from netsim.models.delays import DelayModel, FixedDelays
+from netsim.models.seeding import SeedLike, child_sequence, stream
 
 __all__ = [
     "fusion_delay_model",

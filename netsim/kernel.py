@@ -7,7 +7,7 @@ Event order within a sampling instant k (simulation time k, in units of Ts):
    on the shared :class:`netsim.deliveries.DeliveryCalendar`);
 2. the plant process publishes x_k and every sensor's y^i_k, then fires the step's
    tick (the plant does not depend on the estimators, so its trajectory is drawn from
-   its stream and simulated up front, :meth:`models.plant.LinearPlant.simulate`);
+   its stream and simulated up front, :meth:`netsim.models.plant.LinearPlant.simulate`);
 3. every agent process, in agent order, runs its estimator's update for step k;
    then, in the same order, sends its new estimate on its out-links;
 4. the monitor (a callback of the tick, after the agents') records every agent's
@@ -28,11 +28,11 @@ from typing import Any, Protocol
 import numpy as np
 import simpy
 
-from models.delays import DelayModel
-from models.plant import LinearPlant
 from netsim import interrupt
 from netsim.deliveries import DeliveryCalendar
 from netsim.links import ConfiguredLink, Link, Message, resolve_link, sender_function
+from netsim.models.delays import DelayModel
+from netsim.models.plant import LinearPlant
 
 __all__ = [
     "KernelObserver",
@@ -64,7 +64,7 @@ class HostedEstimator(Protocol):
     of the last update), and an ``out`` parameter of ``step``: ``step(k, y, out)``
     may put the estimate into ``out`` (the kernel's row of estimates for this agent
     and step, shape (n,), float64) and return it, saving the kernel a copy (see
-    :meth:`estimators.consensus.CompensatingEstimator.step`).
+    :meth:`netsim.estimators.consensus.CompensatingEstimator.step`).
     """
 
     def message_arrived(self, sender: int, sent_step: int, payload: np.ndarray) -> bool: ...
@@ -172,9 +172,9 @@ class Simulation:
     agents : sequence of AgentSpec
     delay_model : DelayModel
         Delay of every link (j, i) for j in agent i's in-neighbours. A model with a
-        ``link(sender, receiver)`` method (:class:`models.linkmodels.NetworkLinks`, what
+        ``link(sender, receiver)`` method (:class:`netsim.models.linkmodels.NetworkLinks`, what
         a scenario with a ``[links]`` table builds) also gives each link its
-        :class:`models.linkmodels.LinkModel` (own delays, loss, outages, buffer).
+        :class:`netsim.models.linkmodels.LinkModel` (own delays, loss, outages, buffer).
     plant_rng : numpy.random.Generator
         Stream for x_0, process and measurement noise.
     sample_period : float

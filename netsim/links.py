@@ -8,9 +8,9 @@ The delivery hands the message to the receiver.
 
 :class:`Link` is the plain link (delays only, plus the availability hook): its
 per-message path is one delay draw, one :class:`Message` and one calendar entry.
-:class:`ConfiguredLink` adds what a :class:`models.linkmodels.LinkModel` asks for:
+:class:`ConfiguredLink` adds what a :class:`netsim.models.linkmodels.LinkModel` asks for:
 outages, losses and a finite buffer of in-flight messages with a drop policy
-(definitions in :mod:`models.linkmodels`). Only links that have such a model pay for
+(definitions in :mod:`netsim.models.linkmodels`). Only links that have such a model pay for
 it. A cancelled delivery (drop-oldest, keep-latest) is not removed from the calendar:
 the message leaves the link's in-flight table, and the arrival callback ignores
 deliveries whose message is no longer in it.
@@ -41,8 +41,8 @@ from typing import Any
 import numpy as np
 import simpy
 
-from models.delays import DelayModel, latency_to_steps
 from netsim.deliveries import DeliveryCalendar
+from netsim.models.delays import DelayModel, latency_to_steps
 
 __all__ = [
     "Message", "Link", "ConfiguredLink", "resolve_link", "sender_function",
@@ -95,7 +95,7 @@ class Link:
     env : simpy.Environment
     sender, receiver : int
     delay_model : DelayModel
-        Step delays or continuous latencies, see :mod:`models.delays`.
+        Step delays or continuous latencies, see :mod:`netsim.models.delays`.
     deliver : callable(Message) -> None
         Called at the arrival time.
     sample_period : float
@@ -254,7 +254,7 @@ class ConfiguredLink(Link):
     __slots__ = ("loss", "outages", "capacity", "policy", "in_flight", "_newest_delivered")
 
     def configure(self, model) -> None:
-        """Apply a :class:`models.linkmodels.LinkModel` (its delay model too, if set)."""
+        """Apply a :class:`netsim.models.linkmodels.LinkModel` (its delay model too, if set)."""
         if model.delay is not None:
             self.delay_model = model.delay
         self.loss = model.loss
@@ -353,7 +353,7 @@ def resolve_link(delay_model: DelayModel, sender: int, receiver: int,
 
     ``link_models`` (mapping (sender, receiver) -> LinkModel) takes precedence over the
     delay model's own ``link()``. Returns the link's delay model and its
-    :class:`models.linkmodels.LinkModel`, or None when the link needs no loss, outage
+    :class:`netsim.models.linkmodels.LinkModel`, or None when the link needs no loss, outage
     or buffer (a plain :class:`Link`).
     """
     model = link_models.get((sender, receiver)) if link_models is not None else None

@@ -27,8 +27,8 @@ from functools import cached_property
 
 import numpy as np
 
-from models.delays import DelayModel
 from netsim.links import resolve_link
+from netsim.models.delays import DelayModel
 
 __all__ = [
     "DELIVERED",

@@ -17,26 +17,26 @@ from typing import Any
 
 import numpy as np
 
-from estimators.consensus import (
+from netsim.estimators.consensus import (
     BlockUpdateEstimator,
     CompensatingEstimator,
     ConsensusParameters,
     UncompensatedEstimator,
 )
-from estimators.gains import GainDesign, design_gains, gains_from_matrices
-from estimators.kalman import CentralizedKalmanFilter
-from models.augmented import (
+from netsim.estimators.gains import GainDesign, design_gains, gains_from_matrices
+from netsim.estimators.kalman import CentralizedKalmanFilter
+from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
+from netsim.models.augmented import (
     augmented_closed_loop,
     delay_bound_lcsys,
     spectral_radius,
     tau_star,
 )
-from models.delays import latency_to_steps
-from models.jsonsafe import json_number as _json_float
-from models.jsonsafe import json_tree as _json_tree
-from models.scenario import Scenario
-from models.seeding import SeedLike, child_sequence, stream
-from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
+from netsim.models.delays import latency_to_steps
+from netsim.models.jsonsafe import json_number as _json_float
+from netsim.models.jsonsafe import json_tree as _json_tree
+from netsim.models.scenario import Scenario
+from netsim.models.seeding import SeedLike, child_sequence, stream
 
 __all__ = [
     "GROWTH_TOLERANCE",
@@ -371,7 +371,7 @@ def _summarise(
 def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_trace,
                   batch=None, batch_trial=None):
     """Run (event kernel) or replay (``batch``: a vectorised batch) trial t into a trace."""
-    from traces.recorder import TraceRecorder, trace_path
+    from netsim.traces.recorder import TraceRecorder, trace_path
 
     path = trace_path(trace) if single else trace_path(trace, family, t)
     recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps)
@@ -426,7 +426,7 @@ def run_monte_carlo(
     trace : str, optional
         Record every run to MCAP: the file ``trace`` itself for a single run, else one
         file per family and trial, ``<stem>.<family>.trial<k>.mcap``
-        (:func:`traces.recorder.trace_path`).
+        (:func:`netsim.traces.recorder.trace_path`).
     on_trace : callable(str), optional
         Called with each trace file's path once it is finished.
     engine : str

@@ -25,7 +25,7 @@ that finished and resumes where it stopped. A partial last line (the writer was
 killed mid-line) is cut off.
 
 Determinism. A cell's randomness comes only from its parameters and the root seed:
-``seed`` is :func:`cell_seed` (``models.seeding.child_sequence(root_seed, "sweep",
+``seed`` is :func:`cell_seed` (``netsim.models.seeding.child_sequence(root_seed, "sweep",
 <key digits>)``), and ``fn`` may also derive streams from the root seed and the
 parameters (the benchmark derives Monte Carlo trial seeds from the root seed so that
 every estimator sees the same trials). Nothing depends on the executor, the number
@@ -52,7 +52,7 @@ from typing import Any
 
 import numpy as np
 
-from models.seeding import child_sequence
+from netsim.models.seeding import child_sequence
 
 __all__ = [
     "DEFAULT_WORKERS",

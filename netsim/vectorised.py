@@ -14,7 +14,7 @@ What is the same as the kernel, by construction:
 * the update rules: LCSYS2022 eqs. (4)-(5) with A^(k - s) compensation, the
   delay-tolerant paper's eqs. (6)-(7) with A and the most recently arrived message,
   LCSYS2022 eqs. (15)-(16) for the block update, the Kalman filter of
-  :class:`estimators.kalman.CentralizedKalmanFilter`; substitution of the agent's own
+  :class:`netsim.estimators.kalman.CentralizedKalmanFilter`; substitution of the agent's own
   prediction before anything arrived from a neighbour (DESIGN.md);
 * the outputs: one :class:`netsim.kernel.TrialResult` per trial, with the same
   divergence rule and message counts.
@@ -36,10 +36,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from estimators.gains import GainDesign
-from models.scenario import Scenario
-from models.seeding import SeedLike, stream
 from netsim import interrupt
+from netsim.estimators.gains import GainDesign
 from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult, squared_threshold
 from netsim.linkschedule import (
     LinkSchedule,
@@ -47,6 +45,8 @@ from netsim.linkschedule import (
     build_schedule,
     select_messages,
 )
+from netsim.models.scenario import Scenario
+from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "BATCH_ELEMENTS",

@@ -2,7 +2,7 @@
 
 The vectorised engine (:mod:`netsim.vectorised`) computes a batch of trials without
 events, but everything the event kernel reports to its observer (a
-:class:`netsim.kernel.KernelObserver`, e.g. the MCAP :class:`traces.recorder.TraceRecorder`)
+:class:`netsim.kernel.KernelObserver`, e.g. the MCAP :class:`netsim.traces.recorder.TraceRecorder`)
 follows from what it keeps: the states and measurements, every agent's estimates, the
 link schedule (each message's delay, arrival and fate) and the message selection
 (which message each receiver held at each step, which ones the freshest rule
@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
-from models.scenario import Scenario
 from netsim import interrupt
 from netsim.kernel import KernelObserver
 from netsim.links import REASON_DROP_OLDEST, REASON_SUPERSEDED, Message
 from netsim.linkschedule import DELIVERED
+from netsim.models.scenario import Scenario
 from netsim.vectorised import VectorisedBatch
 
 __all__ = ["replay_trial", "trial_events"]

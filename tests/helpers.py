@@ -5,8 +5,7 @@ from __future__ import annotations
 from dataclasses import replace
 
 import numpy as np
-
-from models.scenario import DelaySpec, Scenario, resolve_scenario
+from netsim.models.scenario import DelaySpec, Scenario, resolve_scenario
 
 __all__ = ["lcsys", "with_delays", "lockstep_compensated", "example", "N_AGENTS", "N_STATES"]
 

@@ -16,8 +16,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
-
-from estimators.aoi import (
+from netsim.estimators.aoi import (
     OMEGA,
     AoIDesign,
     FreshnessObserver,
@@ -28,15 +27,16 @@ from estimators.aoi import (
     nilpotency_index,
     rate_gain,
 )
-from models.decomposition import NotObservableError, multi_sensor_decomposition
-from models.observability import is_observable
-from models.topology import (
+from netsim.models.decomposition import NotObservableError, multi_sensor_decomposition
+from netsim.models.observability import is_observable
+from netsim.models.topology import (
     GraphSequence,
     random_jointly_connected,
     random_jointly_rooted,
     smallest_joint_period,
     smallest_rooted_period,
 )
+
 from netsim.aoi import (
     AoIScenario,
     _plant,
@@ -630,8 +630,8 @@ def random_aoi_scenario_small():
 
 
 def test_record_aoi_run_writes_a_trace_with_freshness_hook(tmp_path):
-    from traces.reader import read_trace
-    from traces.recorder import TraceRecorder
+    from netsim.traces.reader import read_trace
+    from netsim.traces.recorder import TraceRecorder
 
     calls = []
 

@@ -5,13 +5,11 @@ delay-tolerant paper eqs. 11, 17, Theorem 1 (and a counterexample to its bound).
 
 from __future__ import annotations
 
+import netsim.models.augmented as aug
 import numpy as np
 import pytest
 from helpers import N_AGENTS, N_STATES, example  # noqa: E402,F401
-from scipy.linalg import block_diag
-
-import models.augmented as aug
-from models.augmented import (
+from netsim.models.augmented import (
     TauStar,
     augmented_closed_loop,
     augmented_consensus,
@@ -34,6 +32,7 @@ from models.augmented import (
     tau_star,
     tau_star_report,
 )
+from scipy.linalg import block_diag
 
 
 def random_gains(rng, C, scale=0.5):

@@ -16,8 +16,8 @@ import sys
 from pathlib import Path
 
 import pytest
+from netsim.models.scenario import builtin_scenarios, load_scenario
 
-from models.scenario import builtin_scenarios, load_scenario
 from netsim.cli import main
 
 BUILTIN = "lcsys2022-heterogeneous"

@@ -85,7 +85,8 @@ def test_text_table_and_resume(tiny_json, capsys):
 
 def test_cell_agrees_with_netsim_run(tiny_json):
     """A benchmark cell uses netsim run's trial seeds and definitions."""
-    from models.scenario import DelaySpec
+    from netsim.models.scenario import DelaySpec
+
     from netsim.runner import run_monte_carlo, scenario_gains
 
     data, _, _ = tiny_json

@@ -47,7 +47,7 @@ def test_same_seed_same_json_bit_for_bit():
 
 
 def test_divergence_is_a_reported_result_not_a_crash(capsys, tmp_path):
-    from models.scenario import builtin_scenarios
+    from netsim.models.scenario import builtin_scenarios
 
     text = builtin_scenarios()["lcsys2022-heterogeneous"].read_text()
     zero = "K = [" + ", ".join(["[" + ", ".join(["[0,0,0,0,0,0]"] * 6) + "]"] * 4) + "]"

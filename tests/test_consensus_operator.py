@@ -1,6 +1,6 @@
 """The one-product update of the consensus estimators is the papers' two-stage update.
 
-:mod:`estimators.consensus` computes the update of step k >= 1 as one product with a
+:mod:`netsim.estimators.consensus` computes the update of step k >= 1 as one product with a
 stacked operator [G_own, G_j..., L] cached per pattern of lags. :class:`Reference`
 below is written directly from the equations instead -- first the prior, then the
 innovation, one A^r product per neighbour:
@@ -22,13 +22,12 @@ size, disabled, and tiny.
 
 from __future__ import annotations
 
+import netsim.estimators.consensus
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-import estimators.consensus
-from estimators.consensus import (
+from netsim.estimators.consensus import (
     NO_MESSAGE,
     BlockUpdateEstimator,
     CompensatingEstimator,
@@ -249,7 +248,7 @@ BUDGETS = [None, 0, 200, 2000]
 @given(case=cases)
 def test_operator_update_equals_the_two_stage_equations(monkeypatch, budget, case):
     if budget is not None:
-        monkeypatch.setattr(estimators.consensus, "OPERATOR_CACHE_BYTES", budget)
+        monkeypatch.setattr(netsim.estimators.consensus, "OPERATOR_CACHE_BYTES", budget)
     check_agreement(*case)
 
 
@@ -257,7 +256,7 @@ def test_operator_update_equals_the_two_stage_equations(monkeypatch, budget, cas
 def test_cache_budget_is_respected_and_both_paths_run(monkeypatch, budget):
     """The budget decides the path: with none, every operator is assembled afresh."""
     if budget is not None:
-        monkeypatch.setattr(estimators.consensus, "OPERATOR_CACHE_BYTES", budget)
+        monkeypatch.setattr(netsim.estimators.consensus, "OPERATOR_CACHE_BYTES", budget)
     rng = np.random.default_rng(3)
     agent, weights, A, C, L, prior = random_system(rng, 3, 2, 4, 1.1)
     weights = np.full(4, 0.25)
@@ -279,7 +278,7 @@ def test_cache_budget_is_respected_and_both_paths_run(monkeypatch, budget):
     if budget is None:
         # all three neighbours heard from: three lag patterns (lags 1, 2, 3 in turn)
         assert len([key for key in cached if NO_MESSAGE not in key]) == 3
-        assert used <= estimators.consensus.OPERATOR_CACHE_BYTES
+        assert used <= netsim.estimators.consensus.OPERATOR_CACHE_BYTES
     elif budget == 0:
         assert not cached
     else:
@@ -321,11 +320,11 @@ def test_a_message_used_at_its_own_step_is_an_error(family):
     # a host that delivers a message stamped k before the update of step k is broken;
     # the estimator says so instead of using a lag of 0 (also when its operator for
     # the same lags is cached)
-    params = estimators.consensus.ConsensusParameters(
+    params = netsim.estimators.consensus.ConsensusParameters(
         0, np.array([0.5, 0.5]), np.eye(2), np.ones((1, 2)), np.zeros((2, 1)), np.zeros(2))
-    cls = {"compensated": estimators.consensus.CompensatingEstimator,
-           "uncompensated": estimators.consensus.UncompensatedEstimator}.get(family)
-    est = cls(params) if cls else estimators.consensus.BlockUpdateEstimator(params, tau=0)
+    cls = {"compensated": netsim.estimators.consensus.CompensatingEstimator,
+           "uncompensated": netsim.estimators.consensus.UncompensatedEstimator}.get(family)
+    est = cls(params) if cls else netsim.estimators.consensus.BlockUpdateEstimator(params, tau=0)
     est.step(0, np.zeros(1))
     est.message_arrived(1, 0, np.ones(2))
     est.step(1, np.zeros(1))  # lag 1: fine, and its operator is now cached

@@ -22,12 +22,12 @@ import pytest
 import simpy
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from netsim.models.scenario import parse_scenario
+from netsim.models.seeding import child_sequence
 from simpy.core import NORMAL, URGENT
 from simpy.events import Event
 
 import netsim.kernel
-from models.scenario import parse_scenario
-from models.seeding import child_sequence
 from netsim.deliveries import DeliveryCalendar
 from netsim.runner import run_trial
 

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 from helpers import lcsys
+from netsim.models.augmented import augmented_closed_loop, spectral_radius
 
-from models.augmented import augmented_closed_loop, spectral_radius
 from netsim.cli import main
 
 

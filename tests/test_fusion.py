@@ -16,8 +16,7 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from estimators.fusion import (
+from netsim.estimators.fusion import (
     FusionCentre,
     FusionCovariance,
     MissingSelection,
@@ -29,8 +28,9 @@ from estimators.fusion import (
     run_lockstep,
     weights_as_printed_79,
 )
-from models import dkfe as dk
-from models.seeding import child_sequence
+from netsim.models import dkfe as dk
+from netsim.models.seeding import child_sequence
+
 from netsim import fusion as nf
 
 Z_MAX = 5.0

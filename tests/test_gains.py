@@ -3,13 +3,11 @@ design (Discussion 5), direct refinement, method selection."""
 
 from __future__ import annotations
 
+import netsim.estimators.gains as gains_module
 import numpy as np
 import pytest
 from helpers import N_AGENTS, N_STATES, example  # noqa: E402,F401
-from scipy.linalg import block_diag
-
-import estimators.gains as gains_module
-from estimators.gains import (
+from netsim.estimators.gains import (
     GainDesign,
     GainDesignError,
     design_gains,
@@ -18,7 +16,8 @@ from estimators.gains import (
     refine_gains,
     select_method,
 )
-from models.augmented import augmented_closed_loop, spectral_radius
+from netsim.models.augmented import augmented_closed_loop, spectral_radius
+from scipy.linalg import block_diag
 
 
 def rho_from_L(P, A, C, L):

@@ -7,8 +7,8 @@ import pytest
 from helpers import lcsys, lockstep_compensated, with_delays
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from netsim.models.seeding import child_sequence
 
-from models.seeding import child_sequence
 from netsim.runner import run_trial, scenario_gains
 
 STEPS = 60
@@ -154,7 +154,7 @@ def test_same_seed_same_numbers_bit_for_bit(scenario, gains):
 def test_divergence_is_reported_with_its_step(scenario):
     from dataclasses import replace
 
-    from estimators.gains import gains_from_matrices
+    from netsim.estimators.gains import gains_from_matrices
 
     zero_gain = gains_from_matrices(
         [np.zeros((6, 6))] * 4, scenario.weights, scenario.plant.A, scenario.plant.C
@@ -197,8 +197,9 @@ def _scripted_run(scenario, errors_by_agent, threshold, steps=12):
     """Run the kernel with scripted errors; the states come from a first run."""
     from operator import itemgetter
 
-    from models.delays import FixedDelays
-    from models.seeding import stream
+    from netsim.models.delays import FixedDelays
+    from netsim.models.seeding import stream
+
     from netsim.kernel import AgentSpec, Simulation
 
     plant = scenario.plant
@@ -217,7 +218,7 @@ def _scripted_run(scenario, errors_by_agent, threshold, steps=12):
 
 def test_kernel_plant_is_the_step_by_step_recursion_of_its_stream(scenario):
     """x_k = A x_{k-1} + nu_k and y^i_k from stream(seed, 'plant'), drawn step by step."""
-    from models.seeding import stream
+    from netsim.models.seeding import stream
 
     seed = child_sequence(9, "trial", 0)
     run = run_trial(scenario, "compensated", scenario_gains(scenario), seed, STEPS)
@@ -302,8 +303,9 @@ def test_divergence_step_is_the_first_step_an_agent_fails_the_test(
     the threshold, some near the state, some far from it, some not finite."""
     from operator import itemgetter
 
-    from models.delays import FixedDelays
-    from models.seeding import stream
+    from netsim.models.delays import FixedDelays
+    from netsim.models.seeding import stream
+
     from netsim.kernel import ROUNDOFF_RELATIVE_ERROR, AgentSpec, Simulation
 
     plant, steps, n_agents = scenario.plant, 12, 3

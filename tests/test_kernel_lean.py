@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 import simpy
 from helpers import lcsys, with_delays
+from netsim.estimators.consensus import NO_MESSAGE, CompensatingEstimator, ConsensusParameters
+from netsim.models.delays import AsynchronousRandomDelays
+from netsim.models.seeding import child_sequence
 
-from estimators.consensus import NO_MESSAGE, CompensatingEstimator, ConsensusParameters
-from models.delays import AsynchronousRandomDelays
-from models.seeding import child_sequence
 from netsim.links import Link
 from netsim.runner import run_trial, scenario_gains
 
@@ -121,7 +121,8 @@ def test_last_delays_reflect_the_update_not_later_arrivals():
 
 def _send_program(build_send, kinds):
     """Send 30 steps on links 0 -> r with the given kinds; return what arrived when."""
-    from models.delays import FixedDelays
+    from netsim.models.delays import FixedDelays
+
     from netsim.deliveries import DeliveryCalendar
 
     env = simpy.Environment()

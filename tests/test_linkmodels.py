@@ -16,10 +16,8 @@ from dataclasses import replace
 import numpy as np
 import pytest
 from helpers import lcsys
-from scipy import stats
-
-from models.delays import FixedDelays, latency_to_steps
-from models.linkmodels import (
+from netsim.models.delays import FixedDelays, latency_to_steps
+from netsim.models.linkmodels import (
     BernoulliLoss,
     ConstantDelay,
     DistributionDelays,
@@ -34,9 +32,11 @@ from models.linkmodels import (
     UniformDelay,
     load_latency_csv,
 )
-from models.plant import LinearPlant
-from models.scenario import ScenarioError, builtin_scenarios, parse_scenario
-from models.seeding import child_sequence, stream
+from netsim.models.plant import LinearPlant
+from netsim.models.scenario import ScenarioError, builtin_scenarios, parse_scenario
+from netsim.models.seeding import child_sequence, stream
+from scipy import stats
+
 from netsim.kernel import AgentSpec, Simulation
 from netsim.links import ConfiguredLink, Link
 
@@ -525,9 +525,10 @@ def gains():
 
 
 def _record(tmp_path, scenario, gains, name, steps=80):
+    from netsim.traces.reader import read_trace
+    from netsim.traces.recorder import TraceRecorder
+
     from netsim.runner import run_trial
-    from traces.reader import read_trace
-    from traces.recorder import TraceRecorder
 
     path = tmp_path / f"{name}.mcap"
     with TraceRecorder.for_run(path, scenario, gains, "compensated", 0, seed=0,

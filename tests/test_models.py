@@ -10,9 +10,8 @@ import scipy.stats
 from helpers import lcsys
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from estimators.kalman import CentralizedKalmanFilter
-from models.delays import (
+from netsim.estimators.kalman import CentralizedKalmanFilter
+from netsim.models.delays import (
     BATCH_SIZE,
     AsynchronousRandomDelays,
     BatchedDraws,
@@ -20,7 +19,7 @@ from models.delays import (
     heterogeneous_delays,
     latency_to_steps,
 )
-from models.network import (
+from netsim.models.network import (
     check_consensus_matrix,
     directed_cycle,
     geometric,
@@ -29,8 +28,9 @@ from models.network import (
     random_weights,
     uniform_weights,
 )
-from models.plant import LinearPlant
-from models.seeding import child_sequence, stream
+from netsim.models.plant import LinearPlant
+from netsim.models.seeding import child_sequence, stream
+
 from netsim.runner import run_trial
 
 

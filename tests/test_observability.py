@@ -8,11 +8,8 @@ import networkx as nx
 import numpy as np
 import pytest
 import scipy.linalg
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import structural_rank as scipy_structural_rank
-
-from models.network import directed_cycle, random_strongly_connected, random_weights
-from models.observability import (
+from netsim.models.network import directed_cycle, random_strongly_connected, random_weights
+from netsim.models.observability import (
     ObservabilityReport,
     distributed_observability,
     distributed_output_matrix,
@@ -37,7 +34,9 @@ from models.observability import (
     structural_rank,
     unobservable_modes,
 )
-from models.scenario import resolve_scenario
+from netsim.models.scenario import resolve_scenario
+from scipy.sparse import csr_matrix
+from scipy.sparse.csgraph import structural_rank as scipy_structural_rank
 
 
 def kalman_rank(A, C, tol=1e-9):

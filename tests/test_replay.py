@@ -16,21 +16,21 @@ from pathlib import Path
 import matplotlib.image as mpimg
 import numpy as np
 import pytest
-
-from models.augmented import (
+from netsim.models.augmented import (
     augmented_closed_loop,
     closed_loop_sequence_growth,
     delay_bound_lcsys,
     spectral_radius,
     tau_star,
 )
-from models.scenario import resolve_scenario
+from netsim.models.scenario import resolve_scenario
+from netsim.traces.analysis import DECAY_TOLERANCE, analyze_trace, growth_rates
+from netsim.traces.plot import plot_traces
+from netsim.traces.reader import read_trace
+from netsim.traces.recorder import TraceRecorder
+from netsim.traces.replay import replay_trace, trace_system
+
 from netsim.runner import fixed_delay_matrix, run_trial, scenario_gains
-from traces.analysis import DECAY_TOLERANCE, analyze_trace, growth_rates
-from traces.plot import plot_traces
-from traces.reader import read_trace
-from traces.recorder import TraceRecorder
-from traces.replay import replay_trace, trace_system
 
 STEPS = 120
 SEED = 5
@@ -280,8 +280,9 @@ def test_plot_needs_a_trace(tmp_path):
 
 
 def test_traces_modules_do_not_import_netsim_or_simpy():
-    code = ("import sys, traces.replay, traces.analysis, traces.plot; "
-            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('netsim', 'simpy')); "
+    code = ("import sys, netsim.traces.replay, netsim.traces.analysis, netsim.traces.plot; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'simpy' or "
+            "(m.startswith('netsim.') and m.split('.')[1] not in ('models', 'traces'))); "
             "print(bad); sys.exit(1 if bad else 0)")
     result = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                             text=True, timeout=120)

@@ -8,10 +8,9 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from models.delays import homogeneous_delays
-from models.plant import LinearPlant
-from models.topology import (
+from netsim.models.delays import homogeneous_delays
+from netsim.models.plant import LinearPlant
+from netsim.models.topology import (
     GraphSequence,
     LinkSchedule,
     TopologyError,
@@ -29,6 +28,7 @@ from models.topology import (
     static_sequence,
     window_unions,
 )
+
 from netsim.kernel import AgentSpec, Simulation
 
 CYCLE3 = [(0, 1), (1, 2), (2, 0)]

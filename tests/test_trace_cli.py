@@ -10,9 +10,9 @@ import sys
 import time
 
 import pytest
+from netsim.traces.reader import read_trace
 
 from netsim.cli import main
-from traces.reader import read_trace
 
 
 @pytest.fixture(scope="module")

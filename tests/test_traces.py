@@ -19,15 +19,15 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 from mcap.writer import Writer
 from mcap_protobuf.decoder import DecoderFactory
+from netsim.models.scenario import DelaySpec, resolve_scenario
+from netsim.traces.inspect import delay_statistics, inspect_trace
+from netsim.traces.reader import NOT_USED as TRACE_NOT_USED
+from netsim.traces.reader import TraceError, read_trace
+from netsim.traces.recorder import TRACE_FORMAT, TraceRecorder, to_ns, trace_path
+from netsim.traces.schemas import MESSAGE_TYPES, PACKAGE, file_descriptor_set, message_class
 
-from models.scenario import DelaySpec, resolve_scenario
 from netsim.kernel import NOT_USED
 from netsim.runner import run_trial, scenario_gains
-from traces.inspect import delay_statistics, inspect_trace
-from traces.reader import NOT_USED as TRACE_NOT_USED
-from traces.reader import TraceError, read_trace
-from traces.recorder import TRACE_FORMAT, TraceRecorder, to_ns, trace_path
-from traces.schemas import MESSAGE_TYPES, PACKAGE, file_descriptor_set, message_class
 
 STEPS = 50
 SEED = 7
@@ -346,9 +346,9 @@ def test_killed_writer_subprocess(setup, tmp_path):
     path = tmp_path / "killed.mcap"
     script = textwrap.dedent(f"""
         import os, pickle
-        from models.scenario import DelaySpec, resolve_scenario
+        from netsim.models.scenario import DelaySpec, resolve_scenario
         from netsim.runner import run_trial
-        from traces.recorder import TraceRecorder
+        from netsim.traces.recorder import TraceRecorder
         s = resolve_scenario("lcsys2022-time-varying").with_tau(4)
         gains = pickle.loads(open({str(gains_file)!r}, "rb").read())
         rec = TraceRecorder.for_run({str(path)!r}, s, gains, "compensated", 0,
@@ -524,8 +524,10 @@ def test_continuous_latencies_with_sample_period(setup, tmp_path):
 
 
 def test_traces_package_does_not_import_netsim_or_simpy():
-    code = ("import sys, traces.schemas, traces.recorder, traces.reader, traces.inspect; "
-            "bad = sorted(m for m in sys.modules if m.split('.')[0] in ('netsim', 'simpy')); "
+    code = ("import sys, netsim.traces.schemas, netsim.traces.recorder, netsim.traces.reader, "
+            "netsim.traces.inspect; "
+            "bad = sorted(m for m in sys.modules if m.split('.')[0] == 'simpy' or "
+            "(m.startswith('netsim.') and m.split('.')[1] not in ('models', 'traces'))); "
             "assert not bad, bad")
     done = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True,
                           text=True, timeout=60)

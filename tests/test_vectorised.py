@@ -17,9 +17,9 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from netsim.models.scenario import parse_scenario
+from netsim.models.seeding import child_sequence
 
-from models.scenario import parse_scenario
-from models.seeding import child_sequence
 from netsim.runner import run_monte_carlo, run_trial
 from netsim.vectorised import run_vectorised, simulate_plant
 from tests.helpers import lcsys, with_delays
@@ -217,7 +217,7 @@ def test_plant_noise_is_the_kernels_stream():
     seeds = [child_sequence(5, "trial", t) for t in range(2)]
     batch = simulate_plant(scenario, seeds, 20)
     plant = scenario.plant
-    from models.seeding import stream
+    from netsim.models.seeding import stream
 
     for t, seed in enumerate(seeds):
         rng = stream(seed, "plant")
@@ -278,7 +278,7 @@ def test_batches_of_trials_give_the_trials_results(monkeypatch):
 
 def test_engines_agree_on_trace_driven_links(tmp_path):
     """Links replaying a recorded trace (delays and drops, by sequence number)."""
-    from models.scenario import parse_scenario
+    from netsim.models.scenario import parse_scenario
 
     base = lcsys()
     data = {

@@ -16,17 +16,17 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
+from netsim.models.scenario import parse_scenario
+from netsim.models.seeding import child_sequence
+from netsim.traces.reader import read_trace
+from netsim.traces.recorder import TraceRecorder
 
-from models.scenario import parse_scenario
-from models.seeding import child_sequence
 from netsim import interrupt
 from netsim.runner import choose_engine, run_monte_carlo, run_trial
 from netsim.vectorised import run_batch
 from netsim.vectrace import replay_trial, trial_events
 from tests.helpers import lcsys, with_delays
 from tests.test_vectorised import random_case
-from traces.reader import read_trace
-from traces.recorder import TraceRecorder
 
 TOLERANCE = 1e-9
 FAMILIES = ("compensated", "uncompensated", "block", "centralized-kf")

@@ -1,11 +1,11 @@
-"""MCAP traces of simulation runs: record (:mod:`traces.recorder`), read back and
-recover (:mod:`traces.reader`), summarise (:mod:`traces.inspect`); message types in
-:mod:`traces.schemas`. This package imports ``models`` but never ``netsim``/``simpy``.
+"""MCAP traces of simulation runs: record (:mod:`netsim.traces.recorder`), read back and
+recover (:mod:`netsim.traces.reader`), summarise (:mod:`netsim.traces.inspect`); message types in
+:mod:`netsim.traces.schemas`. This package imports ``models`` but never ``netsim``/``simpy``.
 """
 
-from traces.inspect import InspectReport, inspect_trace
-from traces.reader import Trace, TraceError, read_trace
-from traces.recorder import TraceRecorder, trace_path
+from netsim.traces.inspect import InspectReport, inspect_trace
+from netsim.traces.reader import Trace, TraceError, read_trace
+from netsim.traces.recorder import TraceRecorder, trace_path
 
 __all__ = [
     "InspectReport",

@@ -26,7 +26,7 @@ block estimator's own per-step rate, rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)) w
 its period tau+1 (eq. 26's expression is exact for it); ``centralized-kf`` has no
 augmented closed loop (only the error decay is reported).
 
-This module imports ``models`` (``models.augmented``), never ``netsim`` or ``simpy``.
+This module imports ``models`` (``netsim.models.augmented``), never ``netsim`` or ``simpy``.
 """
 
 from __future__ import annotations
@@ -37,8 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
-from models.augmented import (
+from netsim.models.augmented import (
     DEFAULT_TAU_MAX,
     augmented_closed_loop,
     augmented_spectral_radius,
@@ -48,9 +47,9 @@ from models.augmented import (
     spectral_radius,
     tau_star_report,
 )
-from models.jsonsafe import json_number as _num
-from traces.reader import NOT_USED, Trace
-from traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system
+from netsim.models.jsonsafe import json_number as _num
+from netsim.traces.reader import NOT_USED, Trace
+from netsim.traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system
 
 __all__ = [
     "BOUND_SLACK",
@@ -95,8 +94,8 @@ def _fmt(value: float | None, digits: int = 4) -> str:
 def pattern_rho(system: TraceSystem, delays: np.ndarray, compensated: bool) -> float:
     """Exact spectral radius of A-hat for one step's effective delays (shape (N, N)).
 
-    ``models.augmented.augmented_spectral_radius`` of (P_eff, r_eff) (see
-    :func:`traces.replay.effective_pattern`) at the pattern's own depth (deeper
+    ``netsim.models.augmented.augmented_spectral_radius`` of (P_eff, r_eff) (see
+    :func:`netsim.traces.replay.effective_pattern`) at the pattern's own depth (deeper
     augmentation only adds zero eigenvalues).
     """
     P_eff, r_eff = effective_pattern(system.P, delays)
@@ -118,7 +117,7 @@ def growth_rates(system: TraceSystem, patterns: list[np.ndarray], tau: int,
     Pi without its last block row]) and renormalised (Frobenius) every step; the logs
     of the scale factors are summed. (NaN, NaN) for an empty sequence.
 
-    ``models.augmented.closed_loop_sequence_growth`` computes ``full`` for patterns on a
+    ``netsim.models.augmented.closed_loop_sequence_growth`` computes ``full`` for patterns on a
     fixed P; it is not used here because a start-up step with a substitution (r = -1)
     moves p_ij onto p_ii, i.e. changes P for that step.
     """
@@ -295,7 +294,7 @@ class TraceAnalysis:
         Largest tau scanned for tau*.
     tau_star_isolated : tuple of int
         Passing tau above tau* + 1 (Theorem 1's condition is not monotone in tau when A
-        has negative or complex unstable eigenvalues; ``models.augmented.TauStar``).
+        has negative or complex unstable eigenvalues; ``netsim.models.augmented.TauStar``).
     bound_lcsys_eq26, bound_delay_tolerant : float or None
         At tau_obs.
     patterns : list of PatternStats

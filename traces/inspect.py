@@ -1,6 +1,6 @@
 """Summaries of a trace: what is in the file, link delays, drops, reorderings, errors.
 
-:func:`inspect_trace` turns a :class:`traces.reader.Trace` into an
+:func:`inspect_trace` turns a :class:`netsim.traces.reader.Trace` into an
 :class:`InspectReport`; ``report.to_dict()`` is JSON-ready and ``report.format_text()``
 (also ``str(report)``) is the human-readable form.
 
@@ -25,9 +25,8 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
-
-from models.jsonsafe import json_number as _num
-from traces.reader import Trace
+from netsim.models.jsonsafe import json_number as _num
+from netsim.traces.reader import Trace
 
 __all__ = ["LinkStats", "AgentStats", "InspectReport", "inspect_trace", "delay_statistics"]
 
@@ -235,7 +234,7 @@ def _fmt(value: Any, digits: int = 0, sci: bool = False) -> str:
 
 
 def inspect_trace(trace: Trace) -> InspectReport:
-    """Summarise a trace read by :func:`traces.reader.read_trace`."""
+    """Summarise a trace read by :func:`netsim.traces.reader.read_trace`."""
     links: dict[tuple[int, int], LinkStats] = {}
 
     def link(j: int, i: int) -> LinkStats:

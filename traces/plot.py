@@ -16,7 +16,7 @@
    maximum delay tau_obs (and a dotted one at tau*), and a marker per consensus trace
    at the exact rho of its realised (last-step) delay pattern.
 
-This module imports ``models`` (``models.augmented``), never ``netsim`` or ``simpy``.
+This module imports ``models`` (``netsim.models.augmented``), never ``netsim`` or ``simpy``.
 """
 
 from __future__ import annotations
@@ -31,15 +31,14 @@ matplotlib.use("Agg")
 
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
-
-from models.augmented import (  # noqa: E402
+from netsim.models.augmented import (  # noqa: E402
     augmented_spectral_radius,
     delay_bound_lcsys,
     delay_bound_tolerant,
     tau_star,
 )
-from traces.reader import NOT_USED, Trace  # noqa: E402
-from traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system  # noqa: E402
+from netsim.traces.reader import NOT_USED, Trace  # noqa: E402
+from netsim.traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system  # noqa: E402
 
 __all__ = ["plot_traces", "homogeneous_rho", "TAU_PLOT_MAX"]
 
@@ -64,7 +63,7 @@ def _label(trace: Trace) -> str:
 
 def homogeneous_rho(system: TraceSystem, tau: int, compensated: bool) -> float:
     """Exact rho of the augmented closed loop with every link delayed by ``tau``
-    (self-loops 0), by ``models.augmented.augmented_spectral_radius``."""
+    (self-loops 0), by ``netsim.models.augmented.augmented_spectral_radius``."""
     N = system.n_agents
     delays = np.where((system.P != 0) & ~np.eye(N, dtype=bool), int(tau), 0)
     with np.errstate(over="ignore", invalid="ignore"):
@@ -246,7 +245,7 @@ def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
     Parameters
     ----------
     traces : sequence of Trace
-        Read with :func:`traces.reader.read_trace`; the spectral panel uses the matrices
+        Read with :func:`netsim.traces.reader.read_trace`; the spectral panel uses the matrices
         of the first trace that has P, A, C_i and L_i.
     path : str or os.PathLike
         The PNG file to write (parent directories must exist).

@@ -33,8 +33,7 @@ from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, 
 from mcap.stream_reader import StreamReader, breakup_chunk
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
-
-from traces.schemas import PACKAGE
+from netsim.traces.schemas import PACKAGE
 
 __all__ = ["NOT_USED", "TraceError", "TraceRecord", "Trace", "read_trace"]
 

@@ -32,7 +32,7 @@ Attachments: each matrix as ``<name>.npy`` (numpy ``.npy`` bytes, media type
 ``application/x-npy``): ``A``, ``C_<i>``, ``Q``, ``R_<i>``, ``x0_mean``, ``x0_cov``,
 ``P`` (consensus weights), ``K_<i>``, ``L_<i>`` (gains), as given.
 
-Topics (schemas in :mod:`traces.schemas`, package ``netsim.trace``):
+Topics (schemas in :mod:`netsim.traces.schemas`, package ``netsim.trace``):
 
 ====================================  ===================  =============================
 topic                                 type                 one message per
@@ -59,7 +59,7 @@ sequence number for link events and the step otherwise.
 
 Crash safety: the chunk in progress is closed and flushed to the OS every
 ``flush_every`` steps (and every ``flush_seconds`` of wall-clock time), so a killed
-writer loses at most that much; :func:`traces.reader.read_trace` recovers every
+writer loses at most that much; :func:`netsim.traces.reader.read_trace` recovers every
 complete chunk. Used as a context manager, the recorder finishes the file (summary,
 indexes, footer) even when the run raises, e.g. on KeyboardInterrupt, and notes the
 interruption in ``run_status``.
@@ -79,8 +79,7 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
-
-from traces.schemas import file_descriptor_set, message_classes, schema_name
+from netsim.traces.schemas import file_descriptor_set, message_classes, schema_name
 
 __all__ = [
     "TRACE_FORMAT",
@@ -174,7 +173,7 @@ def _json_default(value: Any) -> Any:
 
 
 def scenario_metadata(scenario: Any) -> dict[str, str]:
-    """Return a ``models.scenario.Scenario`` as MCAP metadata (string values).
+    """Return a ``netsim.models.scenario.Scenario`` as MCAP metadata (string values).
 
     Every key of ``scenario.summary()`` (structured values as JSON), the sample
     period, divergence threshold, gains method and the delay specification.
@@ -365,8 +364,8 @@ class TraceRecorder:
         steps: int | None = None,
         **options: Any,
     ) -> TraceRecorder:
-        """Recorder for one run of ``scenario`` (a ``models.scenario.Scenario``) with
-        ``gains`` (an ``estimators.gains.GainDesign`` or None).
+        """Recorder for one run of ``scenario`` (a ``netsim.models.scenario.Scenario``) with
+        ``gains`` (an ``netsim.estimators.gains.GainDesign`` or None).
 
         ``steps`` defaults to ``scenario.steps``; ``options`` go to the constructor.
         """

@@ -22,7 +22,7 @@ Two versions of eta_k are replayed and both are reported:
     LCSYS2022 eq. (11) / delay-tolerant eq. (14): per agent
     eta^i_k = (I - L_i C_i) nu_k - L_i zeta^i_k.
 ``exact``
-    What the estimator's equations give (``estimators.consensus``): per agent
+    What the estimator's equations give (``netsim.estimators.consensus``): per agent
     eta^i_k = (I - L_i C_i) sum_j p_ij (x_k - A^(r_ij+1) x_{k-1-r_ij}) - L_i zeta^i_k
     (compensated), or the same with ``A`` in place of ``A^(r_ij+1)`` (uncompensated).
 
@@ -37,7 +37,7 @@ Only the consensus families ``compensated`` and ``uncompensated`` have this
 recursion; for any other family (``block``, ``centralized-kf``, ...) the report says
 replay is not defined (``defined=False``).
 
-This module imports ``models`` (``models.augmented``), never ``netsim`` or ``simpy``.
+This module imports ``models`` (``netsim.models.augmented``), never ``netsim`` or ``simpy``.
 """
 
 from __future__ import annotations
@@ -47,10 +47,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-
-from models.augmented import augmented_closed_loop
-from models.jsonsafe import json_number as _num
-from traces.reader import NOT_USED, Trace
+from netsim.models.augmented import augmented_closed_loop
+from netsim.models.jsonsafe import json_number as _num
+from netsim.traces.reader import NOT_USED, Trace
 
 __all__ = [
     "REPLAY_FAMILIES",
@@ -72,7 +71,7 @@ ROUNDOFF_TOLERANCE = 1e-9
 #: (matters on an unstable plant, where |x| outgrows |e| by many orders of magnitude).
 ROUNDOFF_STATE_FACTOR = 100.0
 #: Largest augmented dimension N n (tau+1) for which ``method="auto"`` builds A-hat[k]
-#: densely with :func:`models.augmented.augmented_closed_loop`.
+#: densely with :func:`netsim.models.augmented.augmented_closed_loop`.
 DENSE_LIMIT = 1500
 
 _CAUSE_PAPER_COMPENSATED = (
@@ -266,7 +265,7 @@ class ReplayReport:
     nonzero_delay_steps : int
         Steps k >= 1 with some effective delay > 0.
     method : str
-        ``dense`` (A-hat[k] from ``models.augmented.augmented_closed_loop``, cached per
+        ``dense`` (A-hat[k] from ``netsim.models.augmented.augmented_closed_loop``, cached per
         pattern) or ``agents`` (the same recursion agent by agent, no big matrices).
     tolerance : float
         Relative tolerance for "reproduces" as given.
@@ -428,9 +427,9 @@ def replay_trace(trace: Trace, *, method: str = "auto",
     Parameters
     ----------
     trace : Trace
-        Read by :func:`traces.reader.read_trace`.
+        Read by :func:`netsim.traces.reader.read_trace`.
     method : str
-        ``dense`` (A-hat[k] built with ``models.augmented.augmented_closed_loop``,
+        ``dense`` (A-hat[k] built with ``netsim.models.augmented.augmented_closed_loop``,
         cached per delay pattern), ``agents`` (the same recursion agent by agent, for
         large tau) or ``auto`` (dense if N n (tau+1) <= DENSE_LIMIT).
     tolerance : float

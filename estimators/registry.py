@@ -1,0 +1,411 @@
+"""The estimator-family registry: every family, built-in or plugged in, in one place.
+
+A *family* is a kind of estimator run on a scenario: its name, a factory that builds
+one trial's agents from a scenario, what it needs and what it supports. Each built-in
+family is declared by its own module (:data:`BUILTIN_MODULES`, each calling
+:func:`register` at import); nothing else names it. Everything that runs, traces or
+analyses estimators (the runner, the command line, ``inspect``, ``plot``, ``replay``,
+``bench``) asks this registry instead of comparing names.
+
+Three ways in for a user's estimator:
+
+- by name in a scenario, ``run.estimators = ["compensated", "mypkg.filters:MyFilter"]``:
+  ``module:attribute`` is imported; the attribute is an :class:`EstimatorFamily`, a
+  factory ``(FamilyContext) -> list of AgentPlan``, or a class implementing the
+  per-agent contract (:mod:`netsim.estimators.contract`), which is then built once
+  per agent by :func:`consensus_agents`' rules (``cls(context, agent)``; see
+  :func:`family_from_object`);
+- from Python: :func:`register`;
+- from an installed package: the entry-point group ``netsim.estimators`` (the entry
+  point's name is the family name, its value ``module:attribute`` as above).
+
+A name that does not import, or an object that is not an estimator, is one
+:class:`FamilyError` naming the scenario key and what is missing.
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from netsim.estimators.contract import ContractError, check_estimator
+
+__all__ = [
+    "BUILTIN_MODULES",
+    "ENTRY_POINT_GROUP",
+    "FamilyError",
+    "FamilyContext",
+    "AgentPlan",
+    "EstimatorFamily",
+    "register",
+    "unregister",
+    "get_family",
+    "resolve_families",
+    "family_names",
+    "families",
+    "family_from_object",
+    "resolve_reference",
+]
+
+#: Modules that declare the built-in families (imported on first use of the registry).
+BUILTIN_MODULES = (
+    "netsim.estimators.consensus",
+    "netsim.estimators.kalman",
+)
+#: Entry-point group through which installed packages add families.
+ENTRY_POINT_GROUP = "netsim.estimators"
+
+
+class FamilyError(ValueError):
+    """A family name that cannot be resolved, or an object that is not a family.
+
+    Parameters
+    ----------
+    key : str
+        The scenario key or argument that named the family (``run.estimators``).
+    message : str
+    """
+
+    def __init__(self, key: str, message: str) -> None:
+        self.key = key
+        super().__init__(f"{key}: {message}")
+
+
+@dataclass(frozen=True)
+class FamilyContext:
+    """What a family's factory receives to build the agents of one trial.
+
+    Attributes
+    ----------
+    scenario : netsim.models.scenario.Scenario
+        The scenario (plant ``scenario.plant``: A, C_i, Q, R_i, prior; consensus
+        weights ``scenario.weights``, shape (N, N); graph ``scenario.graph``).
+    gains : netsim.estimators.gains.GainDesign or None
+        The scenario's innovation gains (None unless the family needs gains).
+    trial_seed : numpy.random.SeedSequence or int
+        The trial's seed; :meth:`stream` derives an agent's own random stream.
+    family : str
+        The name the family runs under.
+    """
+
+    scenario: Any
+    gains: Any
+    trial_seed: Any
+    family: str = ""
+
+    def stream(self, *names: Any) -> np.random.Generator:
+        """An independent random stream of this trial, ``(family, *names)``."""
+        from netsim.models.seeding import stream
+
+        return stream(self.trial_seed, "estimator", self.family, *names)
+
+    def in_neighbours(self, agent: int) -> list[int]:
+        """Agents that agent ``agent`` receives from (self excluded)."""
+        return sorted(j for j in self.scenario.graph.predecessors(agent) if j != agent)
+
+    def out_neighbours(self, agent: int) -> list[int]:
+        """Agents that agent ``agent`` sends to (self excluded)."""
+        return sorted(j for j in self.scenario.graph.successors(agent) if j != agent)
+
+
+@dataclass(frozen=True)
+class AgentPlan:
+    """One agent a family hosts in a run.
+
+    Attributes
+    ----------
+    estimator : object
+        Implements the per-agent contract (:class:`netsim.estimators.contract.Estimator`).
+    sensors : tuple of int
+        The sensors whose measurements the agent's ``step`` receives, concatenated in
+        this order (one agent, one sensor: ``(i,)``; a centralised filter: all; none: ``()``).
+    out_neighbours : tuple of int
+        The agents it sends to.
+    """
+
+    estimator: Any
+    sensors: tuple[int, ...]
+    out_neighbours: tuple[int, ...] = ()
+
+
+def _name_of(obj: Any) -> str:
+    return getattr(obj, "__qualname__", None) or type(obj).__name__
+
+
+@dataclass(frozen=True)
+class EstimatorFamily:
+    """A declared estimator family.
+
+    Attributes
+    ----------
+    name : str
+        What scenarios and commands call it.
+    build : callable(FamilyContext) -> sequence of AgentPlan
+        Builds one trial's agents.
+    description : str
+        One line for listings.
+    paper : str
+        The paper and equations it implements ("" for a user's family).
+    needs_gains : bool
+        Whether it uses the scenario's innovation gains L_i (designed once per run).
+    timestamps : bool
+        Whether it reads messages' time-stamps (False: it is told nothing about them).
+    needs_graph_sequence : bool
+        Whether it needs a time-varying graph sequence.
+    error_recursion : str or None
+        The augmented error recursion it declares (``compensated``: LCSYS2022 eq. 9,
+        ``uncompensated``: delay-tolerant eq. 11, ``block``: LCSYS2022 eqs. 15-16), which
+        enables replay and the augmented-matrix analytics; None: none.
+    centralised : bool
+        One agent on every sensor (the reference filter); has no network.
+    batched : str or callable or None
+        The batched (vectorised) form, ``module:attribute`` resolved on use: a callable
+        ``(scenario, family, gains, trial_seeds, steps, **options) -> batch`` with the
+        contract of :func:`netsim.vectorised.run_batch`. None: event kernel only.
+    batched_options : dict
+        Keyword arguments passed to ``batched``.
+    source : str
+        ``builtin``, ``python`` (registered from Python), ``scenario`` (named as
+        module:attribute) or ``entry-point``.
+    """
+
+    name: str
+    build: Callable[[FamilyContext], Sequence[AgentPlan]]
+    description: str = ""
+    paper: str = ""
+    needs_gains: bool = False
+    timestamps: bool = True
+    needs_graph_sequence: bool = False
+    error_recursion: str | None = None
+    centralised: bool = False
+    batched: str | Callable[..., Any] | None = None
+    batched_options: dict[str, Any] = field(default_factory=dict)
+    source: str = "python"
+
+    @property
+    def vectorised(self) -> bool:
+        """Whether it has a batched form for the vectorised engine."""
+        return self.batched is not None
+
+    def batched_form(self) -> Callable[..., Any]:
+        """The batched form, imported if it was given as ``module:attribute``."""
+        if self.batched is None:
+            raise FamilyError(self.name, "has no batched form (event kernel only)")
+        if callable(self.batched):
+            return self.batched
+        return resolve_reference(self.batched, f"family {self.name!r} batched form")
+
+    def agents(self, context: FamilyContext, key: str = "run.estimators"
+               ) -> list[AgentPlan]:
+        """Build one trial's agents and check each against the contract."""
+        plans = list(self.build(replace(context, family=self.name)))
+        if not plans:
+            raise FamilyError(key, f"family {self.name!r} built no agents")
+        for index, plan in enumerate(plans):
+            if not isinstance(plan, AgentPlan):
+                plan = AgentPlan(plan, (index,), ())
+                plans[index] = plan
+            try:
+                check_estimator(plan.estimator, key)
+            except ContractError as error:
+                raise FamilyError(key, f"family {self.name!r}, agent {index}: "
+                                  f"{str(error).split(': ', 1)[1]}") from None
+        return plans
+
+    def traits(self) -> dict[str, Any]:
+        """What the family declares, as plain values (recorded in traces)."""
+        return {
+            "name": self.name,
+            "paper": self.paper,
+            "needs_gains": self.needs_gains,
+            "timestamps": self.timestamps,
+            "needs_graph_sequence": self.needs_graph_sequence,
+            "error_recursion": self.error_recursion,
+            "centralised": self.centralised,
+            "vectorised": self.vectorised,
+            "source": self.source,
+        }
+
+
+_REGISTRY: dict[str, EstimatorFamily] = {}
+_LOADED = False
+
+
+def _load_builtins() -> None:
+    global _LOADED
+    if _LOADED:
+        return
+    _LOADED = True
+    for module in BUILTIN_MODULES:
+        importlib.import_module(module)
+
+
+def register(family: EstimatorFamily, *, replace_existing: bool = False) -> EstimatorFamily:
+    """Add a family to the registry and return it.
+
+    Parameters
+    ----------
+    family : EstimatorFamily
+    replace_existing : bool
+        Allow replacing a family of the same name (otherwise an error).
+
+    Example
+    -------
+    >>> from netsim.estimators.registry import EstimatorFamily, register, unregister
+    >>> fam = register(EstimatorFamily("doc-hold", lambda ctx: []))
+    >>> unregister("doc-hold")
+    """
+    if not isinstance(family, EstimatorFamily):
+        raise TypeError(f"register() takes an EstimatorFamily, not {type(family).__name__}")
+    if not family.name or ":" in family.name or "," in family.name:
+        raise ValueError(f"family name {family.name!r}: give a non-empty name without ':' "
+                         "or ','")
+    old = _REGISTRY.get(family.name)
+    if old is not None and old is not family and not replace_existing:
+        raise ValueError(f"an estimator family {family.name!r} is registered already "
+                         f"({old.source}); pass replace_existing=True to replace it")
+    _REGISTRY[family.name] = family
+    return family
+
+
+def unregister(name: str) -> None:
+    """Remove a family (a no-op for an unknown name)."""
+    _REGISTRY.pop(name, None)
+
+
+def _entry_points() -> dict[str, Any]:
+    from importlib.metadata import entry_points
+
+    return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
+
+
+def resolve_reference(reference: str, key: str) -> Any:
+    """Import ``module:attribute`` (dots allowed in the attribute) or raise FamilyError."""
+    module_name, _, attribute = reference.partition(":")
+    if not module_name or not attribute:
+        raise FamilyError(key, f"{reference!r} is not module:attribute")
+    try:
+        module = importlib.import_module(module_name)
+    except ImportError as error:
+        raise FamilyError(key, f"cannot import module {module_name!r} for {reference!r}: "
+                          f"{error}") from None
+    except Exception as error:  # the user's module failed while importing
+        raise FamilyError(key, f"importing {module_name!r} for {reference!r} failed: "
+                          f"{type(error).__name__}: {error}") from None
+    obj: Any = module
+    for part in attribute.split("."):
+        try:
+            obj = getattr(obj, part)
+        except AttributeError:
+            raise FamilyError(key, f"module {module_name!r} has no attribute {attribute!r}"
+                              ) from None
+    return obj
+
+
+def _per_agent_factory(cls: Any, name: str) -> Callable[[FamilyContext], list[AgentPlan]]:
+    def build(context: FamilyContext) -> list[AgentPlan]:
+        return [AgentPlan(cls(context, i), (i,), tuple(context.out_neighbours(i)))
+                for i in range(context.scenario.n_agents)]
+
+    build.__qualname__ = f"per-agent {name}"
+    return build
+
+
+def family_from_object(obj: Any, name: str, key: str, source: str = "scenario"
+                       ) -> EstimatorFamily:
+    """Make a family of an imported object.
+
+    ``obj`` may be an :class:`EstimatorFamily` (renamed to ``name`` if it has none), a
+    class (each agent i gets ``cls(context, i)``: the context gives the scenario, the
+    gains and a random stream; the class's optional attributes ``needs_gains``,
+    ``timestamps``, ``description``, ``paper`` and ``batched`` declare the rest), or a
+    factory function ``(FamilyContext) -> list of AgentPlan``.
+    """
+    if isinstance(obj, EstimatorFamily):
+        return obj if obj.name else replace(obj, name=name)
+    if isinstance(obj, type):
+        for method in ("message_arrived", "step"):
+            if not callable(getattr(obj, method, None)):
+                raise FamilyError(key, f"{name!r}: class {obj.__qualname__} is not an "
+                                  f"estimator: no method {method}() (the contract: "
+                                  "message_arrived(sender, sent_step, payload) -> bool, "
+                                  "step(k, y) -> estimate)")
+        return EstimatorFamily(
+            name=name,
+            build=_per_agent_factory(obj, name),
+            description=str(getattr(obj, "description", "") or
+                            (obj.__doc__ or "").strip().split("\n")[0]),
+            paper=str(getattr(obj, "paper", "")),
+            needs_gains=bool(getattr(obj, "needs_gains", False)),
+            timestamps=bool(getattr(obj, "timestamps", True)),
+            batched=getattr(obj, "batched", None),
+            source=source,
+        )
+    if callable(obj):
+        return EstimatorFamily(name=name, build=obj, description=_name_of(obj),
+                               source=source,
+                               needs_gains=bool(getattr(obj, "needs_gains", False)))
+    raise FamilyError(key, f"{name!r} is a {type(obj).__name__}, not an estimator class, "
+                      "factory or EstimatorFamily")
+
+
+def get_family(name: str, key: str = "run.estimators") -> EstimatorFamily:
+    """Return the family called ``name``: registered, ``module:attribute`` or an entry point.
+
+    Raises
+    ------
+    FamilyError
+        Naming ``key`` and what is wrong (unknown name, import failure, not an estimator).
+    """
+    _load_builtins()
+    if not isinstance(name, str) or not name:
+        raise FamilyError(key, f"expected an estimator name, got {name!r}")
+    family = _REGISTRY.get(name)
+    if family is not None:
+        return family
+    if ":" in name:
+        obj = resolve_reference(name, key)
+        return register(family_from_object(obj, name, key, source="scenario"))
+    points = _entry_points()
+    if name in points:
+        try:
+            obj = points[name].load()
+        except Exception as error:
+            raise FamilyError(key, f"entry point {name!r} ({points[name].value}) failed to "
+                              f"load: {type(error).__name__}: {error}") from None
+        return register(family_from_object(obj, name, key, source="entry-point"))
+    known = ", ".join(family_names())
+    raise FamilyError(key, f"unknown estimator {name!r}; expected one of {known}, or "
+                      "module:attribute of your own estimator")
+
+
+def resolve_families(names: Iterable[str], key: str = "run.estimators"
+                     ) -> list[EstimatorFamily]:
+    """Resolve several names (:func:`get_family`), refusing duplicates."""
+    out, seen = [], set()
+    for index, name in enumerate(names):
+        family = get_family(name, f"{key}[{index}]")
+        if family.name in seen:
+            raise FamilyError(f"{key}[{index}]", f"estimator {name!r} is listed twice")
+        seen.add(family.name)
+        out.append(family)
+    return out
+
+
+def family_names(include_entry_points: bool = True) -> list[str]:
+    """Names of the registered families (built-ins first) and of installed entry points."""
+    _load_builtins()
+    names = list(_REGISTRY)
+    if include_entry_points:
+        names += [n for n in _entry_points() if n not in _REGISTRY]
+    return names
+
+
+def families() -> list[EstimatorFamily]:
+    """The registered families (built-ins and those resolved so far)."""
+    _load_builtins()
+    return list(_REGISTRY.values())

@@ -412,3 +412,69 @@ class BlockUpdateEstimator(_ConsensusBase):
     def outgoing(self, step: int) -> np.ndarray | None:
         """Send only at block steps (the estimate x-hat^i at that block step)."""
         return self._block_estimate if step % self.period == 0 else None
+
+
+# -- the families this module declares (netsim.estimators.registry) --------------------
+
+from netsim.estimators.registry import (  # noqa: E402  (declared after the classes)
+    AgentPlan,
+    EstimatorFamily,
+    FamilyContext,
+    register,
+)
+
+
+def _consensus_agents(make: type[_ConsensusBase] | None, block: bool = False):
+    def build(context: FamilyContext) -> list[AgentPlan]:
+        scenario, gains = context.scenario, context.gains
+        if gains is None:
+            raise ValueError(f"estimator family {context.family!r} needs gains")
+        plant, P, graph = scenario.plant, scenario.weights, scenario.graph
+        plans = []
+        for i in range(scenario.n_agents):
+            params = ConsensusParameters(agent=i, weights=P[i], A=plant.A, C=plant.C[i],
+                                         L=gains.L[i], prior=plant.x0_mean)
+            estimator = (BlockUpdateEstimator(params, scenario.delay_bound) if block
+                         else make(params))
+            plans.append(AgentPlan(estimator, (i,), tuple(sorted(graph.successors(i)))))
+        return plans
+
+    return build
+
+
+#: The batched form: the vectorised engine's consensus lockstep (netsim.vectorised).
+_LOCKSTEP = "netsim.vectorised:run_vectorised"
+
+register(EstimatorFamily(
+    name="compensated",
+    build=_consensus_agents(CompensatingEstimator),
+    description="consensus + innovation with A^(k - s_j) delay compensation",
+    paper="LCSYS2022 eqs. (4)-(5); augmented error recursion eq. (9)",
+    needs_gains=True, timestamps=True, error_recursion="compensated",
+    batched=_LOCKSTEP,
+    batched_options={"rule": "consensus", "compensate": True, "timestamps": True,
+                     "block": False},
+    source="builtin",
+))
+register(EstimatorFamily(
+    name="uncompensated",
+    build=_consensus_agents(UncompensatedEstimator),
+    description="consensus + innovation with A, no time-stamps (most recently arrived)",
+    paper="delay-tolerant paper eqs. (6)-(7); augmented recursion eq. (11)",
+    needs_gains=True, timestamps=False, error_recursion="uncompensated",
+    batched=_LOCKSTEP,
+    batched_options={"rule": "consensus", "compensate": False, "timestamps": False,
+                     "block": False},
+    source="builtin",
+))
+register(EstimatorFamily(
+    name="block",
+    build=_consensus_agents(None, block=True),
+    description="block update: update and communicate every tau+1 steps with A^(tau+1)",
+    paper="LCSYS2022 eqs. (15)-(16)",
+    needs_gains=True, timestamps=True, error_recursion="block",
+    batched=_LOCKSTEP,
+    batched_options={"rule": "consensus", "compensate": True, "timestamps": True,
+                     "block": True},
+    source="builtin",
+))

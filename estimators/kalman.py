@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CentralizedKalmanFilter"]
+__all__ = ["CentralizedKalmanFilter", "LocalKalmanFilter"]
 
 
 class CentralizedKalmanFilter:
@@ -74,3 +74,69 @@ class CentralizedKalmanFilter:
         self._estimate, self._cov = x, 0.5 * (P + P.T)
         self.last_step = k
         return self._estimate
+
+
+class LocalKalmanFilter(CentralizedKalmanFilter):
+    """Agent i's Kalman filter on its own measurement only, with no communication.
+
+    The baseline of a network without links: the filter of (A, C_i, Q, R_i). Where
+    (A, C_i) is not detectable (the papers' setting: no agent observes the system on
+    its own), its error grows with the unobservable unstable modes.
+
+    Parameters
+    ----------
+    A : numpy.ndarray, shape (n, n)
+    C : numpy.ndarray, shape (m_i, n)
+    Q : numpy.ndarray, shape (n, n)
+    R : numpy.ndarray, shape (m_i, m_i)
+    prior_mean : numpy.ndarray, shape (n,)
+    prior_cov : numpy.ndarray, shape (n, n)
+    """
+
+    family = "local-kf"
+
+    def outgoing(self, step: int) -> None:
+        """A local filter sends nothing."""
+        return None
+
+
+# -- the families this module declares (netsim.estimators.registry) --------------------
+
+from netsim.estimators.registry import (  # noqa: E402  (declared after the classes)
+    AgentPlan,
+    EstimatorFamily,
+    FamilyContext,
+    register,
+)
+
+
+def _centralised(context: FamilyContext) -> list[AgentPlan]:
+    p = context.scenario.plant
+    kf = CentralizedKalmanFilter(p.A, p.C_stacked, p.Q, p.R_stacked, p.x0_mean, p.x0_cov)
+    return [AgentPlan(kf, tuple(range(p.n_sensors)), ())]
+
+
+def _local(context: FamilyContext) -> list[AgentPlan]:
+    p = context.scenario.plant
+    return [AgentPlan(LocalKalmanFilter(p.A, p.C[i], p.Q, p.R[i], p.x0_mean, p.x0_cov),
+                      (i,), ())
+            for i in range(p.n_sensors)]
+
+
+register(EstimatorFamily(
+    name="centralized-kf",
+    build=_centralised,
+    description="centralised Kalman filter on every sensor's measurement (the optimum)",
+    paper="reference baseline (DESIGN.md)",
+    centralised=True,
+    batched="netsim.vectorised:run_vectorised",
+    batched_options={"rule": "kalman"},
+    source="builtin",
+))
+register(EstimatorFamily(
+    name="local-kf",
+    build=_local,
+    description="each agent's own Kalman filter on its measurement, no communication",
+    paper="baseline (DESIGN.md): local filters without communication",
+    source="builtin",
+))

@@ -12,9 +12,8 @@ Three ways in for a user's estimator:
 - by name in a scenario, ``run.estimators = ["compensated", "mypkg.filters:MyFilter"]``:
   ``module:attribute`` is imported; the attribute is an :class:`EstimatorFamily`, a
   factory ``(FamilyContext) -> list of AgentPlan``, or a class implementing the
-  per-agent contract (:mod:`netsim.estimators.contract`), which is then built once
-  per agent by :func:`consensus_agents`' rules (``cls(context, agent)``; see
-  :func:`family_from_object`);
+  per-agent contract (:mod:`netsim.estimators.contract`), built once per agent as
+  ``cls(setup)`` from that agent's :class:`AgentSetup` (see :func:`family_from_object`);
 - from Python: :func:`register`;
 - from an installed package: the entry-point group ``netsim.estimators`` (the entry
   point's name is the family name, its value ``module:attribute`` as above).
@@ -26,12 +25,13 @@ A name that does not import, or an object that is not an estimator, is one
 from __future__ import annotations
 
 import importlib
+import os
+import sys
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-
 from netsim.estimators.contract import ContractError, check_estimator
 
 __all__ = [
@@ -39,6 +39,7 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "FamilyError",
     "FamilyContext",
+    "AgentSetup",
     "AgentPlan",
     "EstimatorFamily",
     "register",
@@ -103,6 +104,24 @@ class FamilyContext:
 
         return stream(self.trial_seed, "estimator", self.family, *names)
 
+    def agent_setup(self, agent: int) -> AgentSetup:
+        """What agent ``agent`` may know (DESIGN.md: the factory's inputs)."""
+        scenario = self.scenario
+        plant = scenario.plant
+        gain = None if self.gains is None else self.gains.L[agent]
+        return AgentSetup(
+            agent=agent,
+            n_agents=scenario.n_agents,
+            in_neighbours=tuple(self.in_neighbours(agent)),
+            out_neighbours=tuple(self.out_neighbours(agent)),
+            weights=np.asarray(scenario.weights[agent], dtype=float).copy(),
+            A=plant.A, C=plant.C[agent], Q=plant.Q, R=plant.R[agent],
+            prior_mean=plant.x0_mean, prior_cov=plant.x0_cov, L=gain,
+            rng=self.stream("agent", agent),
+            delay_bound=int(scenario.delay_bound),
+            sample_period=float(scenario.sample_period),
+        )
+
     def in_neighbours(self, agent: int) -> list[int]:
         """Agents that agent ``agent`` receives from (self excluded)."""
         return sorted(j for j in self.scenario.graph.predecessors(agent) if j != agent)
@@ -110,6 +129,63 @@ class FamilyContext:
     def out_neighbours(self, agent: int) -> list[int]:
         """Agents that agent ``agent`` sends to (self excluded)."""
         return sorted(j for j in self.scenario.graph.successors(agent) if j != agent)
+
+
+@dataclass(frozen=True)
+class AgentSetup:
+    """Everything one agent may know, as a family's per-agent class receives it.
+
+    Attributes
+    ----------
+    agent : int
+        Its index i (agents are numbered 0..N-1).
+    n_agents : int
+        N.
+    in_neighbours, out_neighbours : tuple of int
+        Agents it receives from / sends to (itself excluded).
+    weights : numpy.ndarray, shape (N,)
+        Row i of the consensus matrix P (p_ij > 0 for j in-neighbours and j = i).
+    A : numpy.ndarray, shape (n, n)
+    C : numpy.ndarray, shape (m_i, n)
+        Its output matrix (m_i may be 0).
+    Q : numpy.ndarray, shape (n, n)
+        Process noise covariance.
+    R : numpy.ndarray, shape (m_i, m_i)
+        Its measurement noise covariance.
+    prior_mean : numpy.ndarray, shape (n,)
+    prior_cov : numpy.ndarray, shape (n, n)
+        The prior x-hat_{0|-1} and its covariance.
+    L : numpy.ndarray, shape (n, m_i), or None
+        Its innovation gain L_i = K_i C_i^T from the scenario's gain design (None
+        unless the family declares ``needs_gains``).
+    rng : numpy.random.Generator
+        Its own random stream (independent of every other component).
+    delay_bound : int
+        The delay bound tau-bar the agents are told (steps).
+    sample_period : float
+        Ts.
+    """
+
+    agent: int
+    n_agents: int
+    in_neighbours: tuple[int, ...]
+    out_neighbours: tuple[int, ...]
+    weights: np.ndarray
+    A: np.ndarray
+    C: np.ndarray
+    Q: np.ndarray
+    R: np.ndarray
+    prior_mean: np.ndarray
+    prior_cov: np.ndarray
+    L: np.ndarray | None
+    rng: np.random.Generator
+    delay_bound: int
+    sample_period: float
+
+    @property
+    def n_states(self) -> int:
+        """n."""
+        return int(self.A.shape[0])
 
 
 @dataclass(frozen=True)
@@ -261,9 +337,9 @@ def register(family: EstimatorFamily, *, replace_existing: bool = False) -> Esti
     """
     if not isinstance(family, EstimatorFamily):
         raise TypeError(f"register() takes an EstimatorFamily, not {type(family).__name__}")
-    if not family.name or ":" in family.name or "," in family.name:
-        raise ValueError(f"family name {family.name!r}: give a non-empty name without ':' "
-                         "or ','")
+    if not family.name or "," in family.name or family.name != family.name.strip():
+        raise ValueError(f"family name {family.name!r}: give a non-empty name without ',' "
+                         "or surrounding spaces")
     old = _REGISTRY.get(family.name)
     if old is not None and old is not family and not replace_existing:
         raise ValueError(f"an estimator family {family.name!r} is registered already "
@@ -273,8 +349,11 @@ def register(family: EstimatorFamily, *, replace_existing: bool = False) -> Esti
 
 
 def unregister(name: str) -> None:
-    """Remove a family (a no-op for an unknown name)."""
-    _REGISTRY.pop(name, None)
+    """Remove a family and every reference to it (a no-op for an unknown name)."""
+    family = _REGISTRY.pop(name, None)
+    if family is not None:
+        for other in [n for n, f in _REGISTRY.items() if f is family]:
+            del _REGISTRY[other]
 
 
 def _entry_points() -> dict[str, Any]:
@@ -283,11 +362,25 @@ def _entry_points() -> dict[str, Any]:
     return {ep.name: ep for ep in entry_points(group=ENTRY_POINT_GROUP)}
 
 
-def resolve_reference(reference: str, key: str) -> Any:
-    """Import ``module:attribute`` (dots allowed in the attribute) or raise FamilyError."""
+def _add_search_path(base: str | os.PathLike[str] | None) -> None:
+    if base is None:
+        return
+    folder = os.path.abspath(os.fspath(base))
+    if os.path.isdir(folder) and folder not in sys.path:
+        sys.path.append(folder)
+
+
+def resolve_reference(reference: str, key: str,
+                      base: str | os.PathLike[str] | None = None) -> Any:
+    """Import ``module:attribute`` (dots allowed in both) or raise FamilyError.
+
+    ``base`` (a scenario file's folder) is appended to the import path first, so a
+    scenario can name a module that sits beside it.
+    """
     module_name, _, attribute = reference.partition(":")
     if not module_name or not attribute:
         raise FamilyError(key, f"{reference!r} is not module:attribute")
+    _add_search_path(base)
     try:
         module = importlib.import_module(module_name)
     except ImportError as error:
@@ -308,7 +401,7 @@ def resolve_reference(reference: str, key: str) -> Any:
 
 def _per_agent_factory(cls: Any, name: str) -> Callable[[FamilyContext], list[AgentPlan]]:
     def build(context: FamilyContext) -> list[AgentPlan]:
-        return [AgentPlan(cls(context, i), (i,), tuple(context.out_neighbours(i)))
+        return [AgentPlan(cls(context.agent_setup(i)), (i,), tuple(context.out_neighbours(i)))
                 for i in range(context.scenario.n_agents)]
 
     build.__qualname__ = f"per-agent {name}"
@@ -320,8 +413,8 @@ def family_from_object(obj: Any, name: str, key: str, source: str = "scenario"
     """Make a family of an imported object.
 
     ``obj`` may be an :class:`EstimatorFamily` (renamed to ``name`` if it has none), a
-    class (each agent i gets ``cls(context, i)``: the context gives the scenario, the
-    gains and a random stream; the class's optional attributes ``needs_gains``,
+    class (each agent i gets ``cls(setup)`` with its :class:`AgentSetup`: weights, plant
+    model, gain, neighbours and own random stream; the class's optional attributes ``needs_gains``,
     ``timestamps``, ``description``, ``paper`` and ``batched`` declare the rest), or a
     factory function ``(FamilyContext) -> list of AgentPlan``.
     """
@@ -334,6 +427,9 @@ def family_from_object(obj: Any, name: str, key: str, source: str = "scenario"
                                   f"estimator: no method {method}() (the contract: "
                                   "message_arrived(sender, sent_step, payload) -> bool, "
                                   "step(k, y) -> estimate)")
+        short = getattr(obj, "name", None)
+        if isinstance(short, str) and short and ":" not in short and "," not in short:
+            name = short
         return EstimatorFamily(
             name=name,
             build=_per_agent_factory(obj, name),
@@ -353,8 +449,14 @@ def family_from_object(obj: Any, name: str, key: str, source: str = "scenario"
                       "factory or EstimatorFamily")
 
 
-def get_family(name: str, key: str = "run.estimators") -> EstimatorFamily:
+def get_family(name: str, key: str = "run.estimators",
+               base: str | os.PathLike[str] | None = None) -> EstimatorFamily:
     """Return the family called ``name``: registered, ``module:attribute`` or an entry point.
+
+    A family imported as ``module:attribute`` is registered under that reference and
+    under its own name (a class's ``name`` attribute, else the reference), so results
+    and traces can use the short name; ``base`` is a folder searched for the module
+    (the scenario's, see :func:`resolve_reference`).
 
     Raises
     ------
@@ -368,8 +470,15 @@ def get_family(name: str, key: str = "run.estimators") -> EstimatorFamily:
     if family is not None:
         return family
     if ":" in name:
-        obj = resolve_reference(name, key)
-        return register(family_from_object(obj, name, key, source="scenario"))
+        obj = resolve_reference(name, key, base)
+        family = family_from_object(obj, name, key, source="scenario")
+        if family.name != name:
+            other = _REGISTRY.get(family.name)
+            if other is not None and other is not family and other.source == "builtin":
+                raise FamilyError(key, f"{name!r} calls itself {family.name!r}, the name of "
+                                  "a built-in family; give it another name")
+            _REGISTRY[name] = family
+        return register(family, replace_existing=True)
     points = _entry_points()
     if name in points:
         try:
@@ -383,12 +492,12 @@ def get_family(name: str, key: str = "run.estimators") -> EstimatorFamily:
                       "module:attribute of your own estimator")
 
 
-def resolve_families(names: Iterable[str], key: str = "run.estimators"
-                     ) -> list[EstimatorFamily]:
+def resolve_families(names: Iterable[str], key: str = "run.estimators",
+                     base: str | os.PathLike[str] | None = None) -> list[EstimatorFamily]:
     """Resolve several names (:func:`get_family`), refusing duplicates."""
     out, seen = [], set()
     for index, name in enumerate(names):
-        family = get_family(name, f"{key}[{index}]")
+        family = get_family(name, f"{key}[{index}]", base)
         if family.name in seen:
             raise FamilyError(f"{key}[{index}]", f"estimator {name!r} is listed twice")
         seen.add(family.name)
@@ -399,7 +508,7 @@ def resolve_families(names: Iterable[str], key: str = "run.estimators"
 def family_names(include_entry_points: bool = True) -> list[str]:
     """Names of the registered families (built-ins first) and of installed entry points."""
     _load_builtins()
-    names = list(_REGISTRY)
+    names = [n for n, f in _REGISTRY.items() if n == f.name]
     if include_entry_points:
         names += [n for n in _entry_points() if n not in _REGISTRY]
     return names
@@ -408,4 +517,4 @@ def family_names(include_entry_points: bool = True) -> list[str]:
 def families() -> list[EstimatorFamily]:
     """The registered families (built-ins and those resolved so far)."""
     _load_builtins()
-    return list(_REGISTRY.values())
+    return [f for n, f in _REGISTRY.items() if n == f.name]

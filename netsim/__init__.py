@@ -1,4 +1,16 @@
-"""netsim: discrete-event simulation of distributed estimation over delayed networks."""
+"""netsim: discrete-event simulation of distributed estimation over delayed networks.
+
+The public Python API (:mod:`netsim.api`), loaded on first use so that importing a
+submodule (``netsim.models``, ``netsim.traces``) stays light:
+
+- :func:`load_scenario` (a built-in name, a TOML file or a dict), :func:`run` (Monte
+  Carlo, a :class:`RunResult` with per-trial arrays and a summary), :func:`run_one`
+  (one trial in the SimPy event kernel);
+- the estimator contract :class:`Estimator` (a ``typing.Protocol``),
+  :func:`register_estimator`, :func:`estimator_names`, :class:`EstimatorFamily`,
+  :class:`AgentSetup`;
+- :func:`design_gains`, :func:`analyze`, :func:`read_trace`; ``__version__``.
+"""
 
 import os as _os
 
@@ -7,4 +19,30 @@ import os as _os
 # machine. Only a default: a value set by the user wins. Must run before numpy loads.
 _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-__all__: list[str] = []
+from importlib import metadata as _metadata  # noqa: E402
+
+try:
+    __version__ = _metadata.version("netsim")
+except _metadata.PackageNotFoundError:  # pragma: no cover - run from a source tree
+    __version__ = "0+unknown"
+
+_API = (
+    "Estimator", "EstimatorFamily", "AgentSetup", "AgentPlan", "FamilyContext",
+    "FamilyError", "ScenarioError", "Scenario", "load_scenario", "estimator_names",
+    "register_estimator", "get_estimator", "design_gains", "run", "run_one", "analyze",
+    "read_trace", "FamilyRun", "RunResult",
+)
+
+__all__ = ["__version__", *_API]
+
+
+def __getattr__(name: str):
+    if name in _API:
+        from netsim import api
+
+        return getattr(api, name)
+    raise AttributeError(f"module 'netsim' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_API))

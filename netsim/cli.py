@@ -214,6 +214,44 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _families(scenario: Any, option: str | None) -> list[Any]:
+    """Resolve the scenario's estimators, or those of ``--estimators``, in the registry.
+
+    ``--estimators`` may name any registered family, ``module:attribute`` of a user's
+    estimator or an installed entry point, not only the scenario's own.
+    """
+    from netsim.estimators.registry import FamilyError, resolve_families
+    from netsim.runner import scenario_folder
+
+    listed = scenario.estimators
+    key = "run.estimators"
+    try:  # the scenario's own (so --estimators may use their short names)
+        own = resolve_families(listed, key, scenario_folder(scenario))
+    except FamilyError as exc:
+        raise CommandError(f"scenario {scenario.source or scenario.name}: {exc}") from None
+    if option is None:
+        return own
+    if option is not None:
+        listed = tuple(f.strip() for f in option.split(",") if f.strip())
+        if not listed:
+            raise CommandError("--estimators: empty list; name at least one estimator")
+        key = "--estimators"
+    try:
+        return resolve_families(listed, key, scenario_folder(scenario))
+    except FamilyError as exc:
+        where = "" if option is not None else f"scenario {scenario.source or scenario.name}: "
+        raise CommandError(f"{where}{exc}") from None
+
+
+def _note_fallbacks(command: str, names: Sequence[str]) -> None:
+    """Say on stderr which families ``--engine auto`` runs in the event kernel."""
+    if names:
+        sys.stderr.write(f"netsim {command}: note: {', '.join(names)} "
+                         f"{'has' if len(names) == 1 else 'have'} no batched form; "
+                         "--engine auto runs "
+                         f"{'it' if len(names) == 1 else 'them'} in the event kernel\n")
+
+
 def _positive(value: int | None, option: str) -> None:
     if value is not None and value < 1:
         raise CommandError(f"{option} must be a positive integer, got {value}")
@@ -257,30 +295,26 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         where = f"scenario {args.scenario}"
         raise CommandError(f"{where}: {exc}") from None
-    families = scenario.estimators
-    if args.estimators:
-        families = tuple(f.strip() for f in args.estimators.split(",") if f.strip())
-        if not families:
-            raise CommandError("--estimators: empty list; name at least one estimator")
-        unknown = [f for f in families if f not in scenario.estimators]
-        if unknown:
-            raise CommandError(
-                f"--estimators: {', '.join(unknown)} not in the scenario's estimators "
-                f"({', '.join(scenario.estimators)})"
-            )
+    declared = _families(scenario, args.estimators)
+    families = tuple(f.name for f in declared)
     gains = None
-    if any(f != "centralized-kf" for f in families):
+    if any(f.needs_gains for f in declared):
         try:
             gains = scenario_gains(scenario)
         except (GainDesignError, ValueError) as exc:
             raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                                EXIT_DESIGN_FAILED) from None
-    from netsim.runner import choose_engine
+    from netsim.runner import check_agents, choose_engine, kernel_fallbacks
 
     try:
-        engine = choose_engine(args.engine, families, traced=args.trace is not None)
+        check_agents(scenario, declared, gains)
+    except ValueError as exc:
+        raise CommandError(f"scenario {args.scenario}: {exc}") from None
+    try:
+        choose_engine(args.engine, declared, traced=args.trace is not None)
     except ValueError as exc:
         raise CommandError(f"--engine {args.engine}: {exc}") from None
+    _note_fallbacks("run", kernel_fallbacks(args.engine, declared))
     trials = args.trials or scenario.trials
     total = trials * len(families)
     bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",
@@ -299,7 +333,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             result = run_monte_carlo(
                 scenario, steps=args.steps, trials=args.trials, seed=args.seed,
                 families=families, progress=_progress, gains=gains, trace=args.trace,
-                on_trace=written.append, engine=engine,
+                on_trace=written.append, engine=args.engine,
             )
     except KeyboardInterrupt:
         family = families[min(done[0] // trials, len(families) - 1)]

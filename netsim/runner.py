@@ -13,18 +13,18 @@ import math
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from netsim.estimators.consensus import (
-    BlockUpdateEstimator,
-    CompensatingEstimator,
-    ConsensusParameters,
-    UncompensatedEstimator,
-)
 from netsim.estimators.gains import GainDesign, design_gains, gains_from_matrices
-from netsim.estimators.kalman import CentralizedKalmanFilter
+from netsim.estimators.registry import (
+    EstimatorFamily,
+    FamilyContext,
+    get_family,
+    resolve_families,
+)
 from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
 from netsim.models.augmented import (
     augmented_closed_loop,
@@ -45,6 +45,11 @@ __all__ = [
     "scenario_gains",
     "build_agents",
     "ENGINES",
+    "scenario_folder",
+    "family_of",
+    "check_agents",
+    "engines_for",
+    "kernel_fallbacks",
     "choose_engine",
     "run_trial",
     "run_trials",
@@ -70,47 +75,71 @@ def scenario_gains(scenario: Scenario) -> GainDesign:
     return design_gains(scenario.weights, plant.A, plant.C)
 
 
-def build_agents(scenario: Scenario, family: str, gains: GainDesign | None) -> list[AgentSpec]:
-    """Return the agents of one estimator family.
+def _measure(sensors: Sequence[int], n_sensors: int) -> Callable[[Sequence[np.ndarray]], Any]:
+    """The selector of an agent's measurement from all sensors' y^j_k."""
+    if len(sensors) == 1:
+        return itemgetter(sensors[0])
+    if tuple(sensors) == tuple(range(n_sensors)):
+        return np.concatenate
+    if not sensors:
+        empty = np.zeros(0)
+        return lambda ys: empty
+    picked = itemgetter(*sensors)
+    return lambda ys: np.concatenate(picked(ys))
+
+
+def scenario_folder(scenario: Scenario) -> Path | None:
+    """The folder of a scenario file (searched for ``module:attribute`` estimators)."""
+    source = scenario.source
+    if not source or source.startswith("builtin:"):
+        return None
+    return Path(source).resolve().parent
+
+
+def family_of(family: str | EstimatorFamily, scenario: Scenario | None = None,
+              key: str = "family") -> EstimatorFamily:
+    """The registered family of a name (module:attribute and entry points included;
+    a module beside ``scenario``'s file is found)."""
+    if isinstance(family, EstimatorFamily):
+        return family
+    return get_family(family, key, None if scenario is None else scenario_folder(scenario))
+
+
+def build_agents(scenario: Scenario, family: str | EstimatorFamily, gains: GainDesign | None,
+                 trial_seed: SeedLike = 0) -> list[AgentSpec]:
+    """Return the kernel agents of one estimator family for one trial.
 
     Parameters
     ----------
     scenario : Scenario
-    family : str
-        ``compensated``, ``uncompensated``, ``block`` or ``centralized-kf``.
+    family : str or EstimatorFamily
+        A registered family (:mod:`netsim.estimators.registry`), ``module:attribute``
+        of a user's estimator, or an installed entry point.
     gains : GainDesign or None
-        Innovation gains L_i (unused by the centralised filter).
+        Innovation gains L_i (for families that declare ``needs_gains``).
+    trial_seed : seed-like
+        The trial's seed (a plugin's agents draw their own streams from it).
     """
-    plant = scenario.plant
-    if family == "centralized-kf":
-        kf = CentralizedKalmanFilter(
-            plant.A, plant.C_stacked, plant.Q, plant.R_stacked, plant.x0_mean, plant.x0_cov
-        )
-        return [AgentSpec(kf, np.concatenate, ())]
-    if gains is None:
-        raise ValueError(f"estimator family {family!r} needs gains")
-    P = scenario.weights
-    graph = scenario.graph
-    agents = []
-    for i in range(scenario.n_agents):
-        params = ConsensusParameters(
-            agent=i, weights=P[i], A=plant.A, C=plant.C[i], L=gains.L[i], prior=plant.x0_mean
-        )
-        if family == "compensated":
-            estimator: Any = CompensatingEstimator(params)
-        elif family == "uncompensated":
-            estimator = UncompensatedEstimator(params)
-        elif family == "block":
-            estimator = BlockUpdateEstimator(params, scenario.delay_bound)
-        else:
-            raise ValueError(f"unknown estimator family {family!r}")
-        agents.append(AgentSpec(estimator, itemgetter(i), sorted(graph.successors(i))))
-    return agents
+    declared = family_of(family)
+    plans = declared.agents(FamilyContext(scenario, gains, trial_seed))
+    n_sensors = scenario.plant.n_sensors
+    return [AgentSpec(plan.estimator, _measure(plan.sensors, n_sensors),
+                      list(plan.out_neighbours)) for plan in plans]
+
+
+def check_agents(scenario: Scenario, families: Sequence[str | EstimatorFamily],
+                 gains: GainDesign | None) -> None:
+    """Build trial 0's agents of every family not shipped with netsim, so that one that
+    breaks the contract is refused before anything runs (FamilyError, a ValueError)."""
+    for family in families:
+        declared = family_of(family, scenario)
+        if declared.source != "builtin":
+            declared.agents(FamilyContext(scenario, gains, child_sequence(0, "check")))
 
 
 def run_trial(
     scenario: Scenario,
-    family: str,
+    family: str | EstimatorFamily,
     gains: GainDesign | None,
     trial_seed: SeedLike,
     steps: int | None = None,
@@ -120,7 +149,7 @@ def run_trial(
     observer: KernelObserver | None = None,
 ) -> TrialResult:
     """Run one trial of one estimator family in the event kernel."""
-    agents = build_agents(scenario, family, gains)
+    agents = build_agents(scenario, family, gains, trial_seed)
     simulation = Simulation(
         scenario.plant,
         agents,
@@ -135,31 +164,54 @@ def run_trial(
     return simulation.run(scenario.steps if steps is None else steps)
 
 
-def choose_engine(engine: str, families: Sequence[str], *, traced: bool = False) -> str:
-    """Resolve ``auto`` and check that the engine can run the request.
+def engines_for(engine: str, families: Sequence[str | EstimatorFamily]) -> dict[str, str]:
+    """The engine each family runs on: ``vectorised`` or ``events``.
 
-    Returns ``"vectorised"`` or ``"events"``; raises ValueError for a request the
-    chosen engine cannot serve (unknown engine or estimator family). Both engines
-    write the same traces (:mod:`netsim.vectrace` replays a vectorised trial as the
-    kernel's observer calls), so ``traced`` no longer changes the choice.
+    ``auto`` gives the vectorised engine to every family with a batched form and the
+    event kernel to the others (:func:`kernel_fallbacks` names them); ``vectorised``
+    refuses a family without one (ValueError); ``events`` runs all in the kernel.
     """
-    from netsim.vectorised import VECTORISED_FAMILIES
-
-    del traced  # both engines trace
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
-    vectorisable = all(f in VECTORISED_FAMILIES for f in families)
-    if engine == "auto":
-        return "vectorised" if vectorisable else "events"
-    if engine == "vectorised" and not vectorisable:
-        bad = [f for f in families if f not in VECTORISED_FAMILIES]
-        raise ValueError(f"the vectorised engine has no estimator family {bad[0]!r}")
-    return engine
+    declared = [family_of(f) for f in families]
+    if engine == "vectorised":
+        bad = [f.name for f in declared if not f.vectorised]
+        if bad:
+            raise ValueError(f"the vectorised engine has no estimator family {bad[0]!r} "
+                             "(it has no batched form; use --engine events or auto)")
+    if engine == "events":
+        return {f.name: "events" for f in declared}
+    return {f.name: "vectorised" if f.vectorised else "events" for f in declared}
+
+
+def kernel_fallbacks(engine: str, families: Sequence[str | EstimatorFamily]) -> list[str]:
+    """Families that ``engine`` (``auto``) runs in the event kernel for lack of a
+    batched form."""
+    if engine != "auto":
+        return []
+    return [name for name, e in engines_for(engine, families).items() if e == "events"]
+
+
+def choose_engine(engine: str, families: Sequence[str | EstimatorFamily], *,
+                  traced: bool = False) -> str:
+    """Resolve ``auto`` and check that the engine can run the request.
+
+    Returns ``"vectorised"`` when every family runs on the vectorised engine, else
+    ``"events"`` for a request that runs wholly in the kernel, or ``"mixed"``
+    (``auto`` with some families lacking a batched form; see :func:`engines_for`).
+    Raises ValueError for a request the chosen engine cannot serve. Both engines write
+    the same traces, so ``traced`` does not change the choice.
+    """
+    del traced  # both engines trace
+    chosen = set(engines_for(engine, families).values())
+    if len(chosen) == 1:
+        return chosen.pop()
+    return "vectorised" if not chosen else "mixed"
 
 
 def run_trials(
     scenario: Scenario,
-    family: str,
+    family: str | EstimatorFamily,
     gains: GainDesign | None,
     trial_seeds: Sequence[SeedLike],
     steps: int | None = None,
@@ -172,21 +224,21 @@ def run_trials(
     """Run several trials of one estimator family on the chosen engine.
 
     The engines give the same results (to round-off) for the same trial seeds; the
-    vectorised one runs all trials in lockstep. ``record_delays``: True, False or the
-    indices of the trials whose effective delays to keep.
+    vectorised one runs all trials in lockstep through the family's batched form.
+    ``record_delays``: True, False or the indices of the trials whose effective delays
+    to keep.
     """
-    engine = choose_engine(engine, [family])
-    if engine == "vectorised":
-        from netsim.vectorised import run_vectorised
-
-        return run_vectorised(scenario, family, gains, trial_seeds, steps,
-                              record_delays=record_delays, record_estimates=record_estimates,
-                              progress=progress)
+    declared = family_of(family)
+    if engines_for(engine, [declared])[declared.name] == "vectorised":
+        batched = declared.batched_form()
+        return list(batched(scenario, declared.name, gains, trial_seeds, steps,
+                            record_delays=record_delays, record_estimates=record_estimates,
+                            progress=progress))
     wanted = set(range(len(trial_seeds))) if record_delays is True else set(
         record_delays or ())
     results = []
     for t, seed in enumerate(trial_seeds):
-        results.append(run_trial(scenario, family, gains, seed, steps,
+        results.append(run_trial(scenario, declared, gains, seed, steps,
                                  record_delays=t in wanted))
         if progress is not None:
             progress(1)
@@ -307,6 +359,9 @@ class MonteCarloResult:
     estimators: dict[str, EstimatorSummary] = field(default_factory=dict)
     analytics: dict[str, Any] | None = None
     engine: str = "events"
+    engines: dict[str, str] = field(default_factory=dict)
+    #: Every trial's result per family (with ``keep_trials``), else empty.
+    runs: dict[str, list[TrialResult]] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         gains = None
@@ -326,6 +381,7 @@ class MonteCarloResult:
             "trials": self.trials,
             "seed": self.seed,
             "engine": self.engine,
+            **({"engines": dict(self.engines)} if self.engine == "mixed" else {}),
             "gains": gains,
             "analytics": _json_tree(self.analytics),
             "estimators": {name: s.to_dict() for name, s in self.estimators.items()},
@@ -368,18 +424,27 @@ def _summarise(
     )
 
 
+def _replayable_lockstep(family: EstimatorFamily) -> bool:
+    """Whether the family's batched form is the vectorised engine's own lockstep, whose
+    batches :mod:`netsim.vectrace` replays into a trace."""
+    return family.batched == "netsim.vectorised:run_vectorised"
+
+
 def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_trace,
                   batch=None, batch_trial=None):
     """Run (event kernel) or replay (``batch``: a vectorised batch) trial t into a trace."""
     from netsim.traces.recorder import TraceRecorder, trace_path
 
+    declared = family_of(family)
+    family = declared.name
     path = trace_path(trace) if single else trace_path(trace, family, t)
-    recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps)
+    recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps,
+                                     family_traits=declared.traits())
     try:
         with recorder:
             if batch is None:
                 result = run_trial(
-                    scenario, family, gains, child_sequence(seed, "trial", t), steps,
+                    scenario, declared, gains, child_sequence(seed, "trial", t), steps,
                     record_delays=False, observer=recorder,
                 )
             else:
@@ -409,6 +474,7 @@ def run_monte_carlo(
     trace: str | None = None,
     on_trace: Callable[[str], None] | None = None,
     engine: str = "auto",
+    keep_trials: bool = False,
 ) -> MonteCarloResult:
     """Run every estimator family of the scenario over Monte Carlo trials.
 
@@ -430,8 +496,11 @@ def run_monte_carlo(
     on_trace : callable(str), optional
         Called with each trace file's path once it is finished.
     engine : str
-        One of :data:`ENGINES` (``auto``: vectorised when every family has a
-        vectorised form, traced or not).
+        One of :data:`ENGINES` (``auto``: the vectorised engine for every family with
+        a batched form, the event kernel for the others; traced or not).
+    keep_trials : bool
+        Keep every trial's :class:`TrialResult` (states, estimates, squared errors,
+        effective delays) in ``MonteCarloResult.runs``.
 
     Returns
     -------
@@ -440,34 +509,43 @@ def run_monte_carlo(
     steps = scenario.steps if steps is None else int(steps)
     trials = scenario.trials if trials is None else int(trials)
     seed = scenario.seed if seed is None else int(seed)
-    families = tuple(scenario.estimators if families is None else families)
-    needs_gains = any(f != "centralized-kf" for f in families)
+    if families is None:
+        declared = resolve_families(scenario.estimators, "run.estimators",
+                                    scenario_folder(scenario))
+    else:
+        declared = [family_of(f, scenario, "estimators") for f in families]
+    families = tuple(f.name for f in declared)
+    needs_gains = any(f.needs_gains for f in declared)
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)
-    engine = choose_engine(engine, families, traced=trace is not None)
-    result = MonteCarloResult(scenario, gains, steps, trials, seed, engine=engine)
+    engines = engines_for(engine, declared)
+    engine = choose_engine(engine, declared, traced=trace is not None)
+    result = MonteCarloResult(scenario, gains, steps, trials, seed, engine=engine,
+                              engines=engines)
     if gains is not None:
         result.analytics = delay_analytics(scenario, gains)
     seeds = [child_sequence(seed, "trial", t) for t in range(trials)]
-    for family in families:
+    for fam in declared:
+        family = fam.name
         if trace is None:
-            runs = run_trials(scenario, family, gains, seeds, steps, engine=engine,
-                              record_estimates=False, progress=progress)
+            runs = run_trials(scenario, fam, gains, seeds, steps, engine=engines[family],
+                              record_estimates=keep_trials, record_delays=keep_trials,
+                              progress=progress)
         else:
             single = trials == 1 and len(families) == 1
             runs = []
-            if engine == "vectorised":
+            if engines[family] == "vectorised" and _replayable_lockstep(fam):
                 from netsim.vectorised import run_batch
 
                 # the trials' estimates are kept for the trace: batches of at most
                 # 2^24 values (steps x trials x agents x states)
-                width = 1 if family == "centralized-kf" else scenario.n_agents
+                width = 1 if fam.centralised else scenario.n_agents
                 size = max(1, (1 << 24) // ((steps + 1) * width * scenario.plant.n_states))
                 for first in range(0, trials, size):
                     batch = run_batch(scenario, family, gains, seeds[first:first + size],
                                       steps, record_estimates=True)
                     for index in range(len(batch.results)):
-                        runs.append(_traced_trial(scenario, family, gains, seed, first + index,
+                        runs.append(_traced_trial(scenario, fam, gains, seed, first + index,
                                                   steps, trace, single, on_trace, batch=batch,
                                                   batch_trial=index))
                         if progress is not None:
@@ -475,11 +553,13 @@ def run_monte_carlo(
                     del batch
             else:
                 for t in range(trials):
-                    runs.append(_traced_trial(scenario, family, gains, seed, t, steps, trace,
+                    runs.append(_traced_trial(scenario, fam, gains, seed, t, steps, trace,
                                               single, on_trace))
                     if progress is not None:
                         progress(1)
         result.estimators[family] = _summarise(
             family, runs, scenario.steady_state_fraction, steps
         )
+        if keep_trials:
+            result.runs[family] = runs
     return result

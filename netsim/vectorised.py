@@ -50,21 +50,56 @@ from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "BATCH_ELEMENTS",
-    "VECTORISED_FAMILIES",
     "PlantBatch",
     "VectorisedBatch",
     "simulate_plant",
     "run_batch",
     "run_vectorised",
+    "LockstepRule",
+    "lockstep_rule",
 ]
 
-#: Estimator families the vectorised engine runs.
-VECTORISED_FAMILIES = ("compensated", "uncompensated", "block", "centralized-kf")
 #: Largest trials x links x (steps + 2) of one lockstep batch. Links with random
 #: delays, losses or buffers need about 75 bytes per element at the peak (measured by
 #: benchmarks/engine_scaling.py), so a full batch takes about 0.75 GB; constant delays
 #: need far less. One trial is never split.
 BATCH_ELEMENTS = 10_000_000
+
+
+@dataclass(frozen=True)
+class LockstepRule:
+    """The update rule a family's lockstep form runs, from its ``batched_options``.
+
+    Attributes
+    ----------
+    kind : str
+        ``consensus`` (the consensus + innovation estimators, LCSYS2022 eqs. 4-5,
+        15-16 and delay-tolerant eqs. 6-7) or ``kalman`` (the centralised filter).
+    compensate : bool
+        A^(k - s_j) compensation (LCSYS2022 eq. 4); False: A (delay-tolerant eq. 6).
+    timestamps : bool
+        The freshest time-stamp is used; False: the most recently arrived message.
+    block : bool
+        Update and communicate every tau+1 steps with A^(tau+1) (LCSYS2022 eq. 15).
+    """
+
+    kind: str
+    compensate: bool = True
+    timestamps: bool = True
+    block: bool = False
+
+
+def lockstep_rule(family: str) -> LockstepRule:
+    """The lockstep rule the registry declares for ``family`` (ValueError if none)."""
+    from netsim.estimators.registry import get_family
+
+    declared = get_family(family, "family")
+    options = dict(declared.batched_options)
+    kind = options.pop("rule", None)
+    if kind not in ("consensus", "kalman"):
+        raise ValueError(f"the vectorised engine has no lockstep form of estimator family "
+                         f"{family!r}")
+    return LockstepRule(kind, **options)
 
 
 @dataclass
@@ -208,7 +243,7 @@ def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     return (x.reshape(-1, x.shape[-1]) @ M).reshape(*x.shape[:-1], M.shape[1])
 
 
-def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
+def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
                    steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
     """Run a consensus family; returns the outputs and the steps with an update."""
@@ -237,7 +272,7 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
     uniform = selection.uniform_delay if not np.any(term_link < 0) else None
     neighbour_matrix = sp.csr_matrix((term_w, (term_i, term_j)), shape=(N, N))
     own_weight = np.diag(P)[:, None, None]
-    block = family == "block"
+    block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
     depth = max(selection.max_lag, period) + 1
@@ -273,7 +308,7 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
         sent_step = k - 1 - uniform
         summed = (neighbour_matrix @ history[sent_step % depth].reshape(N, -1)
                   ).reshape(N, T, n)
-        power = 1 if family == "uncompensated" else k - sent_step
+        power = k - sent_step if rule.compensate else 1
         return own_weight * own + _times(summed, powers_T[power])
 
     def scheduled_prior(k: int, own: np.ndarray) -> np.ndarray:
@@ -295,7 +330,7 @@ def _consensus_run(scenario: Scenario, family: str, gains: GainDesign,
         # The terms are summed per lag before the power is applied:
         # sum_j p_ij A^r x_j = A^r (sum_j p_ij x_j), one product per distinct lag on
         # (N, T, n) rather than on every (term, trial).
-        if family == "uncompensated":
+        if not rule.compensate:
             groups = [(1, payload)]  # eq. (6): A, whatever the delay
         else:
             lag = np.where(missing, 0, k - sent)  # eq. (4): A^(k - s_j)
@@ -406,7 +441,8 @@ def run_batch(
     ----------
     scenario : Scenario
     family : str
-        One of :data:`VECTORISED_FAMILIES`.
+        A registered family whose batched form is this engine's lockstep (its
+        ``batched_options`` give the rule, :class:`LockstepRule`).
     gains : GainDesign or None
         Innovation gains L_i (unused by the centralised filter).
     trial_seeds : sequence of seed-like, length T
@@ -428,28 +464,26 @@ def run_batch(
         (``messages`` is empty); and the link schedule and message selection the run
         used (None for the centralised filter).
     """
-    if family not in VECTORISED_FAMILIES:
-        raise ValueError(f"the vectorised engine has no estimator family {family!r}; "
-                         f"it runs {', '.join(VECTORISED_FAMILIES)}")
+    rule = lockstep_rule(family)
     K = scenario.steps if steps is None else int(steps)
     T = len(trial_seeds)
     plant = scenario.plant
     batch = simulate_plant(scenario, trial_seeds, K)
     schedule = selection = None
     P = np.asarray(scenario.weights, dtype=float)
-    if family == "centralized-kf":
+    if rule.kind == "kalman":
         outputs = _kalman_run(scenario, batch, K, record_estimates)
         updated = np.arange(K + 1)
         N = 1
     else:
         if gains is None:
             raise ValueError(f"estimator family {family!r} needs gains")
-        period = scenario.delay_bound + 1 if family == "block" else 1
+        period = scenario.delay_bound + 1 if rule.block else 1
         schedule = build_schedule([scenario.delay_model(s) for s in trial_seeds],
                                   scenario.links, np.arange(0, K + 1, period),
                                   sample_period=scenario.sample_period)
-        selection = select_messages(schedule, K, timestamps=family != "uncompensated")
-        outputs, updated = _consensus_run(scenario, family, gains, batch, schedule,
+        selection = select_messages(schedule, K, timestamps=rule.timestamps)
+        outputs, updated = _consensus_run(scenario, rule, gains, batch, schedule,
                                           selection, K, record_estimates)
         N = scenario.n_agents
     n = plant.n_states
@@ -496,7 +530,7 @@ def run_batch(
     if progress is not None:
         progress(T)
     return VectorisedBatch(results, schedule, selection, updated,
-                           scenario.delay_bound + 1 if family == "block" else 1)
+                           scenario.delay_bound + 1 if rule.block else 1)
 
 
 def run_vectorised(

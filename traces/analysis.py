@@ -49,7 +49,7 @@ from netsim.models.augmented import (
 )
 from netsim.models.jsonsafe import json_number as _num
 from netsim.traces.reader import NOT_USED, Trace
-from netsim.traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system
+from netsim.traces.replay import TraceSystem, effective_pattern, trace_system
 
 __all__ = [
     "BOUND_SLACK",
@@ -518,6 +518,13 @@ def analyze_trace(trace: Trace, *, tau_max: int = DEFAULT_TAU_MAX,
     out.mse = mse
     out.decay = decay_fit(mse) if mse.size else None
 
+    if trace.error_recursion is None:
+        # the gains and bounds in the trace are the consensus estimators'; they say
+        # nothing about a family that declares no augmented error recursion
+        out.notes.append(f"family {family or '?'!r} declares no augmented error recursion; "
+                         "only the error decay is reported")
+        _decay_verdict(out, decay_tolerance)
+        return out
     system, why = trace_system(trace)
     if system is None:
         out.notes.append(f"no spectral analysis: {why}")
@@ -535,7 +542,7 @@ def analyze_trace(trace: Trace, *, tau_max: int = DEFAULT_TAU_MAX,
     D = trace.effective_delays()
     edge = (P != 0) & ~np.eye(N, dtype=bool)
     if D.shape[1:] != (N, N):
-        if family in REPLAY_FAMILIES or family == "block":
+        if trace.error_recursion is not None:
             out.notes.append("the effective delays do not match P's size; delays ignored")
         D = np.full((0, N, N), NOT_USED, dtype=np.int32)
     recorded = D[1:][np.broadcast_to(edge, D[1:].shape)] if D.shape[0] > 1 else np.zeros(0)
@@ -558,14 +565,15 @@ def analyze_trace(trace: Trace, *, tau_max: int = DEFAULT_TAU_MAX,
         out.tau_star_isolated = tuple(int(v) for v in report.isolated)
         out.bound_delay_tolerant = float(delay_bound_tolerant(P, A, C, L, t))
 
-    if family in REPLAY_FAMILIES:
-        _consensus(out, system, D, edge, REPLAY_FAMILIES[family])
-    elif family == "block":
+    if trace.recursion_compensated is not None:
+        _consensus(out, system, D, edge, trace.recursion_compensated)
+    elif trace.error_recursion == "block":
         _block(out, system, D, edge)
     else:
         out.notes.append(
-            f"family {family or '?'!r} has no augmented closed loop; only the delay-free "
-            "rho, the bounds and the error decay are reported"
+            f"family {family or '?'!r}: augmented recursion {trace.error_recursion!r} is "
+            "not analysed here; only the delay-free rho, the bounds and the error decay "
+            "are reported"
         )
     _bound_verdicts(out)
     _decay_verdict(out, decay_tolerance)

@@ -38,7 +38,7 @@ from netsim.models.augmented import (  # noqa: E402
     tau_star,
 )
 from netsim.traces.reader import NOT_USED, Trace  # noqa: E402
-from netsim.traces.replay import REPLAY_FAMILIES, TraceSystem, effective_pattern, trace_system  # noqa: E402
+from netsim.traces.replay import TraceSystem, effective_pattern, trace_system  # noqa: E402
 
 __all__ = ["plot_traces", "homogeneous_rho", "TAU_PLOT_MAX"]
 
@@ -148,7 +148,7 @@ def _delay_panel(ax: plt.Axes, traces: Sequence[Trace],
                        "0.45"))
     tau_obs: int | None = None
     for index, (trace, system) in enumerate(zip(traces, systems, strict=True)):
-        if trace.family not in REPLAY_FAMILIES:
+        if trace.recursion_compensated is None:
             continue
         vals, subs = _effective_delays(trace, system)
         if vals.size:
@@ -216,7 +216,7 @@ def _spectral_panel(ax: plt.Axes, traces: Sequence[Trace],
     markers = "DPX*hp"
     m = 0
     for index, (trace, sys_) in enumerate(zip(traces, systems, strict=True)):
-        if sys_ is None or trace.family not in REPLAY_FAMILIES:
+        if sys_ is None or trace.recursion_compensated is None:
             continue
         D = trace.effective_delays()
         if D.shape[0] < 2 or D.shape[1:] != sys_.P.shape or np.any(D[-1] == -1):
@@ -226,7 +226,7 @@ def _spectral_panel(ax: plt.Axes, traces: Sequence[Trace],
             continue
         P_eff, r_eff = effective_pattern(sys_.P, D[-1])
         rho = float(augmented_spectral_radius(P_eff, sys_.A, sys_.C, sys_.L, r_eff,
-                                              compensated=REPLAY_FAMILIES[trace.family]))
+                                              compensated=trace.recursion_compensated))
         depth = int(r_eff[edge].max()) if np.any(edge) else 0
         ax.plot([depth], [rho], markers[m % len(markers)], ms=10, mec="k",
                 color=_colour(index), label=f"realised last-step pattern, {_label(trace)}")

@@ -126,6 +126,41 @@ class Trace:
     def family(self) -> str:
         return self.run.get("family", "")
 
+    def family_trait(self, trait: str) -> Any:
+        """What the run's family declares (:mod:`netsim.estimators.registry`): from the
+        trace's ``run`` metadata (``family_<trait>``, as a string), or, for a trace
+        written before families recorded their traits, from the registry's family of
+        that name (None when neither knows)."""
+        value = self.run.get(f"family_{trait}")
+        if value is not None:
+            return value
+        if not self.family or ":" in self.family:
+            return None
+        from netsim.estimators.registry import FamilyError, get_family
+
+        try:
+            return getattr(get_family(self.family), trait, None)
+        except FamilyError:
+            return None
+
+    @property
+    def error_recursion(self) -> str | None:
+        """The augmented error recursion the run's family declares (``compensated``,
+        ``uncompensated``, ``block``) or None (:meth:`family_trait`)."""
+        return self.family_trait("error_recursion") or None
+
+    @property
+    def recursion_compensated(self) -> bool | None:
+        """Which consensus error recursion replays the run: True, the A^(r+1)-compensated
+        one (LCSYS2022 eq. 9); False, the uncompensated one (delay-tolerant eq. 11);
+        None, neither (the block update has its own, see :attr:`error_recursion`)."""
+        return {"compensated": True, "uncompensated": False}.get(self.error_recursion)
+
+    @property
+    def centralised(self) -> bool:
+        """Whether the run's family is one agent on every sensor (no network)."""
+        return str(self.family_trait("centralised")) == "True"
+
     @property
     def trial(self) -> int | None:
         value = self.run.get("trial", "")

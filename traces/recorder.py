@@ -71,6 +71,7 @@ import io
 import json
 import math
 import os
+import re
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -150,7 +151,8 @@ def trace_path(base: str | os.PathLike[str], family: str | None = None,
     base = Path(base)
     parts = [base.stem if base.suffix == ".mcap" else base.name]
     if family is not None:
-        parts.append(str(family))
+        # a user's family may be called module:attribute: keep file names plain
+        parts.append(re.sub(r"[^A-Za-z0-9_.+-]", "-", str(family)))
     if trial is not None:
         parts.append(f"trial{int(trial)}")
     if len(parts) == 1:
@@ -367,9 +369,17 @@ class TraceRecorder:
         """Recorder for one run of ``scenario`` (a ``netsim.models.scenario.Scenario``) with
         ``gains`` (an ``netsim.estimators.gains.GainDesign`` or None).
 
-        ``steps`` defaults to ``scenario.steps``; ``options`` go to the constructor.
+        ``steps`` defaults to ``scenario.steps``; ``family_traits`` (what the family
+        declares in :mod:`netsim.estimators.registry`, e.g. ``error_recursion``) is
+        recorded in the ``run`` metadata as ``family_<trait>``, so a reader knows what
+        analytics apply without the family being installed; ``options`` go to the
+        constructor.
         """
         run = dict(options.pop("run_metadata", None) or {})
+        traits = options.pop("family_traits", None) or {}
+        for key, value in traits.items():
+            if key != "name":
+                run.setdefault(f"family_{key}", "" if value is None else str(value))
         if gains is not None:
             run.setdefault("gains_method", str(getattr(gains, "method", "")))
             run.setdefault("gains_solver", str(getattr(gains, "solver", "")))

@@ -17,7 +17,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from netsim.cli import main
 from netsim.estimators.contract import Estimator, check_estimator, missing_methods
 from netsim.estimators.registry import (
     AgentSetup,
@@ -27,6 +26,8 @@ from netsim.estimators.registry import (
     register,
     unregister,
 )
+
+from netsim.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 EXAMPLE = ROOT / "examples" / "consensus-on-information.toml"

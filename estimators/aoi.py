@@ -746,3 +746,391 @@ class NaiveConsensusObserver(_SubstateObserverBase):
         self._z = z_new
         self.adopted_from = adopted
         self.last_delays = used
+
+
+# -- the families this module declares (netsim.estimators.registry) --------------------
+#
+# ``aoi`` (the freshness-index observer), ``naive-uniform`` and ``naive-tree`` (the
+# Section 3 baselines) run on a scenario with a time-varying ``[topology]`` (a static
+# graph is the one-graph sequence) and read their settings from ``[options.aoi]``:
+# gains = "deadbeat" | "rate", rho (for rate), tie_rule, delayed.
+
+import math  # noqa: E402
+
+from netsim.estimators.registry import (  # noqa: E402  (declared after the classes)
+    AgentPlan,
+    EstimatorFamily,
+    FamilyContext,
+    FamilyError,
+    register,
+)
+from netsim.models.seeding import stream  # noqa: E402
+from netsim.models.topology import (  # noqa: E402
+    ConnectivityReport,
+    GraphSequence,
+    LinkSchedule,
+    as_sequence,
+    bfs_parents,
+    connectivity_report,
+    static_sequence,
+)
+
+#: Settings of ``[options.aoi]`` and their defaults.
+AOI_OPTIONS: dict[str, Any] = {"gains": "deadbeat", "rho": None, "tie_rule": "lowest",
+                               "delayed": "discard"}
+#: Relative error (to ||x[k]||) under which an agent counts as exact.
+CONVERGED_RTOL = 1e-9
+#: Growth over the second half beyond which a run is ``diverging`` (as netsim.runner).
+GROWTH_TOLERANCE = 2.0
+
+
+def aoi_options(scenario: Any) -> dict[str, Any]:
+    """The scenario's ``[options.aoi]`` over :data:`AOI_OPTIONS`, checked (FamilyError
+    naming the key)."""
+    given = dict(scenario.options.get("aoi", {}))
+    unknown = sorted(set(given) - set(AOI_OPTIONS))
+    if unknown:
+        raise FamilyError(f"options.aoi.{unknown[0]}", "unknown key; allowed: "
+                          f"{', '.join(sorted(AOI_OPTIONS))}")
+    out = {**AOI_OPTIONS, **given}
+    if out["gains"] not in ("deadbeat", "rate"):
+        raise FamilyError("options.aoi.gains", f"expected deadbeat or rate, got "
+                          f"{out['gains']!r}")
+    rho = out["rho"]
+    if out["gains"] == "rate" and rho is None:
+        out["rho"] = rho = 0.5
+    if rho is not None and (isinstance(rho, bool) or not isinstance(rho, int | float)
+                            or not (rho > 0 and math.isfinite(rho))):
+        raise FamilyError("options.aoi.rho", f"must be a number > 0, got {rho!r}")
+    if out["tie_rule"] not in TIE_RULES:
+        raise FamilyError("options.aoi.tie_rule", f"expected one of {', '.join(TIE_RULES)}, "
+                          f"got {out['tie_rule']!r}")
+    if out["delayed"] not in ("discard", "age"):
+        raise FamilyError("options.aoi.delayed", f"expected discard or age, got "
+                          f"{out['delayed']!r}")
+    return out
+
+
+def aoi_topology(scenario: Any) -> GraphSequence | LinkSchedule:
+    """The scenario's time-varying topology, or its static graph as a one-graph sequence."""
+    if scenario.topology is not None:
+        return scenario.topology
+    return static_sequence(scenario.n_agents, scenario.links)
+
+
+_DESIGNS: dict[int, tuple[Any, AoIDesign]] = {}
+
+
+def aoi_design(scenario: Any) -> AoIDesign:
+    """Lemma 1 decomposition and source gains of the scenario (prior: x0_mean); cached
+    for the last few scenarios (the design is deterministic)."""
+    cached = _DESIGNS.get(id(scenario))
+    if cached is not None and cached[0] is scenario:
+        return cached[1]
+    options = aoi_options(scenario)
+    p = scenario.plant
+    design = AoIDesign.from_plant(p.A, p.C, p.x0_mean, method=options["gains"],
+                                  rho=options["rho"])
+    if len(_DESIGNS) > 8:
+        _DESIGNS.clear()
+    _DESIGNS[id(scenario)] = (scenario, design)
+    return design
+
+
+def corollary_bound(n_states: int, n_agents: int, T: int | None) -> int | None:
+    """Corollary 1's finite-time bound n + 2N(N-1)T (None without a T)."""
+    if T is None:
+        return None
+    return n_states + 2 * n_agents * (n_agents - 1) * T
+
+
+class _TreeParents:
+    """parent(j, i, k): BFS tree of G[k] rooted at j (cached per graph index)."""
+
+    def __init__(self, topology: GraphSequence | LinkSchedule) -> None:
+        self.sequence = as_sequence(topology)
+        self._cache: dict[tuple[int, int], dict[int, int]] = {}
+
+    def __call__(self, j: int, i: int, k: int) -> int | None:
+        idx = self.sequence.index(k)
+        key = (idx, j)
+        parents = self._cache.get(key)
+        if parents is None:
+            parents = bfs_parents(self.sequence.n_agents, self.sequence.graphs[idx], j)
+            self._cache[key] = parents
+        return parents.get(i)
+
+
+def _aoi_agents(kind: str) -> Callable[[FamilyContext], list[AgentPlan]]:
+    def build(context: FamilyContext) -> list[AgentPlan]:
+        scenario = context.scenario
+        options = aoi_options(scenario)
+        design = aoi_design(scenario)
+        topology = aoi_topology(scenario)
+        links = sorted(topology.links())
+        parents = _TreeParents(topology) if kind == "tree" else None
+        plans = []
+        for i in range(scenario.n_agents):
+            if kind == "freshness":
+                rng = (stream(context.trial_seed, "aoi", "ties", i)
+                       if options["tie_rule"] == "random" else None)
+                estimator: Any = FreshnessObserver(i, design, tie_rule=options["tie_rule"],
+                                                   rng=rng, delayed=options["delayed"])
+            else:
+                estimator = NaiveConsensusObserver(i, design, weights=kind, parent=parents)
+            plans.append(AgentPlan(estimator, (i,), tuple(r for s, r in links if s == i)))
+        return plans
+
+    return build
+
+
+class FreshnessTap:
+    """Kernel observer of one AoI run: records every agent's freshness indices and
+    adoptions after each update, forwards every hook to ``inner`` (a trace recorder)
+    and calls its ``on_freshness(agent, k, freshness, adopted_from, substate_dims)``
+    when it has that hook (the ``/agent/<i>/freshness`` topic).
+
+    ``collect()`` gives ``freshness`` (K+1, N, N) (tau_i^(j)[k] at [k, i, j], OMEGA for
+    omega) and ``adopted`` (K+1, N, N) (-1 own, -2 average).
+    """
+
+    def __init__(self, estimators: Sequence[Any], steps: int, dims: Sequence[int],
+                 inner: Any = None) -> None:
+        N = len(estimators)
+        self.estimators = list(estimators)
+        self.freshness = np.full((steps + 1, N, N), OMEGA, dtype=np.int64)
+        self.adopted = np.full((steps + 1, N, N), -1, dtype=np.int64)
+        self.dims = list(dims)
+        self.inner = inner
+        self._on_freshness = getattr(inner, "on_freshness", None)
+
+    def on_plant(self, k, state, measurements):
+        if self.inner is not None:
+            self.inner.on_plant(k, state, measurements)
+
+    def on_sent(self, message):
+        if self.inner is not None:
+            self.inner.on_sent(message)
+
+    def on_delivered(self, message, accepted):
+        if self.inner is not None:
+            self.inner.on_delivered(message, accepted)
+
+    def on_dropped(self, message, reason="", drop_time=None):
+        if self.inner is not None and hasattr(self.inner, "on_dropped"):
+            self.inner.on_dropped(message, reason, drop_time)
+
+    def on_update(self, agent, k, estimate, delays):
+        est = self.estimators[agent]
+        tau = getattr(est, "freshness", None)
+        if k < len(self.adopted):
+            self.adopted[k, agent] = est.adopted_from
+            if tau is not None:
+                self.freshness[k, agent] = tau
+        if self.inner is not None:
+            self.inner.on_update(agent, k, estimate, delays)
+            if self._on_freshness is not None and isinstance(est, FreshnessObserver):
+                self._on_freshness(agent, k, np.asarray(tau).copy(),
+                                   np.asarray(est.adopted_from).copy(), self.dims)
+
+    def collect(self) -> dict[str, np.ndarray]:
+        return {"freshness": self.freshness, "adopted": self.adopted}
+
+
+def _tap(context: FamilyContext, plans: Sequence[AgentPlan], steps: int,
+         inner: Any) -> FreshnessTap:
+    dims = aoi_design(context.scenario).decomposition.dims
+    return FreshnessTap([p.estimator for p in plans], steps, dims, inner)
+
+
+def _nanmax(a: np.ndarray, axis: Any) -> np.ndarray:
+    """nanmax without the all-NaN warning (all-NaN slices give NaN)."""
+    filled = np.where(np.isnan(a), -np.inf, a)
+    out = np.max(filled, axis=axis)
+    return np.where(np.isneginf(out), np.nan, out)
+
+
+def _growth(errors: np.ndarray) -> float:
+    """exp(slope) of log(max_i error) over the second half of the finite part."""
+    worst = _nanmax(errors, axis=1)
+    finite = np.isfinite(worst)
+    if not finite.any():
+        return math.nan
+    last = int(np.flatnonzero(finite)[-1])
+    half = worst[(last + 1) // 2: last + 1]
+    if len(half) < 2 or np.any(half <= 0):
+        return math.nan
+    slope = np.polyfit(np.arange(len(half)), np.log(half), 1)[0]
+    return float(np.exp(slope))
+
+
+def _converged_at(errors: np.ndarray, states: np.ndarray, diverged: bool) -> int | None:
+    if diverged:
+        return None
+    scale = np.maximum(np.linalg.norm(states, axis=1), np.finfo(float).tiny)
+    ok = np.all(errors <= CONVERGED_RTOL * scale[:, None], axis=1)
+    if not ok[-1] or len(ok) < 2:
+        return None
+    bad = np.flatnonzero(~ok)
+    k = 0 if bad.size == 0 else int(bad[-1]) + 1
+    return k if k < len(ok) - 1 else None
+
+
+def _connectivity(scenario: Any) -> tuple[ConnectivityReport, int | None]:
+    design = aoi_design(scenario)
+    conn = connectivity_report(aoi_topology(scenario), design.decomposition.sources)
+    T = conn.joint_T if conn.joint_T is not None else conn.rooted_all_T
+    return conn, T
+
+
+def _json_float(value: float | None) -> float | str | None:
+    if value is None or math.isnan(value):
+        return None
+    if math.isinf(value):
+        return "inf" if value > 0 else "-inf"
+    return float(value)
+
+
+def _merged(counts: Any) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for c in counts:
+        for reason, n in c.items():
+            out[reason] = out.get(reason, 0) + int(n)
+    return dict(sorted(out.items()))
+
+
+def aoi_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
+    """The aoi paper's numbers of one family over its trials (``TrialResult``s).
+
+    ``verdict``: ``diverged at step k``; ``converged at step k`` (noise-free runs only:
+    every agent within CONVERGED_RTOL ||x[k]|| from step k to the end, finite-time
+    convergence); else from the growth factor g per step of the largest agent error
+    over the second half: ``diverging`` (g^half > 2), ``converging`` (g^half < 1/2) or
+    ``bounded``. For ``aoi``: the step by which every index was triggered (Lemma 3) and
+    the largest index after (N-1)T (Lemma 5's bound 2(N-1)T).
+    """
+    scenario = context.scenario
+    p = scenario.plant
+    noise_free = not np.any(p.Q) and not any(np.any(R) for R in p.R)
+    steps = len(trials[0].states) - 1
+    diverged = [t.diverged_at for t in trials if t.diverged_at is not None]
+    errs = np.stack([np.sqrt(t.squared_errors) for t in trials])  # (M, K+1, N)
+    states = np.stack([np.linalg.norm(t.states, axis=1) for t in trials])  # (M, K+1)
+    worst = _nanmax(errs, axis=(0, 2))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rel = _nanmax(errs / np.maximum(states, np.finfo(float).tiny)[:, :, None],
+                      axis=(0, 2))
+    conv = [_converged_at(e, t.states, t.diverged_at is not None) if noise_free else None
+            for e, t in zip(errs, trials, strict=True)]
+    converged_at = max(conv) if conv and all(c is not None for c in conv) else None
+    growths = [_growth(e) for e in errs]
+    growth = max((g for g in growths if math.isfinite(g)), default=math.nan)
+    if diverged:
+        verdict = f"diverged at step {min(diverged)}"
+    elif converged_at is not None:
+        verdict = f"converged at step {converged_at}"
+    else:
+        half = (steps + 1) - (steps + 1) // 2
+        if not math.isfinite(growth):
+            verdict = "bounded"
+        elif growth ** half > GROWTH_TOLERANCE:
+            verdict = "diverging"
+        elif growth ** half < 1.0 / GROWTH_TOLERANCE:
+            verdict = "converging"
+        else:
+            verdict = "bounded"
+    marks = sorted({0, steps // 10, steps // 4, steps // 2, (3 * steps) // 4, steps})
+    out: dict[str, Any] = {
+        "verdict": verdict,
+        "growth_rate": _json_float(growth),
+        "converged_at": converged_at,
+        "diverged_at": min(diverged) if diverged else None,
+        "max_error_at": {str(m): _json_float(float(worst[m])) for m in marks
+                         if m < len(worst)},
+        "max_relative_error_at": {str(m): _json_float(float(rel[m])) for m in marks
+                                  if m < len(rel)},
+        "messages": {"sent": sum(t.messages_sent for t in trials),
+                     "delivered": sum(t.messages_delivered for t in trials),
+                     "dropped": sum(t.messages_dropped for t in trials),
+                     "drop_reasons": _merged(t.drop_reasons for t in trials),
+                     "discarded": sum(t.messages_discarded for t in trials)},
+    }
+    if all("freshness" in t.extras for t in trials) and context.family == "aoi":
+        _, T = _connectivity(scenario)
+        lemma_start = None if T is None else (scenario.n_agents - 1) * T
+        sources = list(aoi_design(scenario).decomposition.sources)
+        # indices of the non-empty substates only (an empty substate's index may stay
+        # omega: nothing to estimate, and Remark 1 only asks for rooted sources)
+        f = np.stack([t.extras["freshness"] for t in trials])[..., sources]
+        triggered = np.all(f != OMEGA, axis=(0, 2, 3))
+        trig = int(np.argmax(triggered)) if triggered.any() else None
+        fresh_max = None
+        if lemma_start is not None and lemma_start <= steps:
+            fresh_max = int(f[:, lemma_start:].max())
+        out["freshness"] = {"all_triggered_by": trig,
+                            "max_index_after_trigger_bound": fresh_max}
+        out["summary_lines"] = [
+            f"aoi freshness: all indices triggered by step {trig}"
+            + ("" if fresh_max is None else
+               f"; largest index from step {lemma_start} on: {fresh_max}")]
+    return out
+
+
+def aoi_analytics(scenario: Any, gains: Any = None) -> dict[str, Any]:
+    """The Lemma 1 design, the graph sequence's connectivity and the paper's bounds
+    (Lemma 3, Lemma 5, Corollary 1) for the scenario."""
+    design = aoi_design(scenario)
+    options = aoi_options(scenario)
+    conn, T = _connectivity(scenario)
+    N, n = scenario.n_agents, scenario.plant.n_states
+    delay_free = scenario.max_delay == 0 and (scenario.link_spec is None)
+    dims = design.decomposition.dims
+    gains = design.gains
+    lines = [
+        f"Lemma 1 decomposition: substate dims {list(dims)} (sources "
+        f"{list(design.decomposition.sources)}); gains {gains.method}"
+        + ("" if gains.rho is None or gains.method == "deadbeat"
+           else f", rho = {gains.rho:g}, rho_j = {[round(r, 4) for r in gains.rhos]}"),
+        "connectivity: Assumption 1 (jointly strongly connected) "
+        + (f"holds with T = {conn.joint_T}" if conn.joint_T is not None
+           else "fails for every T")
+        + "; Remark 1 (jointly rooted at the sources) "
+        + (f"holds with T = {conn.rooted_all_T}" if conn.rooted_all_T is not None
+           else "fails"),
+    ]
+    applies = options["gains"] == "deadbeat" and delay_free
+    if T:
+        lines.append(
+            f"paper's bounds with T = {T}: all indices triggered by (N-1)T = {(N - 1) * T} "
+            f"(Lemma 3), indices <= 2(N-1)T = {2 * (N - 1) * T} after that (Lemma 5), "
+            f"finite-time convergence by n + 2N(N-1)T = {corollary_bound(n, N, T)} "
+            f"(Corollary 1" + (")" if applies
+                               else ", not applicable: needs deadbeat gains, no delays)"))
+    return {
+        "summary_lines": lines,
+        "design": design.to_dict(),
+        "options": options,
+        "connectivity": conn.to_dict(),
+        "bounds": {
+            "T": T,
+            "assumption_1": conn.joint_T is not None,
+            "remark_1_rooted_at_sources": conn.rooted_all_T is not None,
+            "lemma_3_triggered_by": None if T is None else (N - 1) * T,
+            "lemma_5_freshness_max": None if T is None else 2 * (N - 1) * T,
+            "corollary_1_finite_time": corollary_bound(n, N, T),
+            "applies": options["gains"] == "deadbeat" and delay_free,
+        },
+    }
+
+
+_AOI_PAPER = "aoi paper (Mitra et al.), Section 4, eqs. (7)-(14)"
+for _name, _kind, _text in (
+    ("aoi", "freshness", "age-of-information freshness-index observer (finite time)"),
+    ("naive-uniform", "uniform", "naive consensus baseline, uniform weights (Section 3)"),
+    ("naive-tree", "tree", "naive consensus baseline, spanning-tree weights (Section 3)"),
+):
+    register(EstimatorFamily(
+        name=_name, build=_aoi_agents(_kind), description=_text, paper=_AOI_PAPER,
+        needs_graph_sequence=True, timestamps=True, observer=_tap, report=aoi_report,
+        analytics=aoi_analytics, analytics_key="aoi", source="builtin",
+    ))

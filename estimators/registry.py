@@ -56,6 +56,7 @@ __all__ = [
 BUILTIN_MODULES = (
     "netsim.estimators.consensus",
     "netsim.estimators.kalman",
+    "netsim.estimators.aoi",
 )
 #: Entry-point group through which installed packages add families.
 ENTRY_POINT_GROUP = "netsim.estimators"
@@ -247,6 +248,21 @@ class EstimatorFamily:
     source : str
         ``builtin``, ``python`` (registered from Python), ``scenario`` (named as
         module:attribute) or ``entry-point``.
+    observer : callable or None
+        ``(context, plans, steps, inner) -> observer``: wraps the kernel observer of
+        each run of this family (``inner``: a trace recorder or None), to record what
+        only the family knows (the AoI observer's freshness indices). The returned
+        object receives every kernel hook, forwards it to ``inner``, and its
+        ``collect()`` is kept in ``TrialResult.extras``.
+    report : callable or None
+        ``(context, trials) -> dict``: family-specific numbers over the trials (a list
+        of ``TrialResult``), added to the run's summary as ``report``; a ``verdict``
+        key replaces the generic verdict (the AoI observer's "converged at step k").
+    analytics : callable or None
+        ``(scenario, gains) -> dict``: scenario-level analytics of the family (its
+        paper's bounds), shown once per ``analytics_key`` in a run's ``analytics``.
+    analytics_key : str
+        The key of ``analytics`` (families sharing one analysis share the key).
     """
 
     name: str
@@ -261,6 +277,10 @@ class EstimatorFamily:
     batched: str | Callable[..., Any] | None = None
     batched_options: dict[str, Any] = field(default_factory=dict)
     source: str = "python"
+    observer: Callable[..., Any] | None = None
+    report: Callable[..., dict[str, Any]] | None = None
+    analytics: Callable[..., dict[str, Any]] | None = None
+    analytics_key: str = ""
 
     @property
     def vectorised(self) -> bool:

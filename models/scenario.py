@@ -75,6 +75,7 @@ from netsim.models.network import (
 )
 from netsim.models.plant import LinearPlant
 from netsim.models.seeding import SeedLike
+from netsim.models.topology import GraphSequence, LinkSchedule, TopologyError, as_sequence
 
 __all__ = [
     "ScenarioError",
@@ -124,7 +125,8 @@ DEFAULTS: dict[str, Any] = {
 }
 
 _SCHEMA: dict[str, set[str]] = {
-    "": {"name", "description", "run", "plant", "network", "delays", "gains", "links"},
+    "": {"name", "description", "run", "plant", "network", "delays", "gains", "links",
+         "topology", "options"},
     "run": {
         "steps", "trials", "seed", "sample_period", "divergence_threshold",
         "steady_state_fraction", "estimators",
@@ -136,6 +138,7 @@ _SCHEMA: dict[str, set[str]] = {
     "gains": {"method", "K"},
     "links": {"delay", "loss", "buffer", "outages", "bandwidth", "message_size", "seed",
               "bound", "per_link"},
+    "topology": {"graphs", "period", "down", "duty"},
 }
 #: Keys of one ``links.per_link`` entry.
 _LINK_KEYS = {"from", "to", "delay", "loss", "buffer", "outages", "bandwidth", "message_size"}
@@ -219,6 +222,13 @@ class Scenario:
     link_spec : LinksSpec or None
         The ``[links]`` table: per-link delay distributions, losses, outages, buffers,
         serialisation (None: links only delay, as ``[delays]`` says).
+    topology : GraphSequence or LinkSchedule or None
+        The ``[topology]`` table: a time-varying communication graph (which links are
+        up at each sending step). The links are then the union of its graphs, and a
+        message sent on a link that is down is dropped. None: every link is always up.
+    options : dict of str -> dict
+        The ``[options.<name>]`` tables: settings of estimator families, validated by
+        the families that read them (:mod:`netsim.estimators.registry`).
     """
 
     name: str
@@ -236,11 +246,18 @@ class Scenario:
     steady_state_fraction: float
     source: str = ""
     link_spec: LinksSpec | None = None
+    topology: GraphSequence | LinkSchedule | None = None
+    options: dict[str, dict[str, Any]] = field(default_factory=dict)
 
     @cached_property
     def graph(self) -> nx.DiGraph:
         """Communication graph, edge (j, i): i receives from j (built once; do not
-        modify it)."""
+        modify it). With a time-varying ``topology``: the union of its graphs."""
+        if self.topology is not None:
+            graph = nx.DiGraph()
+            graph.add_nodes_from(range(self.topology.n_agents))
+            graph.add_edges_from(self.topology.links())
+            return graph
         return graph_from_weights(self.weights)
 
     @property
@@ -299,6 +316,29 @@ class Scenario:
             model = "homogeneous"
         return replace(self, delays=replace(self.delays, model=model, tau=int(tau)))
 
+    def with_noise(self, process: float | None = None,
+                   measurement: float | None = None) -> Scenario:
+        """Return a copy with Q = process * I and/or every R_i = measurement * I."""
+        plant = self.plant
+        if process is not None:
+            if not (process >= 0 and math.isfinite(process)):
+                raise ScenarioError("plant.Q", f"variance must be finite and >= 0, got "
+                                    f"{process}")
+            plant = replace(plant, Q=float(process) * np.eye(plant.n_states))
+        if measurement is not None:
+            if not (measurement >= 0 and math.isfinite(measurement)):
+                raise ScenarioError("plant.R", f"variance must be finite and >= 0, got "
+                                    f"{measurement}")
+            plant = replace(plant, R=tuple(float(measurement) * np.eye(C.shape[0])
+                                           for C in plant.C))
+        return replace(self, plant=plant)
+
+    def with_options(self, name: str, **settings: Any) -> Scenario:
+        """Return a copy with ``[options.<name>]`` updated by ``settings``."""
+        options = {k: dict(v) for k, v in self.options.items()}
+        options.setdefault(name, {}).update(settings)
+        return replace(self, options=options)
+
     def delay_model(self, trial_seed: SeedLike) -> DelayModel:
         """Build the delay model; random models draw from the trial's streams.
 
@@ -353,6 +393,10 @@ class Scenario:
             "steps": self.steps,
             "trials": self.trials,
             "seed": self.seed,
+            **({"topology": as_sequence(self.topology).to_dict()}
+               if self.topology is not None else {}),
+            **({"options": {k: dict(v) for k, v in self.options.items()}}
+               if self.options else {}),
         }
 
 
@@ -467,6 +511,9 @@ def _parse_plant(table: dict[str, Any]) -> LinearPlant:
         raise ScenarioError("plant.C", "expected a list with one output matrix per sensor")
     C = []
     for i, Ci in enumerate(C_raw):
+        if isinstance(Ci, list) and not Ci:
+            C.append(np.zeros((0, n)))  # a sensor that measures nothing: []
+            continue
         if isinstance(Ci, list) and Ci and not isinstance(Ci[0], list):
             Ci = [Ci]  # a single row given flat
         C.append(_matrix(Ci, f"plant.C[{i}]", (None, n)))
@@ -839,8 +886,24 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
     description = data.get("description", "")
     run = _section(data, "run", required=False)
     plant = _parse_plant(_section(data, "plant"))
-    P = _parse_network(_section(data, "network"), plant.n_sensors)
-    links = sorted(graph_from_weights(P).edges)
+    topology = None
+    if "topology" in data:
+        topology = _parse_topology(_section(data, "topology"), plant.n_sensors)
+    if topology is not None and "network" not in data:
+        # consensus weights of the union graph, for families that need a P
+        union = nx.DiGraph()
+        union.add_nodes_from(range(plant.n_sensors))
+        union.add_edges_from(topology.links())
+        P = uniform_weights(union)
+        links = sorted(union.edges)
+    else:
+        P = _parse_network(_section(data, "network"), plant.n_sensors)
+        links = sorted(graph_from_weights(P).edges)
+        if topology is not None and set(topology.links()) - set(links):
+            extra = sorted(set(topology.links()) - set(links))[0]
+            raise ScenarioError("topology.graphs", f"link {list(extra)} is not an edge of "
+                                "[network] (leave [network] out to use the union graph)")
+    options = _parse_options(data.get("options", {}))
     delays = _parse_delays(_section(data, "delays", required=False), links)
     link_spec = None
     if "links" in data:
@@ -885,7 +948,88 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         steady_state_fraction=fraction,
         source=source,
         link_spec=link_spec,
+        topology=topology,
+        options=options,
     )
+
+
+def _parse_edge_list(value: Any, key: str, n_agents: int) -> list[tuple[int, int]]:
+    if not isinstance(value, list):
+        raise ScenarioError(key, f"expected a list of [sender, receiver] pairs, got {value!r}")
+    edges = []
+    for e, edge in enumerate(value):
+        where = f"{key}[{e}]"
+        if not (isinstance(edge, list) and len(edge) == 2):
+            raise ScenarioError(where, f"expected [sender, receiver], got {edge!r}")
+        j, i = (_int(v, where, 0) for v in edge)
+        if j >= n_agents or i >= n_agents:
+            raise ScenarioError(where, f"agent index out of range 0..{n_agents - 1}")
+        if i == j:
+            raise ScenarioError(where, "a self-loop is not a link")
+        edges.append((j, i))
+    return edges
+
+
+def _parse_topology(table: dict[str, Any], n_agents: int) -> GraphSequence | LinkSchedule:
+    """``[topology]``: graphs = [[[j, i], ...], ...] (E[0], E[1], ...; the last
+    ``period`` repeat, default all), optional link outages ``down = [[j, i, [[start,
+    stop], ...]], ...]`` (stop -1: for good) and duty cycles ``duty = [[j, i, period,
+    up, phase], ...]``."""
+    graphs = _require(table, "graphs", "topology")
+    if not isinstance(graphs, list) or not graphs:
+        raise ScenarioError("topology.graphs", "expected a non-empty list of edge lists")
+    edge_sets = [_parse_edge_list(g, f"topology.graphs[{k}]", n_agents)
+                 for k, g in enumerate(graphs)]
+    period = None
+    if "period" in table:
+        period = _int(table["period"], "topology.period", 1)
+        if period > len(edge_sets):
+            raise ScenarioError("topology.period", f"must be at most the number of graphs "
+                                f"({len(edge_sets)}), got {period}")
+    try:
+        sequence = GraphSequence(n_agents, edge_sets, period)
+    except TopologyError as exc:
+        raise ScenarioError("topology.graphs", str(exc)) from None
+    if "down" not in table and "duty" not in table:
+        return sequence
+    down: dict[tuple[int, int], list[tuple[int, int | None]]] = {}
+    for e, entry in enumerate(table.get("down", [])):
+        key = f"topology.down[{e}]"
+        if not (isinstance(entry, list) and len(entry) == 3 and isinstance(entry[2], list)):
+            raise ScenarioError(key, "expected [sender, receiver, [[start, stop], ...]]")
+        (edge,) = _parse_edge_list([entry[:2]], key, n_agents)
+        spans = []
+        for span in entry[2]:
+            if not (isinstance(span, list) and len(span) == 2):
+                raise ScenarioError(key, f"expected [start, stop] intervals, got {span!r}")
+            start = _int(span[0], key, 0)
+            stop = _int(span[1], key, -1)
+            spans.append((start, None if stop == -1 else stop))
+        down[edge] = spans
+    duty = {}
+    for e, entry in enumerate(table.get("duty", [])):
+        key = f"topology.duty[{e}]"
+        if not (isinstance(entry, list) and len(entry) in (4, 5)):
+            raise ScenarioError(key, "expected [sender, receiver, period, up, phase]")
+        (edge,) = _parse_edge_list([entry[:2]], key, n_agents)
+        duty[edge] = [_int(v, key, 0) for v in entry[2:]]
+    try:
+        return LinkSchedule(sequence, down=down, duty=duty)
+    except TopologyError as exc:
+        raise ScenarioError("topology", str(exc)) from None
+
+
+def _parse_options(value: Any) -> dict[str, dict[str, Any]]:
+    """``[options.<name>]``: one table per estimator family (or group of families); the
+    families check their own keys."""
+    if not isinstance(value, dict):
+        raise ScenarioError("options", f"expected a table of tables, got {value!r}")
+    out = {}
+    for name, table in value.items():
+        if not isinstance(table, dict):
+            raise ScenarioError(f"options.{name}", f"expected a table, got {table!r}")
+        out[str(name)] = dict(table)
+    return out
 
 
 def load_scenario(path: str | Path) -> Scenario:

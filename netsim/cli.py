@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from collections.abc import Sequence
 from typing import Any
@@ -72,6 +73,12 @@ def build_parser() -> argparse.ArgumentParser:
                      help="vectorised: all trials advance together in numpy arrays (fast; "
                      "same results and traces as the kernel, to round-off); events: the "
                      "SimPy event kernel, the reference; auto (default): vectorised")
+    run.add_argument("--noise", type=float, default=None, metavar="VAR",
+                     help="process and measurement noise variance (Q = VAR I, R_i = VAR I)")
+    run.add_argument("--process-noise", type=float, default=None, metavar="VAR",
+                     help="process noise variance (Q = VAR I)")
+    run.add_argument("--measurement-noise", type=float, default=None, metavar="VAR",
+                     help="measurement noise variance (every R_i = VAR I)")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     from netsim.aoi import add_aoi_arguments
 
@@ -243,6 +250,21 @@ def _families(scenario: Any, option: str | None) -> list[Any]:
         raise CommandError(f"{where}{exc}") from None
 
 
+def _apply_noise(args: argparse.Namespace, scenario: Any) -> Any:
+    """``--noise VAR`` (both), ``--process-noise``, ``--measurement-noise``."""
+    noise = getattr(args, "noise", None)
+    process = getattr(args, "process_noise", None)
+    measurement = getattr(args, "measurement_noise", None)
+    for label, v in (("--noise", noise), ("--process-noise", process),
+                     ("--measurement-noise", measurement)):
+        if v is not None and not (v >= 0 and math.isfinite(v)):
+            raise CommandError(f"{label} must be a finite variance >= 0, got {v}")
+    if noise is None and process is None and measurement is None:
+        return scenario
+    return scenario.with_noise(noise if process is None else process,
+                               noise if measurement is None else measurement)
+
+
 def _note_fallbacks(command: str, names: Sequence[str]) -> None:
     """Say on stderr which families ``--engine auto`` runs in the event kernel."""
     if names:
@@ -268,30 +290,14 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _positive(args.trials, "--trials")
     if args.seed is not None and args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
-    from netsim.aoi import aoi_command, is_aoi_scenario
+    from netsim.aoi import apply_aoi_arguments
 
-    if is_aoi_scenario(args.scenario):
-        from netsim.estimators.aoi import GainDesignError as AoIDesignError
-
-        if args.engine == "vectorised":
-            raise CommandError(f"--engine vectorised: scenario {args.scenario} runs the "
-                               "age-of-information observer, which only the event kernel "
-                               "runs (use --engine events or auto)")
-
-        try:
-            data, text = aoi_command(args)
-        except AoIDesignError as exc:
-            raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
-                               EXIT_DESIGN_FAILED) from None
-        except ValueError as exc:
-            raise CommandError(f"scenario {args.scenario}: {exc}") from None
-        except OSError as exc:
-            raise CommandError(f"cannot write trace {args.trace}: {exc}") from None
-        return _emit(args, data, text)
     try:
         scenario = resolve_scenario(args.scenario)
         if args.tau is not None:
             scenario = scenario.with_tau(args.tau)
+        scenario = _apply_noise(args, scenario)
+        scenario = apply_aoi_arguments(args, scenario)
     except ScenarioError as exc:
         where = f"scenario {args.scenario}"
         raise CommandError(f"{where}: {exc}") from None
@@ -311,10 +317,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
     try:
-        choose_engine(args.engine, declared, traced=args.trace is not None)
+        choose_engine(args.engine, declared, traced=args.trace is not None,
+                      scenario=scenario)
     except ValueError as exc:
-        raise CommandError(f"--engine {args.engine}: {exc}") from None
-    _note_fallbacks("run", kernel_fallbacks(args.engine, declared))
+        raise CommandError(f"--engine {args.engine}: scenario {args.scenario}: {exc}"
+                           ) from None
+    _note_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
     trials = args.trials or scenario.trials
     total = trials * len(families)
     bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",
@@ -386,8 +394,11 @@ def _format_run(data: dict[str, Any]) -> str:
             f"gains: {g['method']} ({g['solver']}, {g['status']}, {cert}); "
             f"rho(A-hat) delay-free = {_fmt(g['rho_delay_free'])}"
         )
-    a = data.get("analytics")
-    if a:
+    a = data.get("analytics") or {}
+    for section in a.values():  # the families' own analytics (their papers' bounds)
+        if isinstance(section, dict):
+            lines += section.get("summary_lines", [])
+    if "delay_bound" in a:
         lines.append(
             f"analytics at tau = {a['delay_bound']}: tau* (LCSYS2022 Thm 1) = {a['tau_star']}, "
             f"eq. (26) bound = {_fmt(a['bound_lcsys_eq26'])}, delay-tolerant bound "
@@ -416,6 +427,8 @@ def _format_run(data: dict[str, Any]) -> str:
         row += f"{_fmt(e['growth_rate']):>13}  "
         row += " ".join(f"{_fmt(e['mse_at'][m]):>11}" for m in marks)
         lines.append(row)
+    for e in data["estimators"].values():
+        lines += (e.get("report") or {}).get("summary_lines", [])
     lines.append("")
     lines.append("MSE: (1/N) sum_i ||x_k - xhat^i_k||^2 averaged over non-diverged trials; "
                  "growth/step: exp(slope of log MSE) over the second half.")
@@ -639,10 +652,6 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
         except ScenarioError as exc:  # a broken built-in is a bug: say so loudly
             raise CommandError(f"built-in scenario {name} is invalid: {exc}", 1) from None
         items.append({**scenario.summary(), "name": name, "source": f"builtin:{name}"})
-    from netsim.aoi import AOI_SCENARIOS, aoi_scenario
-
-    for name in AOI_SCENARIOS:
-        items.append({**aoi_scenario(name).summary(), "name": name, "source": f"builtin:{name}"})
     if args.json:
         json.dump({"scenarios": items}, sys.stdout, indent=2)
         sys.stdout.write("\n")

@@ -147,6 +147,8 @@ class TrialResult:
         Every delivered message, in delivery order (when recorded).
     drop_reasons : dict of str -> int
         Dropped messages by reason (see :mod:`netsim.links`); sums to messages_dropped.
+    extras : dict
+        What the family's own observer collected (``EstimatorFamily.observer``).
     """
 
     states: np.ndarray
@@ -161,6 +163,7 @@ class TrialResult:
     messages: list[Message] = field(default_factory=list)
     messages_dropped: int = 0
     drop_reasons: dict[str, int] = field(default_factory=dict)
+    extras: dict[str, Any] = field(default_factory=dict)
 
 
 class Simulation:

@@ -148,8 +148,22 @@ def run_trial(
     record_messages: bool = False,
     observer: KernelObserver | None = None,
 ) -> TrialResult:
-    """Run one trial of one estimator family in the event kernel."""
-    agents = build_agents(scenario, family, gains, trial_seed)
+    """Run one trial of one estimator family in the event kernel.
+
+    A time-varying ``scenario.topology`` is the kernel's ``availability`` hook; a
+    family's own observer (``EstimatorFamily.observer``) wraps ``observer`` and what it
+    collects is ``TrialResult.extras``.
+    """
+    steps = scenario.steps if steps is None else int(steps)
+    declared = family_of(family, scenario)
+    context = FamilyContext(scenario, gains, trial_seed, declared.name)
+    plans = declared.agents(context)
+    n_sensors = scenario.plant.n_sensors
+    agents = [AgentSpec(plan.estimator, _measure(plan.sensors, n_sensors),
+                        list(plan.out_neighbours)) for plan in plans]
+    tap = None if declared.observer is None else declared.observer(context, plans, steps,
+                                                                    observer)
+    topology = scenario.topology
     simulation = Simulation(
         scenario.plant,
         agents,
@@ -159,21 +173,34 @@ def run_trial(
         divergence_threshold=scenario.divergence_threshold,
         record_delays=record_delays,
         record_messages=record_messages,
-        observer=observer,
+        observer=observer if tap is None else tap,
+        availability=None if topology is None else topology.is_up,
     )
-    return simulation.run(scenario.steps if steps is None else steps)
+    result = simulation.run(steps)
+    if tap is not None:
+        result.extras = dict(tap.collect())
+    return result
 
 
-def engines_for(engine: str, families: Sequence[str | EstimatorFamily]) -> dict[str, str]:
+def engines_for(engine: str, families: Sequence[str | EstimatorFamily],
+                scenario: Scenario | None = None) -> dict[str, str]:
     """The engine each family runs on: ``vectorised`` or ``events``.
 
     ``auto`` gives the vectorised engine to every family with a batched form and the
     event kernel to the others (:func:`kernel_fallbacks` names them); ``vectorised``
-    refuses a family without one (ValueError); ``events`` runs all in the kernel.
+    refuses a family without one (ValueError); ``events`` runs all in the kernel. A
+    scenario with a time-varying topology runs in the kernel (the lockstep engine
+    does not model links going up and down).
     """
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
-    declared = [family_of(f) for f in families]
+    declared = [family_of(f, scenario) for f in families]
+    if scenario is not None and scenario.topology is not None:
+        if engine == "vectorised":
+            raise ValueError("the vectorised engine does not model a time-varying "
+                             "[topology]; only the event kernel runs it (--engine events "
+                             "or auto)")
+        return {f.name: "events" for f in declared}
     if engine == "vectorised":
         bad = [f.name for f in declared if not f.vectorised]
         if bad:
@@ -184,16 +211,17 @@ def engines_for(engine: str, families: Sequence[str | EstimatorFamily]) -> dict[
     return {f.name: "vectorised" if f.vectorised else "events" for f in declared}
 
 
-def kernel_fallbacks(engine: str, families: Sequence[str | EstimatorFamily]) -> list[str]:
-    """Families that ``engine`` (``auto``) runs in the event kernel for lack of a
-    batched form."""
-    if engine != "auto":
+def kernel_fallbacks(engine: str, families: Sequence[str | EstimatorFamily],
+                     scenario: Scenario | None = None) -> list[str]:
+    """Families with no batched form, which ``engine`` (``auto``) runs in the event
+    kernel (none are named when the scenario's topology sends every family there)."""
+    if engine != "auto" or (scenario is not None and scenario.topology is not None):
         return []
     return [name for name, e in engines_for(engine, families).items() if e == "events"]
 
 
 def choose_engine(engine: str, families: Sequence[str | EstimatorFamily], *,
-                  traced: bool = False) -> str:
+                  traced: bool = False, scenario: Scenario | None = None) -> str:
     """Resolve ``auto`` and check that the engine can run the request.
 
     Returns ``"vectorised"`` when every family runs on the vectorised engine, else
@@ -203,7 +231,7 @@ def choose_engine(engine: str, families: Sequence[str | EstimatorFamily], *,
     the same traces, so ``traced`` does not change the choice.
     """
     del traced  # both engines trace
-    chosen = set(engines_for(engine, families).values())
+    chosen = set(engines_for(engine, families, scenario).values())
     if len(chosen) == 1:
         return chosen.pop()
     return "vectorised" if not chosen else "mixed"
@@ -328,6 +356,8 @@ class EstimatorSummary:
     messages_sent: int = 0
     messages_delivered: int = 0
     messages_discarded: int = 0
+    #: The family's own numbers (``EstimatorFamily.report``), or None.
+    report: dict[str, Any] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         k = len(self.mse) - 1
@@ -344,6 +374,7 @@ class EstimatorSummary:
                 "delivered": self.messages_delivered,
                 "discarded_stale": self.messages_discarded,
             },
+            **({"report": _json_tree(self.report)} if self.report is not None else {}),
         }
 
 
@@ -518,12 +549,18 @@ def run_monte_carlo(
     needs_gains = any(f.needs_gains for f in declared)
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)
-    engines = engines_for(engine, declared)
-    engine = choose_engine(engine, declared, traced=trace is not None)
+    engines = engines_for(engine, declared, scenario)
+    engine = choose_engine(engine, declared, traced=trace is not None, scenario=scenario)
     result = MonteCarloResult(scenario, gains, steps, trials, seed, engine=engine,
                               engines=engines)
     if gains is not None:
         result.analytics = delay_analytics(scenario, gains)
+    for fam in declared:  # the families' own analytics, once per key
+        if fam.analytics is not None:
+            result.analytics = result.analytics or {}
+            key = fam.analytics_key or fam.name
+            if key not in result.analytics:
+                result.analytics[key] = fam.analytics(scenario, gains)
     seeds = [child_sequence(seed, "trial", t) for t in range(trials)]
     for fam in declared:
         family = fam.name
@@ -557,9 +594,12 @@ def run_monte_carlo(
                                               single, on_trace))
                     if progress is not None:
                         progress(1)
-        result.estimators[family] = _summarise(
-            family, runs, scenario.steady_state_fraction, steps
-        )
+        summary = _summarise(family, runs, scenario.steady_state_fraction, steps)
+        if fam.report is not None:
+            summary.report = dict(fam.report(FamilyContext(scenario, gains, None, family),
+                                             runs))
+            summary.verdict = summary.report.get("verdict", summary.verdict)
+        result.estimators[family] = summary
         if keep_trials:
             result.runs[family] = runs
     return result

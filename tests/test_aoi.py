@@ -8,9 +8,7 @@ transcription of eqs. (7)-(14) on global arrays, used to check the estimator obj
 
 from __future__ import annotations
 
-import argparse
 import json
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,6 +20,7 @@ from netsim.estimators.aoi import (
     FreshnessObserver,
     GainDesignError,
     NaiveConsensusObserver,
+    aoi_analytics,
     deadbeat_gain,
     design_source_gains,
     nilpotency_index,
@@ -38,17 +37,29 @@ from netsim.models.topology import (
 )
 
 from netsim.aoi import (
-    AoIScenario,
-    _plant,
-    aoi_command,
+    aoi_scenario_from,
     corollary_bound,
     illustrative_example,
     random_jointly_observable_system,
-    record_aoi_run,
-    run_aoi_example,
-    run_aoi_scenario,
-    run_aoi_trial,
 )
+from netsim.cli import main
+from netsim.runner import run_monte_carlo, run_trial
+
+
+def run_example(steps: int = 60, seed: int = 0, noise: float = 0.0):
+    """The Section 3 example through the runner, every trial kept."""
+    sc = illustrative_example(steps=steps, seed=seed, process_noise=noise,
+                              measurement_noise=noise)
+    return run_monte_carlo(sc, keep_trials=True)
+
+
+def kernel_run(scenario, family: str = "aoi", trial_seed=0, steps=None, observer=None):
+    """One kernel run (TrialResult; the freshness indices in ``extras``)."""
+    return run_trial(scenario, family, None, trial_seed, steps, observer=observer)
+
+
+def error_norms(trial) -> np.ndarray:
+    return np.sqrt(trial.squared_errors)
 
 PROPERTY = settings(max_examples=25, deadline=None,
                     suppress_health_check=[HealthCheck.filter_too_much, HealthCheck.too_slow])
@@ -314,37 +325,36 @@ def test_design_source_gains_rates_increase_below_rho():
 
 
 def test_example_naive_baselines_diverge_and_aoi_converges():
-    result = run_aoi_example(steps=60, seed=0)
-    fam = result.families
+    result = run_example(steps=60, seed=0)
+    fam = {name: s.report for name, s in result.estimators.items()}
     # both naive baselines' errors grow without bound (the kernel stops them at 1e8)
     for name in ("naive-uniform", "naive-tree"):
         f = fam[name]
-        assert f.verdict.startswith("diverged at step")
-        errs = f.trials[0].error_norms
+        assert f["verdict"].startswith("diverged at step")
+        assert result.estimators[name].verdict == f["verdict"]
+        errs = error_norms(result.runs[name][0])
         finite = errs[np.all(np.isfinite(errs), axis=1)].max(axis=1)
         assert finite[-1] > 1e8 * 0.5 and finite[-1] > 1e6 * finite[1]
     # growth per step: tree weights a = 2; uniform weights sqrt(rho([[2,1],[1,1]])) = golden ratio
-    assert fam["naive-tree"].growth_rate == pytest.approx(2.0, rel=1e-6)
-    assert fam["naive-uniform"].growth_rate == pytest.approx((1 + 5**0.5) / 2, rel=1e-3)
+    assert fam["naive-tree"]["growth_rate"] == pytest.approx(2.0, rel=1e-6)
+    assert fam["naive-uniform"]["growth_rate"] == pytest.approx((1 + 5**0.5) / 2, rel=1e-3)
     # the AoI observer is exact from step 3 on: node 0 from 1, node 2 from 2, node 1 from 3
-    aoi = fam["aoi"]
-    assert aoi.verdict == "converged at step 3"
-    err = aoi.trials[0].error_norms
+    assert fam["aoi"]["verdict"] == "converged at step 3"
+    err = error_norms(result.runs["aoi"][0])
     assert np.all(err[3:] == 0.0)
     assert err[1, 0] == 0.0 and err[2, 2] == 0.0 and err[2, 1] > 0
-    assert result.connectivity.joint_T is None and result.connectivity.rooted_all_T == 1
-    assert result.bound == 1 + 2 * 3 * 2 * 1
+    analytics = result.analytics["aoi"]
+    assert analytics["connectivity"]["joint_T"] is None
+    assert analytics["connectivity"]["rooted_all_T"] == 1
+    assert analytics["bounds"]["corollary_1_finite_time"] == 1 + 2 * 3 * 2 * 1
     data = result.to_dict()
     json.dumps(data, allow_nan=False)
     assert data["estimators"]["aoi"]["verdict"] == "converged at step 3"
-    text = result.format_text()
-    for name in ("aoi", "naive-uniform", "naive-tree"):
-        assert name in text
 
 
 def test_example_freshness_trace():
-    run = run_aoi_trial(illustrative_example(), "aoi", steps=8)
-    tau = run.freshness[:, :, 0]  # substate 0 (the only non-empty one), per agent
+    run = kernel_run(illustrative_example(), "aoi", steps=8)
+    tau = run.extras["freshness"][:, :, 0]  # substate 0 (the only non-empty one), per agent
     assert tau[:, 0].tolist() == [0] * 9
     # step 0 graph (a): 0->1 so node 1 gets index 1 at step 1; node 2 waits for 0->2 at step 1
     assert tau[:4, 1].tolist() == [OMEGA, 1, 2, 1]
@@ -352,10 +362,10 @@ def test_example_freshness_trace():
 
 
 def test_example_with_noise_aoi_bounded_naive_diverges():
-    result = run_aoi_example(steps=60, seed=1, noise=0.01)
-    assert result.families["aoi"].verdict == "bounded"
-    assert result.families["naive-tree"].verdict.startswith("diverg")
-    assert result.families["naive-uniform"].verdict.startswith("diverg")
+    result = run_example(steps=60, seed=1, noise=0.01)
+    assert result.estimators["aoi"].verdict == "bounded"
+    assert result.estimators["naive-tree"].verdict.startswith("diverg")
+    assert result.estimators["naive-uniform"].verdict.startswith("diverg")
 
 
 # -- freshness-index invariants (Lemmas 2-5, eq. 22) ---------------------------------------------
@@ -457,10 +467,10 @@ def test_corollary_1_finite_time_kernel(case):
     A, C, design, topology, T, x0, _ = case
     n, N = A.shape[0], len(C)
     bound = corollary_bound(n, N, T)
-    scenario = AoIScenario("prop", "", _plant(A, C), topology, steps=bound + topology.period + 5)
-    run = run_aoi_trial(scenario, "aoi", design, trial_seed=0)
-    assert run.result.diverged_at is None
-    rel = run.error_norms / np.linalg.norm(run.result.states, axis=1)[:, None]
+    scenario = aoi_scenario_from("prop", "", A, C, topology, steps=bound + topology.period + 5)
+    run = kernel_run(scenario, "aoi", trial_seed=0)
+    assert run.diverged_at is None
+    rel = error_norms(run) / np.linalg.norm(run.states, axis=1)[:, None]
     assert np.all(rel[bound:] <= 1e-9)
 
 
@@ -570,13 +580,13 @@ def test_theorem_1_rate(case, rho):
 def test_kernel_lockstep_and_reference_agree(case):
     A, C, design, topology, T, x0, _ = case
     steps = 30
-    scenario = AoIScenario("x", "", _plant(A, C), topology, steps=steps)
-    run = run_aoi_trial(scenario, "aoi", design, trial_seed=3)
-    xs = run.result.states
+    scenario = aoi_scenario_from("x", "", A, C, topology, steps=steps)
+    run = kernel_run(scenario, "aoi", trial_seed=3)
+    xs = run.states
     _, zs, fr, _ = lockstep(design, A, C, topology, xs[0], steps)
-    assert np.array_equal(run.freshness, fr)
+    assert np.array_equal(run.extras["freshness"], fr)
     Tm = design.decomposition.T
-    assert np.allclose(run.result.estimates, np.einsum("ab,kib->kia", Tm, zs), rtol=0,
+    assert np.allclose(run.estimates, np.einsum("ab,kib->kia", Tm, zs), rtol=0,
                        atol=1e-12 * max(1, np.abs(xs).max()))
     zr, taur = reference_run(design, C, topology, xs, steps)
     assert np.array_equal(taur, fr)
@@ -591,7 +601,7 @@ def test_naive_baselines_match_paper_eq_6_on_the_example():
     for weights in ("uniform", "tree"):
         parent = None
         if weights == "tree":
-            from netsim.aoi import _TreeParents
+            from netsim.estimators.aoi import _TreeParents
             parent = _TreeParents(sc.topology)
         xs, zs, _, _ = lockstep(design, sc.plant.A, list(sc.plant.C), sc.topology, x0, 12,
                                 family="naive", weights=weights, parent=parent)
@@ -614,11 +624,11 @@ def test_naive_baselines_match_paper_eq_6_on_the_example():
 
 
 def test_delayed_messages_age_mode_converges_discard_mode_does_not():
-    sc = replace(random_aoi_scenario_small(), delay=1)
-    age = run_aoi_scenario(replace(sc, delayed="age"), families=["aoi"], steps=80)
-    assert age.families["aoi"].verdict.startswith("converged")
-    discard = run_aoi_scenario(sc, families=["aoi"], steps=80)
-    f = discard.families["aoi"]
+    sc = random_aoi_scenario_small().with_tau(1)
+    age = run_monte_carlo(sc.with_options("aoi", delayed="age"), families=["aoi"], steps=80)
+    assert age.estimators["aoi"].verdict.startswith("converged")
+    discard = run_monte_carlo(sc, families=["aoi"], steps=80)
+    f = discard.estimators["aoi"]
     assert not f.verdict.startswith("converged")
     assert f.messages_discarded == f.messages_delivered  # every message arrives late
 
@@ -629,7 +639,7 @@ def random_aoi_scenario_small():
     return random_aoi_scenario(4, 3, 2, seed=5, spectral_radius=0.95)
 
 
-def test_record_aoi_run_writes_a_trace_with_freshness_hook(tmp_path):
+def test_traced_aoi_run_calls_the_freshness_hook(tmp_path):
     from netsim.traces.reader import read_trace
     from netsim.traces.recorder import TraceRecorder
 
@@ -640,11 +650,12 @@ def test_record_aoi_run_writes_a_trace_with_freshness_hook(tmp_path):
             calls.append((agent, k, list(freshness), list(adopted_from), list(dims)))
 
     sc = illustrative_example(steps=10)
-    run, path = record_aoi_run(str(tmp_path / "ex.mcap"), sc, "aoi", seed=0,
-                               recorder_class=FreshnessRecorder)
+    path = tmp_path / "ex.mcap"
+    with FreshnessRecorder.for_run(path, sc, None, "aoi", 0, seed=0) as recorder:
+        kernel_run(sc, "aoi", trial_seed=0, observer=recorder)
     trace = read_trace(path)
     assert trace.family == "aoi" and trace.steps == list(range(11))
-    assert {"A", "aoi_T", "aoi_L_0"} <= set(trace.matrices)
+    assert {"A", "C_0", "Q", "R_0"} <= set(trace.matrices)
     assert trace.status["status"] == "complete"
     assert len(calls) == 3 * 11                      # every agent, every step
     by = {(a, k): (f, ad) for a, k, f, ad, _ in calls}
@@ -655,30 +666,64 @@ def test_record_aoi_run_writes_a_trace_with_freshness_hook(tmp_path):
     # links that are down at the sending step show up as dropped messages
     drops = [m for m in trace.link_events(0, 1, "dropped")]
     assert drops and all(m.sent_step % 2 == 1 for m in drops)
-    # a plain recorder (no on_freshness) works too
-    record_aoi_run(str(tmp_path / "plain.mcap"), sc, "naive-tree", seed=0)
 
 
-def _args(**kw):
-    base = {"scenario": "aoi-example", "steps": 30, "trials": None, "seed": None,
-            "estimators": None, "trace": None, "noise": None, "process_noise": None,
-            "measurement_noise": None, "gains": None, "rho": None, "ties": None, "tau": None,
-            "delayed": None}
-    base.update(kw)
-    return argparse.Namespace(**base)
+def test_netsim_run_traces_aoi_with_freshness_topics(tmp_path, capsys):
+    base = tmp_path / "aoi.mcap"
+    code = main(["run", "aoi-example", "--steps", "12", "--estimators", "aoi,naive-tree",
+                 "--trace", str(base), "--json", "--no-progress"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    from netsim.traces.reader import read_trace
+
+    aoi = read_trace(tmp_path / "aoi.aoi.trial0.mcap")
+    assert "/agent/1/freshness" in aoi.counts
+    assert aoi.freshness()[:4, 1].tolist() == [OMEGA, 1, 2, 1]
+    tree = read_trace(tmp_path / "aoi.naive-tree.trial0.mcap")
+    assert not any(t.endswith("/freshness") for t in tree.counts)
 
 
-def test_aoi_command_and_bad_input():
-    data, text = aoi_command(_args(estimators="aoi,naive-tree"))
-    assert set(data["estimators"]) == {"aoi", "naive-tree"}
-    assert "converged at step 3" in text
-    data, _ = aoi_command(_args(gains="rate", rho=0.5, scenario="aoi-random", steps=60))
-    assert data["design"]["gains"]["method"] == "rate"
-    data, _ = aoi_command(_args(scenario="aoi-random", tau=1, delayed="age", steps=80,
-                                estimators="aoi"))
+def run_cli(capsys, *args):
+    code = main(["run", *args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_aoi_command_line_and_bad_input(capsys):
+    code, out, err = run_cli(capsys, "aoi-example", "--steps", "30", "--estimators",
+                             "aoi,naive-tree", "--no-progress")
+    assert code == 0, err
+    assert "converged at step 3" in out
+    code, out, err = run_cli(capsys, "aoi-random", "--gains", "rate", "--rho", "0.5",
+                             "--steps", "60", "--json", "--no-progress")
+    data = json.loads(out)
+    assert data["analytics"]["aoi"]["design"]["gains"]["method"] == "rate"
+    code, out, err = run_cli(capsys, "aoi-random", "--tau", "1", "--delayed", "age",
+                             "--steps", "80", "--estimators", "aoi", "--json", "--no-progress")
+    data = json.loads(out)
     assert data["estimators"]["aoi"]["verdict"].startswith("converged")
     assert data["scenario"]["delays"]["tau"] == 1
-    for bad in (dict(estimators="kalman"), dict(noise=-1.0), dict(rho=-0.5), dict(tau=-1),
-                dict(steps=0), dict(scenario="nope"), dict(estimators=" , ")):
-        with pytest.raises(ValueError):
-            aoi_command(_args(**bad))
+    for bad in (["--estimators", "kalman"], ["--noise", "-1"], ["--rho", "-0.5"],
+                ["--tau", "-1"], ["--steps", "0"], ["--estimators", " , "],
+                ["--engine", "vectorised"]):
+        code, out, err = run_cli(capsys, "aoi-example", *bad, "--no-progress")
+        assert code == 2 and "Traceback" not in err and err.count("\n") == 1, (bad, err)
+    code, out, err = run_cli(capsys, "nope", "--no-progress")
+    assert code == 2
+
+
+def test_builtin_aoi_scenarios_are_the_generators_output():
+    # the TOML files were written from these generators: same system, same graphs
+    from netsim.models.scenario import resolve_scenario
+    from netsim.models.topology import as_sequence
+
+    from netsim.aoi import random_aoi_scenario
+
+    for built, toml in ((illustrative_example(), resolve_scenario("aoi-example")),
+                        (random_aoi_scenario(), resolve_scenario("aoi-random"))):
+        assert np.array_equal(built.plant.A, toml.plant.A)
+        for C1, C2 in zip(built.plant.C, toml.plant.C, strict=True):
+            assert np.array_equal(C1, C2)
+        assert as_sequence(built.topology).to_dict() == as_sequence(toml.topology).to_dict()
+        assert (built.steps, built.seed) == (toml.steps, toml.seed)
+        assert aoi_analytics(built) == {**aoi_analytics(toml)}

@@ -57,6 +57,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from netsim.estimators.errors import GainDesignError
 from netsim.models.augmented import delay_free_closed_loop, output_gain_matrix, spectral_radius
 from netsim.models.validation import check_system
 from numpy.typing import ArrayLike
@@ -126,10 +127,6 @@ _PBH_SVD_MAX_STATES = 60
 _PBH_DOUBT = 1e-3
 #: Eigenvalues closer than this (relative) are tested as a cluster.
 _PBH_CLUSTER = 1e-4
-
-
-class GainDesignError(ValueError):
-    """Raised when no certified gain can be designed."""
 
 
 @dataclass(frozen=True)

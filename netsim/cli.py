@@ -233,8 +233,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from netsim.aoi import aoi_command, is_aoi_scenario
 
     if is_aoi_scenario(args.scenario):
-        from netsim.estimators.aoi import GainDesignError as AoIDesignError
-
         if args.engine == "vectorised":
             raise CommandError(f"--engine vectorised: scenario {args.scenario} runs the "
                                "age-of-information observer, which only the event kernel "
@@ -242,7 +240,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
 
         try:
             data, text = aoi_command(args)
-        except AoIDesignError as exc:
+        except GainDesignError as exc:
             raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                                EXIT_DESIGN_FAILED) from None
         except ValueError as exc:

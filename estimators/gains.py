@@ -59,6 +59,7 @@ from typing import Any
 import numpy as np
 from netsim.estimators.errors import GainDesignError
 from netsim.models.augmented import delay_free_closed_loop, output_gain_matrix, spectral_radius
+from netsim.models.observability import DEFAULT_RTOL, unobservable_modes
 from netsim.models.validation import check_system
 from numpy.typing import ArrayLike
 
@@ -77,7 +78,6 @@ __all__ = [
     "GainDesignError",
     "design_gains",
     "gains_from_matrices",
-    "is_observable",
     "refine_gains",
     "select_method",
 ]
@@ -88,8 +88,8 @@ DEFAULT_MARGIN: float = 1e-6
 DEFAULT_TOLERANCE: float = 1e-3
 #: Solvers tried in order when none is requested (small problems).
 DEFAULT_SOLVERS: tuple[str, ...] = ("CLARABEL", "SCS")
-#: Relative singular-value threshold of the observability rank test.
-DEFAULT_OBSERVABILITY_RTOL: float = 1e-8
+#: Relative singular-value threshold of the observability (PBH) test of the design.
+DEFAULT_OBSERVABILITY_RTOL: float = DEFAULT_RTOL
 #: ``N n`` above which the block-diagonal LMI uses the split form and SCS by default.
 LARGE_LMI_STATES: int = 60
 #: ``method="auto"`` runs CCL when ``N n`` is at most this, the block-diagonal LMI otherwise.
@@ -120,13 +120,6 @@ _ALIASES = {
     "ccl": "ccl",
     "auto": "auto",
 }
-#: Above this ``N n`` the PBH test checks simple eigenvalues via eigenvectors.
-_PBH_SVD_MAX_STATES = 60
-#: Eigenvector-based PBH: an isolated eigenvalue with ``||D v|| / scale`` below this
-#: is re-tested with the exact singular-value test.
-_PBH_DOUBT = 1e-3
-#: Eigenvalues closer than this (relative) are tested as a cluster.
-_PBH_CLUSTER = 1e-4
 
 
 @dataclass(frozen=True)
@@ -232,78 +225,15 @@ def _rho(P: np.ndarray, A: np.ndarray, C: list[np.ndarray], L: Sequence[np.ndarr
 
 
 # ---------------------------------------------------------------------------
-# observability
+# observability (the PBH test itself is netsim.models.observability.unobservable_modes)
 # ---------------------------------------------------------------------------
-
-
-def _unobservable_modes(M: np.ndarray, D: np.ndarray, rtol: float) -> list[complex]:
-    """Eigenvalues of ``M`` failing the PBH test ``rank [lambda I - M; D] = dim M``.
-
-    Up to ``_PBH_SVD_MAX_STATES`` states every distinct eigenvalue gets the exact
-    smallest-singular-value test (``k`` SVDs of ``(2k, k)`` matrices). Above, one
-    eigendecomposition decides the clearly observable eigenvalues: an isolated
-    eigenvalue with ``||D v|| / scale >= _PBH_DOUBT`` for its unit eigenvector
-    ``v``, or a cluster of eigenvalues (closer than ``_PBH_CLUSTER * scale``)
-    whose eigenvectors have full numerical rank and span a subspace ``Q`` with
-    ``sigma_min(D Q) / scale >= _PBH_DOUBT`` (every eigenvector of the cluster
-    lies in that subspace). Everything else (weakly observable, or a cluster with
-    numerically dependent eigenvectors, i.e. close to defective) still gets the
-    exact test.
-    """
-    k = M.shape[0]
-    scale = max(1.0, float(np.linalg.norm(M, 2)), float(np.linalg.norm(D, 2)))
-    eye = np.eye(k)
-
-    def fails(lam: complex) -> bool:
-        smin = np.linalg.svd(np.vstack([lam * eye - M, D]), compute_uv=False)[-1] / scale
-        return bool(smin < rtol)
-
-    lams: np.ndarray
-    candidates: list[int]
-    if k <= _PBH_SVD_MAX_STATES:
-        lams = np.linalg.eigvals(M)
-        candidates = list(range(k))
-    else:
-        lams, V = np.linalg.eig(M)
-        V = V / np.linalg.norm(V, axis=0)
-        dv = np.linalg.norm(D @ V, axis=0) / scale
-        close = np.abs(lams[:, None] - lams[None, :]) <= _PBH_CLUSTER * scale
-        # clusters = connected components of the "close" relation
-        label = np.arange(k)
-        for i, j in np.argwhere(np.triu(close, 1)):
-            a, b = label[i], label[j]
-            if a != b:
-                label[label == b] = a
-        candidates = []
-        for lab in np.unique(label):
-            members = np.flatnonzero(label == lab)
-            if members.size == 1:
-                if dv[members[0]] < _PBH_DOUBT:
-                    candidates.append(int(members[0]))
-                continue
-            Vc = V[:, members]
-            sv = np.linalg.svd(Vc, compute_uv=False)
-            if sv[-1] > 1e-6 * sv[0]:
-                Q = np.linalg.qr(Vc)[0]
-                if np.linalg.svd(D @ Q, compute_uv=False)[-1] / scale >= _PBH_DOUBT:
-                    continue
-            candidates.extend(int(m) for m in members)
-    bad: list[complex] = []
-    checked: list[complex] = []
-    for idx in candidates:
-        lam = complex(lams[idx])
-        if any(abs(lam - mu) <= rtol * scale for mu in checked):
-            continue  # numerically repeated eigenvalue, already tested
-        checked.append(lam)
-        if fails(lam):
-            bad.append(lam)
-    return bad
 
 
 def _observability_reason(
     P: np.ndarray, A: np.ndarray, C: list[np.ndarray], rtol: float, label: str
 ) -> str:
-    bad = _unobservable_modes(np.kron(P, A), output_gain_matrix(C), rtol)
+    """Empty if ``(P kron A, D_C-bar)`` passes the PBH test, else a one-line reason."""
+    bad = unobservable_modes(np.kron(P, A), output_gain_matrix(C), rtol, distinct=True)
     if not bad:
         return ""
     worst = max(abs(lam) for lam in bad)
@@ -311,45 +241,6 @@ def _observability_reason(
         f"({label}, D_C-bar) is not observable: the PBH rank test fails for "
         f"{len(bad)} distinct eigenvalue(s) of {label} (largest modulus {worst:.4g})"
     )
-
-
-def is_observable(
-    P: ArrayLike,
-    A: ArrayLike,
-    C: Sequence[ArrayLike],
-    rtol: float = DEFAULT_OBSERVABILITY_RTOL,
-) -> tuple[bool, str]:
-    """PBH rank test of observability of ``(P kron A, D_C-bar)`` (LCSYS2022 Lemma 1).
-
-    The pair is observable iff ``[lambda I - M; D_C-bar]`` (shape ``(2 N n, N n)``,
-    ``M = P kron A``) has full column rank for every eigenvalue ``lambda`` of
-    ``M``. The rank is decided by the smallest singular value relative to
-    ``max(1, ||M||_2, ||D_C-bar||_2)``. Cost: up to ``N n = 60`` one SVD of a
-    ``(2 N n, N n)`` matrix per distinct eigenvalue; above, one eigendecomposition
-    of ``M`` plus SVDs only for clustered or weakly observable eigenvalues
-    (``N = 200``, ``n = 6``: seconds instead of hours).
-
-    Parameters
-    ----------
-    P : array_like, shape (N, N)
-        Consensus matrix.
-    A : array_like, shape (n, n)
-        System matrix.
-    C : sequence of array_like
-        ``N`` output matrices, ``C[i]`` of shape ``(m_i, n)``.
-    rtol : float, default DEFAULT_OBSERVABILITY_RTOL
-        Relative singular-value threshold below which a mode is unobservable.
-
-    Returns
-    -------
-    observable : bool
-        True if every eigenvalue passes the PBH test.
-    reason : str
-        Empty if observable, otherwise a description of the unobservable modes.
-    """
-    P_arr, A_arr, C_list = check_system(P, A, C)
-    reason = _observability_reason(P_arr, A_arr, C_list, rtol, "P kron A")
-    return (not reason), reason
 
 
 # ---------------------------------------------------------------------------
@@ -1158,8 +1049,11 @@ def design_gains(
         # eigenvalues that collapse to 0. Only modes of modulus >= 1 make the design
         # infeasible; stable ones only bound the achievable rate from below.
         label = f"P kron A^{tau + 1}"
-        bad = _unobservable_modes(
-            np.kron(P_arr, A_design), output_gain_matrix(C_list), DEFAULT_OBSERVABILITY_RTOL
+        bad = unobservable_modes(
+            np.kron(P_arr, A_design),
+            output_gain_matrix(C_list),
+            DEFAULT_OBSERVABILITY_RTOL,
+            distinct=True,
         )
         fatal = [lam for lam in bad if abs(lam) >= 1.0]
         if fatal:

@@ -822,7 +822,11 @@ def _design_ccl(
         if delta < 0.5 * tolerance:
             end = f"{why}; target step {delta:.3g} below tolerance/2"
             return False
-        target = max(best.rho - delta, 0.0)
+        if best.rho <= 0.5 * tolerance:
+            end = f"{why}; rho={best.rho:.3g} is within tolerance/2 of 0"
+            return False
+        # the SDP scales by 1/alpha: never aim at 0, halve the best rate instead
+        target = best.rho - delta if best.rho > delta else 0.5 * best.rho
         at_target = stalled = 0
         return True
 

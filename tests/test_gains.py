@@ -383,3 +383,15 @@ def test_gain_design_stays_backward_compatible(design):
     assert g.rho_design == 0.5 and g.design_tau == 0 and g.iterations == 0
     assert design.rho_design == design.rho and design.design_tau == 0
     assert design.iterations == 11
+
+
+def test_ccl_rate_search_never_aims_at_zero():
+    """n = 2, N = 2: the best CCL rate (about 0.17) falls below the search step, and the
+    target best_rho - delta used to reach alpha = 0 (ZeroDivisionError in the SDP)."""
+    A = np.array([[1.02, 0.2], [0.0, 0.95]])
+    C = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]])]
+    P = np.array([[0.6, 0.4], [0.3, 0.7]])
+    d = design_gains(P, A, C, method="ccl")
+    rho = rho_from_L(P, A, C, d.L)
+    assert rho == pytest.approx(d.rho, abs=1e-9)
+    assert d.certified and rho < d.certified_rate < 0.5

@@ -46,6 +46,11 @@ non-convex in general. Two designs are implemented:
 ``tau1 > 0`` designs against ``P kron A^(tau1+1)`` instead of ``P kron A``
 (LCSYS2022 Discussion 5); :func:`refine_gains` minimises the spectral radius
 directly over the ``L_i`` entries, starting from a design.
+
+A scenario's ``[gains]`` table names one of these (``lmi``, ``ccl``, ``auto``,
+``refined``, or ``given`` matrices, with an optional ``tau1``);
+:func:`design_for_scenario` is the one place that turns it into a :class:`GainDesign`,
+for ``netsim run``, ``analyze``, ``bench`` and ``design`` alike.
 """
 
 from __future__ import annotations
@@ -54,7 +59,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from netsim.estimators.errors import GainDesignError
@@ -62,6 +67,9 @@ from netsim.models.augmented import delay_free_closed_loop, output_gain_matrix, 
 from netsim.models.observability import DEFAULT_RTOL, unobservable_modes
 from netsim.models.validation import check_system
 from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from netsim.models.scenario import Scenario
 
 __all__ = [
     "CCL_AUTO_MAX_STATES",
@@ -76,7 +84,9 @@ __all__ = [
     "METHODS",
     "GainDesign",
     "GainDesignError",
+    "design_for_scenario",
     "design_gains",
+    "design_request",
     "gains_from_matrices",
     "refine_gains",
     "select_method",
@@ -1415,3 +1425,120 @@ def gains_from_matrices(
             + ("(Schur stable)" if stable else "(NOT Schur stable)")
         ),
     )
+
+
+# ---------------------------------------------------------------------------
+# a scenario's [gains] table
+# ---------------------------------------------------------------------------
+
+
+def design_request(
+    scenario: Scenario,
+    *,
+    method: str | None = None,
+    tau1: int | None = None,
+    refine: bool = False,
+) -> dict[str, Any]:
+    """Resolve what :func:`design_for_scenario` designs: the scenario's ``[gains]``, overridden.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``gains`` (``method``, ``tau1``, ``refine_from``, ``K``) are the defaults.
+    method : {"lmi", "ccl", "auto"}, optional
+        Replace the scenario's method (a ``refined`` scenario is then not refined
+        unless ``refine``).
+    tau1 : int, optional
+        Replace the scenario's ``gains.tau1``.
+    refine : bool, default False
+        Refine the resulting design (:func:`refine_gains`), as ``netsim design --refine``.
+
+    Returns
+    -------
+    dict
+        ``{"method", "refine_from", "tau1"}`` in the scenario's vocabulary: ``method``
+        is one of ``lmi``, ``ccl``, ``auto``, ``refined``, ``given``; ``refine_from``
+        is the starting design of ``refined`` (else None).
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``method`` or a negative ``tau1``, or a ``tau1 > 0`` for given
+        gains that are not refined.
+    """
+    spec = scenario.gains
+    if method is None:
+        refined = spec.method == "refined"
+        base = (spec.refine_from or "auto") if refined else spec.method
+        refined = refined or bool(refine)
+    else:
+        key = str(method).lower()
+        if key not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        base, refined = key, bool(refine)
+    tau = spec.tau1 if tau1 is None else _tau1(tau1)
+    if base == "given" and tau and not refined:
+        raise ValueError(
+            f"tau1={tau}: the scenario's gains are given (gains.method = 'given'), which "
+            f"has no delay bound; refine them or choose a design method"
+        )
+    return {
+        "method": "refined" if refined else base,
+        "refine_from": base if refined else None,
+        "tau1": int(tau),
+    }
+
+
+def design_for_scenario(
+    scenario: Scenario,
+    *,
+    method: str | None = None,
+    tau1: int | None = None,
+    refine: bool = False,
+) -> GainDesign:
+    """Return the gains a scenario's ``[gains]`` table asks for.
+
+    ``lmi``, ``ccl`` and ``auto`` run :func:`design_gains` with that method and
+    ``gains.tau1``; ``refined`` runs the ``gains.refine_from`` design (or wraps the
+    given ``K``) and then :func:`refine_gains` with the same ``tau1``; ``given``
+    wraps ``gains.K`` (:func:`gains_from_matrices`). The keyword arguments override
+    the table (see :func:`design_request`); without them this is what ``netsim run``,
+    ``analyze``, ``bench`` and ``design`` use.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario (consensus matrix, plant and ``gains``).
+    method : {"lmi", "ccl", "auto"}, optional
+        Override ``gains.method``.
+    tau1 : int, optional
+        Override ``gains.tau1``.
+    refine : bool, default False
+        Refine the design afterwards (``netsim design --refine``).
+
+    Returns
+    -------
+    GainDesign
+        For the built-in scenarios (``method = "lmi"``, no ``tau1``) exactly
+        ``design_gains(P, A, C)``.
+
+    Raises
+    ------
+    GainDesignError
+        If the design fails (unobservable, infeasible, not certified, solver error).
+    ValueError
+        On an invalid override (see :func:`design_request`).
+    """
+    request = design_request(scenario, method=method, tau1=tau1, refine=refine)
+    P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
+    tau = request["tau1"]
+    base = request["refine_from"] or request["method"]
+    if base == "given":
+        if scenario.gains.K is None:
+            raise ValueError("gains.K: the scenario gives no gain matrices")
+        design = gains_from_matrices(scenario.gains.K, P, A, C)
+    else:
+        design = design_gains(P, A, C, method=base, tau1=tau)
+    if request["method"] == "refined":
+        design = refine_gains(design, P, A, C, tau1=tau)
+    return design

@@ -71,6 +71,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from netsim.estimators.errors import GainDesignError
 from netsim.models.decomposition import MultiSensorDecomposition, multi_sensor_decomposition
 from numpy.typing import ArrayLike
 
@@ -97,10 +98,6 @@ OMEGA = -1
 TIE_RULES = ("lowest", "highest", "random")
 #: Relative tolerance of the nilpotency check of a deadbeat gain.
 NILPOTENCY_RTOL = 1e-8
-
-
-class GainDesignError(ValueError):
-    """A source gain could not be designed (unobservable block, misplaced poles)."""
 
 
 # -- gain design -------------------------------------------------------------------

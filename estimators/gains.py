@@ -46,6 +46,11 @@ non-convex in general. Two designs are implemented:
 ``tau1 > 0`` designs against ``P kron A^(tau1+1)`` instead of ``P kron A``
 (LCSYS2022 Discussion 5); :func:`refine_gains` minimises the spectral radius
 directly over the ``L_i`` entries, starting from a design.
+
+A scenario's ``[gains]`` table names one of these (``lmi``, ``ccl``, ``auto``,
+``refined``, or ``given`` matrices, with an optional ``tau1``);
+:func:`design_for_scenario` is the one place that turns it into a :class:`GainDesign`,
+for ``netsim run``, ``analyze``, ``bench`` and ``design`` alike.
 """
 
 from __future__ import annotations
@@ -54,12 +59,17 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from netsim.estimators.errors import GainDesignError
 from netsim.models.augmented import delay_free_closed_loop, output_gain_matrix, spectral_radius
+from netsim.models.observability import DEFAULT_RTOL, unobservable_modes
 from netsim.models.validation import check_system
 from numpy.typing import ArrayLike
+
+if TYPE_CHECKING:
+    from netsim.models.scenario import Scenario
 
 __all__ = [
     "CCL_AUTO_MAX_STATES",
@@ -74,9 +84,10 @@ __all__ = [
     "METHODS",
     "GainDesign",
     "GainDesignError",
+    "design_for_scenario",
     "design_gains",
+    "design_request",
     "gains_from_matrices",
-    "is_observable",
     "refine_gains",
     "select_method",
 ]
@@ -87,8 +98,8 @@ DEFAULT_MARGIN: float = 1e-6
 DEFAULT_TOLERANCE: float = 1e-3
 #: Solvers tried in order when none is requested (small problems).
 DEFAULT_SOLVERS: tuple[str, ...] = ("CLARABEL", "SCS")
-#: Relative singular-value threshold of the observability rank test.
-DEFAULT_OBSERVABILITY_RTOL: float = 1e-8
+#: Relative singular-value threshold of the observability (PBH) test of the design.
+DEFAULT_OBSERVABILITY_RTOL: float = DEFAULT_RTOL
 #: ``N n`` above which the block-diagonal LMI uses the split form and SCS by default.
 LARGE_LMI_STATES: int = 60
 #: ``method="auto"`` runs CCL when ``N n`` is at most this, the block-diagonal LMI otherwise.
@@ -119,17 +130,6 @@ _ALIASES = {
     "ccl": "ccl",
     "auto": "auto",
 }
-#: Above this ``N n`` the PBH test checks simple eigenvalues via eigenvectors.
-_PBH_SVD_MAX_STATES = 60
-#: Eigenvector-based PBH: an isolated eigenvalue with ``||D v|| / scale`` below this
-#: is re-tested with the exact singular-value test.
-_PBH_DOUBT = 1e-3
-#: Eigenvalues closer than this (relative) are tested as a cluster.
-_PBH_CLUSTER = 1e-4
-
-
-class GainDesignError(ValueError):
-    """Raised when no certified gain can be designed."""
 
 
 @dataclass(frozen=True)
@@ -235,78 +235,15 @@ def _rho(P: np.ndarray, A: np.ndarray, C: list[np.ndarray], L: Sequence[np.ndarr
 
 
 # ---------------------------------------------------------------------------
-# observability
+# observability (the PBH test itself is netsim.models.observability.unobservable_modes)
 # ---------------------------------------------------------------------------
-
-
-def _unobservable_modes(M: np.ndarray, D: np.ndarray, rtol: float) -> list[complex]:
-    """Eigenvalues of ``M`` failing the PBH test ``rank [lambda I - M; D] = dim M``.
-
-    Up to ``_PBH_SVD_MAX_STATES`` states every distinct eigenvalue gets the exact
-    smallest-singular-value test (``k`` SVDs of ``(2k, k)`` matrices). Above, one
-    eigendecomposition decides the clearly observable eigenvalues: an isolated
-    eigenvalue with ``||D v|| / scale >= _PBH_DOUBT`` for its unit eigenvector
-    ``v``, or a cluster of eigenvalues (closer than ``_PBH_CLUSTER * scale``)
-    whose eigenvectors have full numerical rank and span a subspace ``Q`` with
-    ``sigma_min(D Q) / scale >= _PBH_DOUBT`` (every eigenvector of the cluster
-    lies in that subspace). Everything else (weakly observable, or a cluster with
-    numerically dependent eigenvectors, i.e. close to defective) still gets the
-    exact test.
-    """
-    k = M.shape[0]
-    scale = max(1.0, float(np.linalg.norm(M, 2)), float(np.linalg.norm(D, 2)))
-    eye = np.eye(k)
-
-    def fails(lam: complex) -> bool:
-        smin = np.linalg.svd(np.vstack([lam * eye - M, D]), compute_uv=False)[-1] / scale
-        return bool(smin < rtol)
-
-    lams: np.ndarray
-    candidates: list[int]
-    if k <= _PBH_SVD_MAX_STATES:
-        lams = np.linalg.eigvals(M)
-        candidates = list(range(k))
-    else:
-        lams, V = np.linalg.eig(M)
-        V = V / np.linalg.norm(V, axis=0)
-        dv = np.linalg.norm(D @ V, axis=0) / scale
-        close = np.abs(lams[:, None] - lams[None, :]) <= _PBH_CLUSTER * scale
-        # clusters = connected components of the "close" relation
-        label = np.arange(k)
-        for i, j in np.argwhere(np.triu(close, 1)):
-            a, b = label[i], label[j]
-            if a != b:
-                label[label == b] = a
-        candidates = []
-        for lab in np.unique(label):
-            members = np.flatnonzero(label == lab)
-            if members.size == 1:
-                if dv[members[0]] < _PBH_DOUBT:
-                    candidates.append(int(members[0]))
-                continue
-            Vc = V[:, members]
-            sv = np.linalg.svd(Vc, compute_uv=False)
-            if sv[-1] > 1e-6 * sv[0]:
-                Q = np.linalg.qr(Vc)[0]
-                if np.linalg.svd(D @ Q, compute_uv=False)[-1] / scale >= _PBH_DOUBT:
-                    continue
-            candidates.extend(int(m) for m in members)
-    bad: list[complex] = []
-    checked: list[complex] = []
-    for idx in candidates:
-        lam = complex(lams[idx])
-        if any(abs(lam - mu) <= rtol * scale for mu in checked):
-            continue  # numerically repeated eigenvalue, already tested
-        checked.append(lam)
-        if fails(lam):
-            bad.append(lam)
-    return bad
 
 
 def _observability_reason(
     P: np.ndarray, A: np.ndarray, C: list[np.ndarray], rtol: float, label: str
 ) -> str:
-    bad = _unobservable_modes(np.kron(P, A), output_gain_matrix(C), rtol)
+    """Empty if ``(P kron A, D_C-bar)`` passes the PBH test, else a one-line reason."""
+    bad = unobservable_modes(np.kron(P, A), output_gain_matrix(C), rtol, distinct=True)
     if not bad:
         return ""
     worst = max(abs(lam) for lam in bad)
@@ -314,45 +251,6 @@ def _observability_reason(
         f"({label}, D_C-bar) is not observable: the PBH rank test fails for "
         f"{len(bad)} distinct eigenvalue(s) of {label} (largest modulus {worst:.4g})"
     )
-
-
-def is_observable(
-    P: ArrayLike,
-    A: ArrayLike,
-    C: Sequence[ArrayLike],
-    rtol: float = DEFAULT_OBSERVABILITY_RTOL,
-) -> tuple[bool, str]:
-    """PBH rank test of observability of ``(P kron A, D_C-bar)`` (LCSYS2022 Lemma 1).
-
-    The pair is observable iff ``[lambda I - M; D_C-bar]`` (shape ``(2 N n, N n)``,
-    ``M = P kron A``) has full column rank for every eigenvalue ``lambda`` of
-    ``M``. The rank is decided by the smallest singular value relative to
-    ``max(1, ||M||_2, ||D_C-bar||_2)``. Cost: up to ``N n = 60`` one SVD of a
-    ``(2 N n, N n)`` matrix per distinct eigenvalue; above, one eigendecomposition
-    of ``M`` plus SVDs only for clustered or weakly observable eigenvalues
-    (``N = 200``, ``n = 6``: seconds instead of hours).
-
-    Parameters
-    ----------
-    P : array_like, shape (N, N)
-        Consensus matrix.
-    A : array_like, shape (n, n)
-        System matrix.
-    C : sequence of array_like
-        ``N`` output matrices, ``C[i]`` of shape ``(m_i, n)``.
-    rtol : float, default DEFAULT_OBSERVABILITY_RTOL
-        Relative singular-value threshold below which a mode is unobservable.
-
-    Returns
-    -------
-    observable : bool
-        True if every eigenvalue passes the PBH test.
-    reason : str
-        Empty if observable, otherwise a description of the unobservable modes.
-    """
-    P_arr, A_arr, C_list = check_system(P, A, C)
-    reason = _observability_reason(P_arr, A_arr, C_list, rtol, "P kron A")
-    return (not reason), reason
 
 
 # ---------------------------------------------------------------------------
@@ -934,7 +832,11 @@ def _design_ccl(
         if delta < 0.5 * tolerance:
             end = f"{why}; target step {delta:.3g} below tolerance/2"
             return False
-        target = max(best.rho - delta, 0.0)
+        if best.rho <= 0.5 * tolerance:
+            end = f"{why}; rho={best.rho:.3g} is within tolerance/2 of 0"
+            return False
+        # the SDP scales by 1/alpha: never aim at 0, halve the best rate instead
+        target = best.rho - delta if best.rho > delta else 0.5 * best.rho
         at_target = stalled = 0
         return True
 
@@ -1161,8 +1063,11 @@ def design_gains(
         # eigenvalues that collapse to 0. Only modes of modulus >= 1 make the design
         # infeasible; stable ones only bound the achievable rate from below.
         label = f"P kron A^{tau + 1}"
-        bad = _unobservable_modes(
-            np.kron(P_arr, A_design), output_gain_matrix(C_list), DEFAULT_OBSERVABILITY_RTOL
+        bad = unobservable_modes(
+            np.kron(P_arr, A_design),
+            output_gain_matrix(C_list),
+            DEFAULT_OBSERVABILITY_RTOL,
+            distinct=True,
         )
         fatal = [lam for lam in bad if abs(lam) >= 1.0]
         if fatal:
@@ -1520,3 +1425,120 @@ def gains_from_matrices(
             + ("(Schur stable)" if stable else "(NOT Schur stable)")
         ),
     )
+
+
+# ---------------------------------------------------------------------------
+# a scenario's [gains] table
+# ---------------------------------------------------------------------------
+
+
+def design_request(
+    scenario: Scenario,
+    *,
+    method: str | None = None,
+    tau1: int | None = None,
+    refine: bool = False,
+) -> dict[str, Any]:
+    """Resolve what :func:`design_for_scenario` designs: the scenario's ``[gains]``, overridden.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``gains`` (``method``, ``tau1``, ``refine_from``, ``K``) are the defaults.
+    method : {"lmi", "ccl", "auto"}, optional
+        Replace the scenario's method (a ``refined`` scenario is then not refined
+        unless ``refine``).
+    tau1 : int, optional
+        Replace the scenario's ``gains.tau1``.
+    refine : bool, default False
+        Refine the resulting design (:func:`refine_gains`), as ``netsim design --refine``.
+
+    Returns
+    -------
+    dict
+        ``{"method", "refine_from", "tau1"}`` in the scenario's vocabulary: ``method``
+        is one of ``lmi``, ``ccl``, ``auto``, ``refined``, ``given``; ``refine_from``
+        is the starting design of ``refined`` (else None).
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``method`` or a negative ``tau1``, or a ``tau1 > 0`` for given
+        gains that are not refined.
+    """
+    spec = scenario.gains
+    if method is None:
+        refined = spec.method == "refined"
+        base = (spec.refine_from or "auto") if refined else spec.method
+        refined = refined or bool(refine)
+    else:
+        key = str(method).lower()
+        if key not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+        base, refined = key, bool(refine)
+    tau = spec.tau1 if tau1 is None else _tau1(tau1)
+    if base == "given" and tau and not refined:
+        raise ValueError(
+            f"tau1={tau}: the scenario's gains are given (gains.method = 'given'), which "
+            f"has no delay bound; refine them or choose a design method"
+        )
+    return {
+        "method": "refined" if refined else base,
+        "refine_from": base if refined else None,
+        "tau1": int(tau),
+    }
+
+
+def design_for_scenario(
+    scenario: Scenario,
+    *,
+    method: str | None = None,
+    tau1: int | None = None,
+    refine: bool = False,
+) -> GainDesign:
+    """Return the gains a scenario's ``[gains]`` table asks for.
+
+    ``lmi``, ``ccl`` and ``auto`` run :func:`design_gains` with that method and
+    ``gains.tau1``; ``refined`` runs the ``gains.refine_from`` design (or wraps the
+    given ``K``) and then :func:`refine_gains` with the same ``tau1``; ``given``
+    wraps ``gains.K`` (:func:`gains_from_matrices`). The keyword arguments override
+    the table (see :func:`design_request`); without them this is what ``netsim run``,
+    ``analyze``, ``bench`` and ``design`` use.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario (consensus matrix, plant and ``gains``).
+    method : {"lmi", "ccl", "auto"}, optional
+        Override ``gains.method``.
+    tau1 : int, optional
+        Override ``gains.tau1``.
+    refine : bool, default False
+        Refine the design afterwards (``netsim design --refine``).
+
+    Returns
+    -------
+    GainDesign
+        For the built-in scenarios (``method = "lmi"``, no ``tau1``) exactly
+        ``design_gains(P, A, C)``.
+
+    Raises
+    ------
+    GainDesignError
+        If the design fails (unobservable, infeasible, not certified, solver error).
+    ValueError
+        On an invalid override (see :func:`design_request`).
+    """
+    request = design_request(scenario, method=method, tau1=tau1, refine=refine)
+    P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
+    tau = request["tau1"]
+    base = request["refine_from"] or request["method"]
+    if base == "given":
+        if scenario.gains.K is None:
+            raise ValueError("gains.K: the scenario gives no gain matrices")
+        design = gains_from_matrices(scenario.gains.K, P, A, C)
+    else:
+        design = design_gains(P, A, C, method=base, tau1=tau)
+    if request["method"] == "refined":
+        design = refine_gains(design, P, A, C, tau1=tau)
+    return design

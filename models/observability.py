@@ -74,6 +74,14 @@ __all__ = [
 DEFAULT_RTOL: float = 1e-8
 #: Entries with ``|M[i, j]| <= DEFAULT_PATTERN_ATOL`` are structural zeros.
 DEFAULT_PATTERN_ATOL: float = 0.0
+#: Above this many states :func:`unobservable_modes` screens the eigenvalues with one
+#: eigendecomposition and runs the exact singular-value test only where in doubt.
+_PBH_SVD_MAX_STATES = 60
+#: Screening: an isolated eigenvalue with ``||C_s v||`` below this (unit eigenvector
+#: ``v``, unit-norm ``C_s``) still gets the exact singular-value test.
+_PBH_DOUBT = 1e-3
+#: Screening: eigenvalues of ``A_s`` closer than this are tested as a cluster.
+_PBH_CLUSTER = 1e-4
 
 
 # ---------------------------------------------------------------------------
@@ -190,17 +198,73 @@ def observability_rank(A: ArrayLike, C: ArrayLike, rtol: float = DEFAULT_RTOL) -
     return int(np.sum(s > rtol * s[0]))
 
 
+def _screened_candidates(A_s: np.ndarray, C_s: np.ndarray) -> tuple[np.ndarray, list[int]]:
+    """Eigenvalues of ``A_s`` and the indices that still need the exact PBH test.
+
+    One eigendecomposition decides the clearly observable eigenvalues: an isolated
+    eigenvalue with ``||C_s v|| >= _PBH_DOUBT`` for its unit eigenvector ``v``, or a
+    cluster of eigenvalues (closer than ``_PBH_CLUSTER``) whose eigenvectors have full
+    numerical rank and span a subspace ``Q`` with ``sigma_min(C_s Q) >= _PBH_DOUBT``
+    (every eigenvector of the cluster lies in that subspace). Everything else (weakly
+    observable, or a cluster with numerically dependent eigenvectors, i.e. close to
+    defective) is returned as a candidate. ``A_s`` and ``C_s`` have unit spectral norm
+    (or are zero).
+    """
+    k = A_s.shape[0]
+    lams, V = np.linalg.eig(A_s)
+    V = V / np.linalg.norm(V, axis=0)
+    dv = np.linalg.norm(C_s @ V, axis=0)
+    close = np.abs(lams[:, None] - lams[None, :]) <= _PBH_CLUSTER
+    # clusters = connected components of the "close" relation
+    label = np.arange(k)
+    for i, j in np.argwhere(np.triu(close, 1)):
+        a, b = label[i], label[j]
+        if a != b:
+            label[label == b] = a
+    candidates: list[int] = []
+    for lab in np.unique(label):
+        members = np.flatnonzero(label == lab)
+        if members.size == 1:
+            if dv[members[0]] < _PBH_DOUBT:
+                candidates.append(int(members[0]))
+            continue
+        Vc = V[:, members]
+        sv = np.linalg.svd(Vc, compute_uv=False)
+        if sv[-1] > 1e-6 * sv[0]:
+            Q = np.linalg.qr(Vc)[0]
+            if np.linalg.svd(C_s @ Q, compute_uv=False)[-1] >= _PBH_DOUBT:
+                continue
+        candidates.extend(int(m) for m in members)
+    return lams, candidates
+
+
+def _distinct(values: list[complex], atol: float) -> list[complex]:
+    """``values`` with entries within ``atol`` of an earlier kept entry dropped."""
+    kept: list[complex] = []
+    for z in values:
+        if not any(abs(z - w) <= atol for w in kept):
+            kept.append(z)
+    return kept
+
+
 def unobservable_modes(
-    A: ArrayLike, C: ArrayLike, rtol: float = DEFAULT_RTOL
+    A: ArrayLike, C: ArrayLike, rtol: float = DEFAULT_RTOL, *, distinct: bool = False
 ) -> list[complex]:
     """Eigenvalues of ``A`` that fail the PBH rank test with output ``C``.
 
     ``lambda`` is unobservable when ``sigma_min([A_s - lambda_s I; C_s]) <= rtol``,
     with ``A_s = A / ||A||_2``, ``lambda_s = lambda / ||A||_2`` and ``C_s = C / ||C||_2``
     (the test is invariant to scaling ``A`` or ``C``, so the tolerance is relative).
-    Every computed eigenvalue is tested (for real data only one of each conjugate
-    pair); for defective eigenvalues the perturbation of the computed eigenvalue is
-    ``O(eps^(1/k))`` but ``sigma_min(A - lambda_hat I)`` stays ``O(eps)``.
+    Up to ``_PBH_SVD_MAX_STATES`` (60) states every computed eigenvalue is tested (for
+    real data only one of each conjugate pair); for defective eigenvalues the
+    perturbation of the computed eigenvalue is ``O(eps^(1/k))`` but
+    ``sigma_min(A - lambda_hat I)`` stays ``O(eps)``. Above 60 states (e.g. the
+    ``(N n, N n)`` pair of :func:`distributed_observability`) one eigendecomposition
+    first clears the clearly observable eigenvalues (isolated ones with
+    ``||C_s v|| >= 1e-3`` for the unit eigenvector ``v``; clusters closer than
+    ``1e-4`` whose eigenvector subspace ``Q`` has ``sigma_min(C_s Q) >= 1e-3``), and
+    only the rest get the exact singular-value test, once per numerically distinct
+    eigenvalue: ``N = 200``, ``n = 6`` takes seconds instead of hours.
 
     Parameters
     ----------
@@ -210,12 +274,16 @@ def unobservable_modes(
         Output matrix.
     rtol : float, default DEFAULT_RTOL
         Relative singular-value threshold.
+    distinct : bool, default False
+        Merge numerically repeated eigenvalues (within ``rtol * ||A||_2``) into one
+        entry, e.g. to count the distinct unobservable modes.
 
     Returns
     -------
     list of complex
         Unobservable eigenvalues of ``A`` (in the scale of ``A``), possibly with
-        numerically repeated entries; empty iff ``(A, C)`` is observable.
+        numerically repeated entries unless ``distinct``; empty iff ``(A, C)`` is
+        observable.
     """
     A_arr = _square(A, "A")
     n = A_arr.shape[0]
@@ -225,16 +293,31 @@ def unobservable_modes(
     A_s = A_arr / a_scale
     C_s = _normalise(C_arr)
     real = not (np.iscomplexobj(A_arr) or np.iscomplexobj(C_arr))
+    if n <= _PBH_SVD_MAX_STATES:
+        lams = np.linalg.eigvals(A_s)
+        candidates = list(range(n))
+        screened = False
+    else:
+        lams, candidates = _screened_candidates(A_s, C_s)
+        screened = True
     eye = np.eye(n)
     bad: list[complex] = []
-    for lam in np.linalg.eigvals(A_s):
+    tested: list[complex] = []
+    for idx in candidates:
+        lam = lams[idx]
         if real and lam.imag < 0.0:
             continue  # conjugate of a tested eigenvalue: same singular values
+        if screened:
+            if any(abs(lam - mu) <= rtol for mu in tested):
+                continue  # numerically repeated eigenvalue, already tested
+            tested.append(complex(lam))
         smin = np.linalg.svd(np.vstack([A_s - lam * eye, C_s]), compute_uv=False)[-1]
         if smin <= rtol:
             bad.append(complex(lam) * a_scale)
             if real and lam.imag > 0.0:
                 bad.append(complex(lam).conjugate() * a_scale)
+    if distinct:
+        bad = _distinct(bad, rtol * a_scale)
     return bad
 
 

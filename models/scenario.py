@@ -83,6 +83,8 @@ __all__ = [
     "GainSpec",
     "Scenario",
     "DELAY_MODELS",
+    "GAIN_METHODS",
+    "REFINE_FROM",
     "DEFAULTS",
     "DEFAULT_ESTIMATORS",
     "load_scenario",
@@ -99,6 +101,11 @@ DEFAULT_ESTIMATORS = ("compensated", "uncompensated", "block", "centralized-kf")
 DELAY_MODELS = (
     "none", "homogeneous", "heterogeneous", "fixed", "synchronous", "asynchronous", "latency",
 )
+#: Values of ``gains.method``: the designs ``netsim design`` offers (``refined`` is its
+#: ``--refine``) and ``given`` (explicit ``gains.K``).
+GAIN_METHODS = ("lmi", "ccl", "auto", "refined", "given")
+#: Values of ``gains.refine_from``: the design a ``refined`` gain starts from.
+REFINE_FROM = ("lmi", "ccl", "auto", "given")
 #: Defaults of every optional key, in one place.
 DEFAULTS: dict[str, Any] = {
     "run.steps": 200,
@@ -117,6 +124,8 @@ DEFAULTS: dict[str, Any] = {
     "delays.seed": 0,
     "delays.default": 0,
     "gains.method": "lmi",
+    "gains.tau1": 0,
+    "gains.refine_from": "auto",
     "links.delay.mode": "asynchronous",
     "links.buffer.policy": "drop-tail",
     "links.buffer.policy (capacity tau+1)": "drop-oldest",
@@ -135,7 +144,7 @@ _SCHEMA: dict[str, set[str]] = {
     "network": {"topology", "agents", "edges", "weights", "P", "seed", "edge_probability",
                 "radius"},
     "delays": {"model", "tau", "links", "default", "seed"},
-    "gains": {"method", "K"},
+    "gains": {"method", "K", "tau1", "refine_from"},
     "links": {"delay", "loss", "buffer", "outages", "bandwidth", "message_size", "seed",
               "bound", "per_link"},
     "topology": {"graphs", "period", "down", "duty"},
@@ -196,10 +205,30 @@ class DelaySpec:
 
 @dataclass(frozen=True)
 class GainSpec:
-    """How the innovation gains are obtained: ``lmi`` design or ``given`` K_i."""
+    """How the innovation gains are obtained (the ``[gains]`` table).
+
+    Attributes
+    ----------
+    method : str
+        One of :data:`GAIN_METHODS`: ``lmi`` (block-diagonal LMI with rate bisection),
+        ``ccl`` (cone-complementarity, full Lyapunov matrix), ``auto`` (CCL up to
+        ``N n = 60``, LMI above), ``refined`` (the ``refine_from`` design, then a direct
+        minimisation of the spectral radius, as ``netsim design --refine``) or
+        ``given`` (the matrices ``K``).
+    K : tuple of numpy.ndarray or None
+        The given per-agent gains ``K_i`` (n x n) for ``given``, or for ``refined``
+        from ``given``; None otherwise.
+    tau1 : int
+        Delay bound of the design (LCSYS2022 Discussion 5: design against
+        ``P kron A^(tau1+1)``); 0 is the delay-free design. Always 0 for ``given``.
+    refine_from : str or None
+        For ``refined``: the starting design, one of :data:`REFINE_FROM`; else None.
+    """
 
     method: str = "lmi"
     K: tuple[np.ndarray, ...] | None = None
+    tau1: int = 0
+    refine_from: str | None = None
 
 
 @dataclass(frozen=True)
@@ -857,18 +886,38 @@ def _parse_links(table: dict[str, Any], links: list[tuple[int, int]], delays: De
 
 def _parse_gains(table: dict[str, Any], plant: LinearPlant) -> GainSpec:
     method = table.get("method", DEFAULTS["gains.method"])
-    if method not in ("lmi", "given"):
-        raise ScenarioError("gains.method", f"unknown method {method!r}; expected lmi or given")
-    if method == "lmi":
+    if not isinstance(method, str) or method not in GAIN_METHODS:
+        raise ScenarioError(
+            "gains.method", f"unknown method {method!r}; expected one of {', '.join(GAIN_METHODS)}"
+        )
+    refine_from = None
+    if method == "refined":
+        refine_from = table.get("refine_from", DEFAULTS["gains.refine_from"])
+        if not isinstance(refine_from, str) or refine_from not in REFINE_FROM:
+            raise ScenarioError(
+                "gains.refine_from",
+                f"unknown design {refine_from!r}; expected one of {', '.join(REFINE_FROM)}",
+            )
+    elif "refine_from" in table:
+        raise ScenarioError("gains.refine_from", "is only used with gains.method = 'refined'")
+    tau1 = _int(table.get("tau1", DEFAULTS["gains.tau1"]), "gains.tau1", minimum=0)
+    if method == "given" and "tau1" in table:
+        raise ScenarioError(
+            "gains.tau1", "given gains have no design delay bound (use method = 'refined' "
+            "with refine_from = 'given' to optimise them for tau1)"
+        )
+    uses_K = method == "given" or refine_from == "given"
+    if not uses_K:
         if "K" in table:
-            raise ScenarioError("gains.K", "given gains need gains.method = 'given'")
-        return GainSpec("lmi", None)
+            raise ScenarioError("gains.K", "given gains need gains.method = 'given' "
+                                "(or 'refined' with refine_from = 'given')")
+        return GainSpec(method, None, tau1, refine_from)
     K_raw = _require(table, "K", "gains")
     if not isinstance(K_raw, list) or len(K_raw) != plant.n_sensors:
         raise ScenarioError("gains.K", f"expected {plant.n_sensors} matrices, one per agent")
     n = plant.n_states
     K = tuple(_matrix(Ki, f"gains.K[{i}]", (n, n)) for i, Ki in enumerate(K_raw))
-    return GainSpec("given", K)
+    return GainSpec(method, K, tau1, refine_from)
 
 
 def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:

@@ -93,18 +93,22 @@ def build_parser() -> argparse.ArgumentParser:
             "block-diagonal Lyapunov LMI of LCSYS2022 eq. (13) with bisection on the decay "
             "rate, the cone-complementarity iteration with a full Lyapunov matrix (small "
             "networks), a delay-bound design against P kron A^(tau1+1) (LCSYS2022 "
-            "Discussion 5), and an optional direct refinement of rho(A-hat). rho(A-hat) of "
-            "the returned gains is always recomputed with numpy, whatever the solver said."
+            "Discussion 5), and an optional direct refinement of rho(A-hat). By default it "
+            "designs what the scenario's [gains] table says, i.e. the gains netsim run, "
+            "analyze and bench use; --method, --tau1 and --refine override it. rho(A-hat) "
+            "of the returned gains is always recomputed with numpy, whatever the solver said."
         ),
     )
     design.add_argument("scenario", help="built-in scenario name or TOML file")
-    design.add_argument("--method", default="auto", choices=["auto", "lmi", "ccl"],
-                        help="auto: cone-complementarity for small networks, block-diagonal "
-                        "LMI otherwise (default: auto)")
-    design.add_argument("--tau1", type=int, default=0,
-                        help="design to tolerate delays up to tau1 (default 0: delay-free)")
+    design.add_argument("--method", default=None, choices=["auto", "lmi", "ccl"],
+                        help="override the scenario's [gains] method (default: the "
+                        "scenario's, which netsim run uses); auto: cone-complementarity "
+                        "for small networks, block-diagonal LMI otherwise")
+    design.add_argument("--tau1", type=int, default=None,
+                        help="design to tolerate delays up to tau1 (default: the scenario's "
+                        "gains.tau1, 0 if unset: delay-free)")
     design.add_argument("--refine", action="store_true",
-                        help="then minimise rho(A-hat) directly from the LMI solution "
+                        help="then minimise rho(A-hat) directly from that design "
                         "(reported as uncertified unless a certificate is found)")
     design.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
@@ -463,27 +467,41 @@ def _design_dict(design) -> dict[str, Any]:
     }
 
 
+def _gains_label(request: dict[str, Any]) -> str:
+    label = request["method"]
+    if request["refine_from"]:
+        label += f" from {request['refine_from']}"
+    return label + (f", tau1 = {request['tau1']}" if request["tau1"] else "")
+
+
 def _cmd_design(args: argparse.Namespace) -> int:
-    from netsim.estimators.gains import GainDesignError, design_gains, refine_gains
+    from netsim.estimators.gains import GainDesignError, design_for_scenario, design_request
     from netsim.models.augmented import tau_star_report
     from netsim.models.observability import observability_report
 
-    if args.tau1 < 0:
+    if args.tau1 is not None and args.tau1 < 0:
         raise CommandError(f"--tau1 must be a non-negative integer, got {args.tau1}")
     scenario = _load(args.scenario)
     P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
+    overrides = {"method": args.method, "tau1": args.tau1, "refine": args.refine}
     try:
-        design = design_gains(P, A, C, method=args.method, tau1=args.tau1)
-        if args.refine:
-            design = refine_gains(design, P, A, C, tau1=args.tau1)
+        own = design_request(scenario)
+        request = design_request(scenario, **overrides)
+    except ValueError as exc:
+        raise CommandError(f"scenario {args.scenario}: --tau1: {exc}") from None
+    try:
+        design = design_for_scenario(scenario, **overrides)
     except (GainDesignError, ValueError) as exc:
         raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                            EXIT_DESIGN_FAILED) from None
+    overridden = [f"--{k}" for k, v in overrides.items() if v not in (None, False)]
     star = tau_star_report(P, A, C, design.L)
     obs = observability_report(P, A, C)
     data = {
         "scenario": scenario.summary(),
         "observability": obs.to_dict(),
+        "gains": {**request, "scenario_gains": request == own, "overridden": overridden,
+                  "scenario": own},
         "design": _design_dict(design),
         "tau_star": star.contiguous,
         "tau_star_isolated": list(star.isolated),
@@ -503,6 +521,10 @@ def _cmd_design(args: argparse.Namespace) -> int:
         f"observable agents {local}/{scenario.n_agents}; A full rank {obs.full_rank}, "
         f"self-damped {obs.self_damped}; {len(obs.irreducible_blocks)} irreducible blocks; "
         f"Lemma 1 conditions {'hold' if obs.lemma1_satisfied else 'do NOT hold'}",
+        (f"gains: {_gains_label(request)}: the scenario's [gains], as netsim run uses"
+         if request == own else
+         f"gains: {_gains_label(request)} ({', '.join(overridden)}; NOT the scenario's "
+         f"[gains] {_gains_label(own)}, which netsim run uses)"),
         f"method: {d['method']} (solver {d['solver']}, status {d['status']}); {cert}",
         f"rho(A-hat) delay-free, recomputed with numpy: {_fmt(d['rho_delay_free'])}",
     ]

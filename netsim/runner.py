@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from netsim.estimators.gains import GainDesign, design_gains, gains_from_matrices
+from netsim.estimators.gains import GainDesign, design_for_scenario
 from netsim.estimators.registry import (
     EstimatorFamily,
     FamilyContext,
@@ -68,11 +68,8 @@ GROWTH_TOLERANCE = 2.0
 
 
 def scenario_gains(scenario: Scenario) -> GainDesign:
-    """Return the scenario's gains: the given K_i, or the cvxpy LMI design."""
-    plant = scenario.plant
-    if scenario.gains.method == "given":
-        return gains_from_matrices(scenario.gains.K, scenario.weights, plant.A, plant.C)
-    return design_gains(scenario.weights, plant.A, plant.C)
+    """Return the gains of the scenario's ``[gains]`` table (:func:`design_for_scenario`)."""
+    return design_for_scenario(scenario)
 
 
 def _measure(sensors: Sequence[int], n_sensors: int) -> Callable[[Sequence[np.ndarray]], Any]:

@@ -4,6 +4,7 @@ design (Discussion 5), direct refinement, method selection."""
 from __future__ import annotations
 
 import netsim.estimators.gains as gains_module
+import netsim.models.observability as observability_module
 import numpy as np
 import pytest
 from helpers import N_AGENTS, N_STATES, example  # noqa: E402,F401
@@ -12,11 +13,11 @@ from netsim.estimators.gains import (
     GainDesignError,
     design_gains,
     gains_from_matrices,
-    is_observable,
     refine_gains,
     select_method,
 )
 from netsim.models.augmented import augmented_closed_loop, spectral_radius
+from netsim.models.observability import distributed_observability
 from scipy.linalg import block_diag
 
 
@@ -45,7 +46,7 @@ def test_example_is_a_genuinely_distributed_problem(system):
     for Ci in C:
         obs = np.vstack([Ci @ np.linalg.matrix_power(A, k) for k in range(6)])
         assert np.linalg.matrix_rank(obs) < 6
-    assert is_observable(P, A, C) == (True, "")
+    assert distributed_observability(P, A, C)
 
 
 def test_design_is_stable_and_certified(system, design):
@@ -116,10 +117,10 @@ def test_unobservable_raises():
     # nobody measures the sink state 5 (column 5 of A is zero off the diagonal)
     assert np.all(A[:5, 5] == 0)
     C2 = list(C[:3]) + [np.zeros((1, 6))]
-    ok, reason = is_observable(P, A, C2)
-    assert not ok and "PBH" in reason and f"{abs(A[5, 5]):.4g}" in reason
-    with pytest.raises(GainDesignError, match="not observable"):
+    assert not distributed_observability(P, A, C2)
+    with pytest.raises(GainDesignError, match="not observable") as err:
         design_gains(P, A, C2)
+    assert "PBH" in str(err.value) and f"{abs(A[5, 5]):.4g}" in str(err.value)
 
 
 def test_solver_failures_become_gain_design_errors(system, monkeypatch):
@@ -371,9 +372,10 @@ def test_refinement_of_a_delay_bound_design(system, delay_design):
 def test_observability_fast_path_agrees_with_svd_test(system, monkeypatch):
     P, A, C = system
     C2 = list(C[:3]) + [np.zeros((1, 6))]
-    exact = [is_observable(P, A, C), is_observable(P, A, C2)]
-    monkeypatch.setattr(gains_module, "_PBH_SVD_MAX_STATES", 0)
-    assert [is_observable(P, A, C), is_observable(P, A, C2)] == exact
+    exact = [distributed_observability(P, A, C), distributed_observability(P, A, C2)]
+    assert exact == [True, False]
+    monkeypatch.setattr(observability_module, "_PBH_SVD_MAX_STATES", 0)
+    assert [distributed_observability(P, A, C), distributed_observability(P, A, C2)] == exact
 
 
 def test_gain_design_stays_backward_compatible(design):
@@ -381,3 +383,15 @@ def test_gain_design_stays_backward_compatible(design):
     assert g.rho_design == 0.5 and g.design_tau == 0 and g.iterations == 0
     assert design.rho_design == design.rho and design.design_tau == 0
     assert design.iterations == 11
+
+
+def test_ccl_rate_search_never_aims_at_zero():
+    """n = 2, N = 2: the best CCL rate (about 0.17) falls below the search step, and the
+    target best_rho - delta used to reach alpha = 0 (ZeroDivisionError in the SDP)."""
+    A = np.array([[1.02, 0.2], [0.0, 0.95]])
+    C = [np.array([[1.0, 0.0]]), np.array([[0.0, 1.0]])]
+    P = np.array([[0.6, 0.4], [0.3, 0.7]])
+    d = design_gains(P, A, C, method="ccl")
+    rho = rho_from_L(P, A, C, d.L)
+    assert rho == pytest.approx(d.rho, abs=1e-9)
+    assert d.certified and rho < d.certified_rate < 0.5

@@ -418,3 +418,31 @@ def test_distributed_uses_output_pattern_not_gram_pattern():
     assert not distributed_observability(P, A, C)
     assert not is_structurally_distributed_observable(P, A, C)
     assert structural_rank(distributed_output_matrix(C)) == 2  # the over-count avoided
+
+
+# -- the screened PBH test above 60 states (moved here from estimators.gains) --------
+
+
+def test_screened_pbh_above_60_states_agrees_with_the_exact_test(monkeypatch):
+    """A 72-state diagonal pair with known unobservable modes: the eigenvalue screening
+    used above 60 states finds exactly the modes the per-eigenvalue SVD test finds."""
+    import netsim.models.observability as obs
+
+    rng = np.random.default_rng(7)
+    n = 72
+    lams = np.linspace(0.05, 1.5, n)
+    lams[[10, 11]] = 0.3  # a repeated eigenvalue: a cluster with a 2-D eigenspace
+    lams[[20, 21]] = 0.9  # another one
+    hidden = [3, 40, 71]  # states nobody measures
+    C = rng.standard_normal((4, n))
+    C[:, hidden] = 0.0
+    C[:, 11] = 0.0  # only state 10 of the 0.3-eigenspace is seen: 0.3 is unobservable
+    T = random_orthogonal(rng, n)
+    A, CT = T.T @ np.diag(lams) @ T, C @ T
+    want = sorted([*lams[hidden], 0.3])  # 0.9 is seen in both directions: observable
+    screened = unobservable_modes(A, CT, distinct=True)
+    assert sorted(z.real for z in screened) == pytest.approx(want, abs=1e-9)
+    monkeypatch.setattr(obs, "_PBH_SVD_MAX_STATES", 10**6)  # force the exact test
+    exact = unobservable_modes(A, CT, distinct=True)
+    assert sorted(z.real for z in exact) == pytest.approx(want, abs=1e-9)
+    assert is_observable(A, np.vstack([CT, np.eye(n)[[*hidden, 11]] @ T]))

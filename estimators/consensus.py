@@ -417,6 +417,9 @@ class BlockUpdateEstimator(_ConsensusBase):
 # -- the families this module declares (netsim.estimators.registry) --------------------
 
 from netsim.estimators.registry import (  # noqa: E402  (declared after the classes)
+    RECURSION_BLOCK,
+    RECURSION_COMPENSATED,
+    RECURSION_UNCOMPENSATED,
     AgentPlan,
     EstimatorFamily,
     FamilyContext,
@@ -450,7 +453,7 @@ register(EstimatorFamily(
     build=_consensus_agents(CompensatingEstimator),
     description="consensus + innovation with A^(k - s_j) delay compensation",
     paper="LCSYS2022 eqs. (4)-(5); augmented error recursion eq. (9)",
-    needs_gains=True, timestamps=True, error_recursion="compensated",
+    needs_gains=True, timestamps=True, error_recursion=RECURSION_COMPENSATED,
     batched=_LOCKSTEP,
     batched_options={"rule": "consensus", "compensate": True, "timestamps": True,
                      "block": False},
@@ -461,7 +464,7 @@ register(EstimatorFamily(
     build=_consensus_agents(UncompensatedEstimator),
     description="consensus + innovation with A, no time-stamps (most recently arrived)",
     paper="delay-tolerant paper eqs. (6)-(7); augmented recursion eq. (11)",
-    needs_gains=True, timestamps=False, error_recursion="uncompensated",
+    needs_gains=True, timestamps=False, error_recursion=RECURSION_UNCOMPENSATED,
     batched=_LOCKSTEP,
     batched_options={"rule": "consensus", "compensate": False, "timestamps": False,
                      "block": False},
@@ -472,7 +475,7 @@ register(EstimatorFamily(
     build=_consensus_agents(None, block=True),
     description="block update: update and communicate every tau+1 steps with A^(tau+1)",
     paper="LCSYS2022 eqs. (15)-(16)",
-    needs_gains=True, timestamps=True, error_recursion="block",
+    needs_gains=True, timestamps=True, error_recursion=RECURSION_BLOCK,
     batched=_LOCKSTEP,
     batched_options={"rule": "consensus", "compensate": True, "timestamps": True,
                      "block": True},

@@ -192,8 +192,11 @@ class SinkNode:
 # ---------------------------------------------------------------------------
 
 
-class MissingSelection(RuntimeError):
-    """The centre needs a selection that has not arrived (delay above its bound, loss)."""
+class MissingSelection(RuntimeError, ValueError):
+    """The centre needs a selection that has not arrived (delay above its bound, loss).
+
+    Also a ValueError: with ``on_missing="fail"`` the scenario's links break what the
+    paper's centre assumes, which the command line reports as bad input (exit 2)."""
 
 
 class FusionCentre:
@@ -228,6 +231,13 @@ class FusionCentre:
     batch : int, optional
         Number of lock-step trials B (estimates of shape (B, n)); None for one trial
         in the kernel (estimates of shape (n,)).
+    on_missing : "fail" or "predict"
+        What to do when the selection of step t - d_i has not arrived (a delay above
+        the bound d_i - 1, or a message lost): ``fail`` raises
+        :class:`MissingSelection` (the paper's setting has neither); ``predict`` is an
+        extension outside the paper: every component is predicted, as if nothing had
+        been sent (H_i(t - d_i) = 0 in eq. (15)), and ``missed`` counts it. The weights
+        (31) still come from the loss-free covariances, so they are then not optimal.
     """
 
     family = "dkfe-centre"
@@ -238,7 +248,12 @@ class FusionCentre:
                  direct: Mapping[int, SinkNode] | None = None,
                  steady_weights: Sequence[np.ndarray] | None = None,
                  output: str = "dkfe", record: bool = True,
-                 batch: int | None = None) -> None:
+                 batch: int | None = None, on_missing: str = "fail") -> None:
+        if on_missing not in ("fail", "predict"):
+            raise ValueError(f"on_missing must be 'fail' or 'predict', got {on_missing!r}")
+        self.on_missing = on_missing
+        #: Selections that had not arrived when needed (``on_missing="predict"``).
+        self.missed = 0
         self.A = np.asarray(A, dtype=float)
         self.n = self.A.shape[0]
         self.delays = tuple(int(d) for d in delays)
@@ -327,17 +342,26 @@ class FusionCentre:
                 cse = self._prior @ np.linalg.matrix_power(A, k).T  # nothing received yet
             else:
                 u = k - d
-                payload = self._take(i, u)
-                if payload.step != u:
-                    raise MissingSelection(f"sink {i}: need the selection of step {u}, "
-                                           f"have step {payload.step}")
                 pred = self._prior if u == 0 else self._cse_hist[i][u - 1] @ A.T
-                batch = payload.values.shape[0]
-                mask = self._patterns[i][payload.index]  # (B, n)
-                sent = np.zeros((batch, self.n))
-                np.put_along_axis(sent, self._components[i][payload.index], payload.values,
-                                  axis=1)
-                x_r = sent + (1.0 - mask) * pred  # x-hat^r_i(t - d_i)
+                try:
+                    payload = self._take(i, u)
+                except MissingSelection:
+                    if self.on_missing == "fail":
+                        raise
+                    payload = None
+                    self.missed += 1
+                if payload is None:  # nothing arrived: every component predicted
+                    x_r = np.broadcast_to(pred, (pred.shape[0], self.n)).copy()
+                else:
+                    if payload.step != u:
+                        raise MissingSelection(f"sink {i}: need the selection of step "
+                                               f"{u}, have step {payload.step}")
+                    batch = payload.values.shape[0]
+                    mask = self._patterns[i][payload.index]  # (B, n)
+                    sent = np.zeros((batch, self.n))
+                    np.put_along_axis(sent, self._components[i][payload.index],
+                                      payload.values, axis=1)
+                    x_r = sent + (1.0 - mask) * pred  # x-hat^r_i(t - d_i)
                 cse = x_r @ self._Ad[i].T
                 if d > 0:
                     used[self._sender[i]] = d - 1  # kernel's r = k - 1 - s
@@ -873,3 +897,316 @@ def run_lockstep(setup: DkfeSetup, steps: int, trials: int, seed: Any, *,
         odkfe_covariance=ocov,
         extra={"ckf": ckf},
     )
+
+
+# ---------------------------------------------------------------------------
+# the families this module declares (netsim.estimators.registry)
+# ---------------------------------------------------------------------------
+#
+# ``dkfe``, ``sdkfe`` and ``odkfe`` run on a scenario whose last agent is the fusion
+# centre (a sensor with no output, ``C = []``) and whose other agents are the sink
+# nodes, each linked to the centre; ``[options.fusion]`` gives what the paper's
+# centre knows: ``delays`` (d_i), ``components`` (r_i) with ``probabilities`` (over
+# the r_i-subsets of the n components in lexicographic order, eq. 89) or explicit
+# ``patterns``, and ``on_missing`` (predict | fail). A link from sink i delivers its
+# selection for the centre's update d_i steps later when its step delay is d_i - 1;
+# a sink with d_i = 0 has no link (the centre reads it at the same step).
+
+import math  # noqa: E402
+
+from netsim.estimators.registry import (  # noqa: E402  (declared after the classes)
+    AgentPlan,
+    EstimatorFamily,
+    FamilyContext,
+    FamilyError,
+    register,
+)
+from netsim.models.dkfe import sink_conditions  # noqa: E402
+from netsim.models.seeding import stream  # noqa: E402
+
+#: Keys of ``[options.fusion]`` (``on_missing`` defaults to ``predict``).
+FUSION_OPTIONS = ("delays", "components", "probabilities", "patterns", "on_missing")
+
+
+def _fusion_error(key: str, message: str) -> FamilyError:
+    return FamilyError(f"options.fusion.{key}", message)
+
+
+def fusion_setup(scenario: Any) -> DkfeSetup:
+    """The dkfe problem of a scenario: sinks = agents 0..N-2, the centre = agent N-1."""
+    cached = _SETUPS.get(id(scenario))
+    if cached is not None and cached[0] is scenario:
+        return cached[1]
+    table = dict(scenario.options.get("fusion", {}))
+    unknown = sorted(set(table) - set(FUSION_OPTIONS))
+    if unknown:
+        raise _fusion_error(unknown[0], f"unknown key; allowed: {', '.join(FUSION_OPTIONS)}")
+    p = scenario.plant
+    L = p.n_sensors - 1
+    if L < 1 or p.C[-1].shape[0] != 0:
+        raise FamilyError("plant.C", "a fusion scenario's last agent is the centre: give it "
+                          "no output (C = []) and at least one sink before it")
+    n = p.n_states
+    delays = table.get("delays")
+    if not (isinstance(delays, list) and len(delays) == L
+            and all(isinstance(d, int) and not isinstance(d, bool) and d >= 0
+                    for d in delays)):
+        raise _fusion_error("delays", f"expected {L} non-negative integers d_i (one per "
+                            f"sink), got {delays!r}")
+    selections = []
+    if "patterns" in table:
+        pats = table["patterns"]
+        probs = table.get("probabilities")
+        if not (isinstance(pats, list) and len(pats) == L and isinstance(probs, list)
+                and len(probs) == L):
+            raise _fusion_error("patterns", f"expected {L} pattern lists with "
+                                f"{L} probability lists")
+        for i in range(L):
+            try:
+                selections.append(SelectionScheme(np.asarray(pats[i], dtype=float),
+                                                  np.asarray(probs[i], dtype=float)))
+            except (ValueError, TypeError) as exc:
+                raise _fusion_error(f"patterns[{i}]", str(exc)) from None
+    else:
+        comps = table.get("components")
+        probs = table.get("probabilities")
+        if not (isinstance(comps, list) and len(comps) == L):
+            raise _fusion_error("components", f"expected {L} integers r_i, got {comps!r}")
+        if not (isinstance(probs, list) and len(probs) == L):
+            raise _fusion_error("probabilities", f"expected {L} lists (one per sink)")
+        for i in range(L):
+            r = comps[i]
+            if not (isinstance(r, int) and 1 <= r <= n):
+                raise _fusion_error(f"components[{i}]", f"expected 1..{n}, got {r!r}")
+            count = math.comb(n, r)
+            if not (isinstance(probs[i], list) and len(probs[i]) == count):
+                raise _fusion_error(f"probabilities[{i}]", f"expected {count} probabilities "
+                                    f"(one per {r}-subset of {n} components)")
+            try:
+                selections.append(SelectionScheme.all_subsets(n, r, probs[i]))
+            except (ValueError, TypeError) as exc:
+                raise _fusion_error(f"probabilities[{i}]", str(exc)) from None
+    on_missing = table.get("on_missing", "predict")
+    if on_missing not in ("predict", "fail"):
+        raise _fusion_error("on_missing", f"expected predict or fail, got {on_missing!r}")
+    centre = L
+    links = set(scenario.links)
+    for i, d in enumerate(delays):
+        if d >= 1 and (i, centre) not in links:
+            raise _fusion_error("delays", f"sink {i} has d_i = {d} but no link {i} -> "
+                                f"{centre} (the centre)")
+        if d == 0 and (i, centre) in links:
+            raise _fusion_error("delays", f"sink {i} has d_i = 0 (read at the same step): "
+                                f"remove its link {i} -> {centre}")
+    model = scenario.delay_model(0)
+    if model.time_invariant and scenario.link_spec is None:
+        for i, d in enumerate(delays):
+            if d >= 1 and int(model.draw(i, centre, 0)) != d - 1:
+                raise _fusion_error("delays", f"sink {i}: d_i = {d} needs the link "
+                                    f"{i} -> {centre} to delay by d_i - 1 = {d - 1} steps, "
+                                    f"it delays by {int(model.draw(i, centre, 0))}")
+    setup = DkfeSetup(
+        name=scenario.name, description=scenario.description, A=p.A, Q=p.Q,
+        C=tuple(p.C[:L]), R=tuple(p.R[:L]), delays=tuple(delays),
+        selections=tuple(selections), x0_mean=p.x0_mean, x0_cov=p.x0_cov)
+    covs = covariances_for(setup)
+    if len(_SETUPS) > 8:
+        _SETUPS.clear()
+    _SETUPS[id(scenario)] = (scenario, setup)
+    _COVARIANCES[id(setup)] = (setup, covs, on_missing)
+    return setup
+
+
+_SETUPS: dict[int, tuple[Any, DkfeSetup]] = {}
+_COVARIANCES: dict[int, tuple[DkfeSetup, Any, str]] = {}
+_STEADY: dict[int, tuple[Any, SteadyState, SteadyState]] = {}
+
+
+def _covariances(setup: DkfeSetup) -> tuple[FusionCovariance, FusionCovariance,
+                                            list[LocalGains], str]:
+    _, (cov, ocov, gains), on_missing = _COVARIANCES[id(setup)]
+    return cov, ocov, gains, on_missing
+
+
+def _steady(setup: DkfeSetup) -> tuple[SteadyState, SteadyState]:
+    cached = _STEADY.get(id(setup))
+    if cached is None or cached[0] is not setup:
+        cov, ocov, _, _ = _covariances(setup)
+        cached = (setup, cov.steady_state(), ocov.steady_state())
+        _STEADY[id(setup)] = cached
+    return cached[1], cached[2]
+
+
+def _fusion_agents(output: str) -> Any:
+    def build(context: FamilyContext) -> list[AgentPlan]:
+        scenario = context.scenario
+        setup = fusion_setup(scenario)
+        cov, ocov, gains, on_missing = _covariances(setup)
+        L = setup.n_sinks
+        sinks = [SinkNode(i, setup.A, setup.C[i], gains[i], setup.selections[i],
+                          setup.x0_mean, rng=stream(context.trial_seed, "sink", i, "selection"))
+                 for i in range(L)]
+        if output == "odkfe":  # the paper's benchmark: every selection used at once
+            centre = FusionCentre(setup.A, [0] * L, setup.selections, setup.x0_mean, ocov,
+                                  direct=dict(enumerate(sinks)), on_missing=on_missing)
+            links = [() for _ in range(L)]
+        else:
+            steady = _steady(setup)[0].weights if output == "sdkfe" else None
+            direct = {i: sinks[i] for i in range(L) if setup.delays[i] == 0}
+            centre = FusionCentre(setup.A, setup.delays, setup.selections, setup.x0_mean,
+                                  cov, direct=direct, steady_weights=steady, output=output,
+                                  on_missing=on_missing)
+            links = [(L,) if setup.delays[i] >= 1 else () for i in range(L)]
+        plans = [AgentPlan(s, (i,), links[i]) for i, s in enumerate(sinks)]
+        plans.append(AgentPlan(centre, (L,), ()))
+        return plans
+
+    return build
+
+
+class _CentreTap:
+    """Forwards the kernel's hooks to ``inner``; collects the centre's compensating
+    estimates (K+1, L, n) and its count of missing selections."""
+
+    def __init__(self, centre: FusionCentre, inner: Any) -> None:
+        self.centre, self.inner = centre, inner
+
+    def __getattr__(self, name: str) -> Any:  # on_plant, on_sent, ... when inner has them
+        if self.inner is None or name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(self.inner, name)
+
+    def on_plant(self, k, state, measurements):
+        if self.inner is not None:
+            self.inner.on_plant(k, state, measurements)
+
+    def on_sent(self, message):
+        if self.inner is not None:
+            self.inner.on_sent(message)
+
+    def on_delivered(self, message, accepted):
+        if self.inner is not None:
+            self.inner.on_delivered(message, accepted)
+
+    def on_update(self, agent, k, estimate, delays):
+        if self.inner is not None:
+            self.inner.on_update(agent, k, estimate, delays)
+
+    def collect(self) -> dict[str, Any]:
+        history = self.centre.history["cse"]
+        cse = np.stack(history)[:, :, 0] if history else np.zeros((0, self.centre.L,
+                                                                   self.centre.n))
+        return {"cse": cse, "missed": int(self.centre.missed)}
+
+
+def _fusion_tap(context: FamilyContext, plans: Sequence[AgentPlan], steps: int,
+                inner: Any) -> _CentreTap:
+    return _CentreTap(plans[-1].estimator, inner)
+
+
+def _marks(steps: int) -> list[int]:
+    return sorted({0, 1, 2, steps // 10, steps // 4, steps // 2, steps})
+
+
+def _float(value: float) -> float | None:
+    return None if not math.isfinite(value) else float(value)
+
+
+def fusion_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
+    """Monte Carlo MSE E||x - x-hat||^2 at the paper's marks beside the trace of the exact
+    error covariance, for the family's fused estimate, each sink's local filter and
+    compensating estimate; the selections that had not arrived when needed."""
+    setup = fusion_setup(context.scenario)
+    cov, ocov, gains, _ = _covariances(setup)
+    L, n = setup.n_sinks, setup.n
+    good = [t for t in trials if t.diverged_at is None]
+    steps = len(trials[0].states) - 1
+    marks = _marks(steps)
+    out: dict[str, Any] = {"marks": marks, "diverged_trials": len(trials) - len(good),
+                           "missing_selections": sum(t.extras.get("missed", 0)
+                                                     for t in trials)}
+    if not good:
+        return out
+    states = np.stack([t.states for t in good])                  # (M, K+1, n)
+    estimates = np.stack([t.estimates for t in good])            # (M, K+1, L+1, n)
+    family = context.family
+    series = {family: estimates[:, :, L]}
+    if family != "odkfe":
+        for i in range(L):
+            series[f"sink {i + 1} local KF"] = estimates[:, :, i]
+        if all("cse" in t.extras and len(t.extras["cse"]) for t in good):
+            cse = np.stack([t.extras["cse"] for t in good])     # (M, K+1, L, n)
+            for i in range(L):
+                series[f"CSE {i + 1} (d={setup.delays[i]})"] = cse[:, :, i]
+    mse, se = {}, {}
+    for name, est in series.items():
+        sq = np.sum((states - est) ** 2, axis=-1)                # (M, K+1)
+        mse[name] = [_float(sq[:, m].mean()) for m in marks]
+        se[name] = [_float(sq[:, m].std(ddof=1) / math.sqrt(sq.shape[0]))
+                    if sq.shape[0] > 1 else None for m in marks]
+    exact: dict[str, list[float | None]] = {}
+    if family == "dkfe":
+        exact[family] = [float(np.trace(cov.at(t).P)) for t in marks]
+    elif family == "sdkfe":
+        steady = _steady(setup)[0]
+        exact[family] = [float(np.trace(cov.fused_covariance(t, steady.weights)))
+                         for t in marks]
+    else:
+        exact[family] = [float(np.trace(ocov.at(t).P)) for t in marks]
+    if family != "odkfe":
+        for i in range(L):
+            exact[f"sink {i + 1} local KF"] = [
+                float(np.trace(cov.at(t).P_local[i * n:(i + 1) * n, i * n:(i + 1) * n]))
+                for t in marks]
+            exact[f"CSE {i + 1} (d={setup.delays[i]})"] = [
+                float(np.trace(cov.at(t).Xi_block(i, i))) for t in marks]
+    out.update(mse=mse, mse_standard_error=se, exact_trace=exact)
+    missed = out["missing_selections"]
+    out["summary_lines"] = [
+        f"{family}: MSE at t = {marks[-1]}: {mse[family][-1]:.4g} (exact trace "
+        f"{exact[family][-1]:.4g})" + (f"; {missed} selections had not arrived when "
+                                       "needed (predicted, outside the paper)"
+                                       if missed else "")]
+    return out
+
+
+def fusion_analytics(scenario: Any, gains: Any = None) -> dict[str, Any]:
+    """The example's stability conditions per sink and the steady state (Theorem 3)."""
+    setup = fusion_setup(scenario)
+    steady, osteady = _steady(setup)
+    conds = sink_conditions(setup)
+    lines = [f"fusion: L = {setup.n_sinks} sinks, delays d = {list(setup.delays)}, "
+             f"components sent r = {[s.r for s in setup.selections]}; steady state "
+             f"(Theorem 3) {'converged' if steady.converged else 'NOT converged'} after "
+             f"{steady.steps} steps, tr P = {np.trace(steady.P):.4f}, ODKFE tr P_o = "
+             f"{np.trace(osteady.P):.4f}"]
+    for c in conds:
+        lines.append(f"  sink {c['sink']} (d = {c['delay']}): (77) rho = {c['c77_rho']:.4f}; "
+                     f"exact mean-square radius {c['second_moment_radius']:.4f}")
+    return {
+        "summary_lines": lines,
+        "example": setup.summary(),
+        "steady_state": {
+            "converged": steady.converged, "steps": steady.steps,
+            "trace_P": float(np.trace(steady.P)), "trace_P_odkfe": float(np.trace(osteady.P)),
+            "weights": [np.asarray(w).tolist() for w in steady.weights],
+        },
+        "conditions": conds,
+    }
+
+
+def _centre(scenario: Any) -> list[int]:
+    return [scenario.n_agents - 1]
+
+
+_DKFE_PAPER = "dkfe paper: compensating estimates (15), fusion (28)/(31)"
+for _name, _text in (
+    ("dkfe", "fusion centre with the optimal time-varying weights (31)"),
+    ("sdkfe", "fusion centre with the steady-state weights (79)-(80)"),
+    ("odkfe", "fusion centre without delays (every selection at once), the benchmark"),
+):
+    register(EstimatorFamily(
+        name=_name, build=_fusion_agents(_name), description=_text, paper=_DKFE_PAPER,
+        timestamps=True, observer=_fusion_tap, report=fusion_report,
+        analytics=fusion_analytics, analytics_key="fusion", reported=_centre,
+        source="builtin"))

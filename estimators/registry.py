@@ -36,6 +36,9 @@ from netsim.estimators.contract import ContractError, check_estimator
 
 __all__ = [
     "BUILTIN_MODULES",
+    "RECURSION_COMPENSATED",
+    "RECURSION_UNCOMPENSATED",
+    "RECURSION_BLOCK",
     "ENTRY_POINT_GROUP",
     "FamilyError",
     "FamilyContext",
@@ -57,7 +60,15 @@ BUILTIN_MODULES = (
     "netsim.estimators.consensus",
     "netsim.estimators.kalman",
     "netsim.estimators.aoi",
+    "netsim.estimators.fusion",
 )
+#: The augmented error recursions a family may declare (``error_recursion``): with
+#: A^(r+1) compensation, LCSYS2022 eq. (9); with A, the delay-tolerant paper's eq. (11);
+#: the block update of LCSYS2022 eqs. (15)-(16). Replay and the trace analytics exist
+#: for these.
+RECURSION_COMPENSATED = "lcsys2022-eq9"
+RECURSION_UNCOMPENSATED = "delay-tolerant-eq11"
+RECURSION_BLOCK = "lcsys2022-eq15"
 #: Entry-point group through which installed packages add families.
 ENTRY_POINT_GROUP = "netsim.estimators"
 
@@ -234,9 +245,10 @@ class EstimatorFamily:
     needs_graph_sequence : bool
         Whether it needs a time-varying graph sequence.
     error_recursion : str or None
-        The augmented error recursion it declares (``compensated``: LCSYS2022 eq. 9,
-        ``uncompensated``: delay-tolerant eq. 11, ``block``: LCSYS2022 eqs. 15-16), which
-        enables replay and the augmented-matrix analytics; None: none.
+        The augmented error recursion it declares (:data:`RECURSION_COMPENSATED`,
+        LCSYS2022 eq. 9; :data:`RECURSION_UNCOMPENSATED`, delay-tolerant eq. 11;
+        :data:`RECURSION_BLOCK`, LCSYS2022 eqs. 15-16), which enables replay and the
+        augmented-matrix analytics; None: none.
     centralised : bool
         One agent on every sensor (the reference filter); has no network.
     batched : str or callable or None
@@ -263,6 +275,9 @@ class EstimatorFamily:
         paper's bounds), shown once per ``analytics_key`` in a run's ``analytics``.
     analytics_key : str
         The key of ``analytics`` (families sharing one analysis share the key).
+    reported : callable or None
+        ``(scenario) -> sequence of int``: the agents whose estimates the run's MSE and
+        verdict are about (a fusion centre, not its sinks); None: every agent.
     """
 
     name: str
@@ -281,6 +296,7 @@ class EstimatorFamily:
     report: Callable[..., dict[str, Any]] | None = None
     analytics: Callable[..., dict[str, Any]] | None = None
     analytics_key: str = ""
+    reported: Callable[..., Sequence[int]] | None = None
 
     @property
     def vectorised(self) -> bool:

@@ -153,6 +153,7 @@ __all__ = [
     "LmiResult",
     "lmi_75",
     "lmi_theorem2",
+    "sink_conditions",
     "UniformLinkDelays",
     "paper_delay_of_link_bound",
     "table1_rows",
@@ -803,6 +804,29 @@ def lmi_theorem2(
 # ---------------------------------------------------------------------------
 # Remark 1: bounded time-varying link delays
 # ---------------------------------------------------------------------------
+
+
+def sink_conditions(setup: DkfeSetup, lmis: bool = True) -> list[dict[str, Any]]:
+    """Per sink: (58), (77), (74), (76) (d_i = 0), the exact radius, (75), (71)-(72)."""
+    out = []
+    for i in range(setup.n_sinks):
+        A, sel, d = setup.A, setup.selections[i], setup.delays[i]
+        ss = steady_state_local_filter(A, setup.C[i], setup.Q, setup.R[i])
+        row: dict[str, Any] = {
+            "sink": i + 1,
+            "delay": d,
+            "c58": condition_58(A, setup.Q, setup.C[i]),
+            "c77_rho": condition_77(A, sel, d),
+            "c74": condition_74(A, ss.Phi, sel, d),
+            "c76_lambda_max": condition_76(A, sel) if d == 0 else None,
+            "second_moment_radius": second_moment_radius(A, ss.Phi, sel, d),
+            "rho_phi_k": float(np.max(np.abs(np.linalg.eigvals(ss.Phi)))),
+        }
+        if lmis:
+            row["lmi75"] = lmi_75(A, ss.Phi, sel, d).to_dict()
+            row["lmi71_72"] = lmi_theorem2(A, ss.Phi, sel, d).to_dict()
+        out.append(row)
+    return out
 
 
 class UniformLinkDelays:

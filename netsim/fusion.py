@@ -169,26 +169,9 @@ def run_fusion_trial(setup: dk.DkfeSetup, trial_seed: SeedLike, steps: int, *,
 
 
 def conditions(setup: dk.DkfeSetup, lmis: bool = True) -> list[dict[str, Any]]:
-    """Per sink: (58), (77), (74), (76) (d_i = 0), the exact radius, (75), (71)-(72)."""
-    out = []
-    for i in range(setup.n_sinks):
-        A, sel, d = setup.A, setup.selections[i], setup.delays[i]
-        ss = dk.steady_state_local_filter(A, setup.C[i], setup.Q, setup.R[i])
-        row: dict[str, Any] = {
-            "sink": i + 1,
-            "delay": d,
-            "c58": dk.condition_58(A, setup.Q, setup.C[i]),
-            "c77_rho": dk.condition_77(A, sel, d),
-            "c74": dk.condition_74(A, ss.Phi, sel, d),
-            "c76_lambda_max": dk.condition_76(A, sel) if d == 0 else None,
-            "second_moment_radius": dk.second_moment_radius(A, ss.Phi, sel, d),
-            "rho_phi_k": float(np.max(np.abs(np.linalg.eigvals(ss.Phi)))),
-        }
-        if lmis:
-            row["lmi75"] = dk.lmi_75(A, ss.Phi, sel, d).to_dict()
-            row["lmi71_72"] = dk.lmi_theorem2(A, ss.Phi, sel, d).to_dict()
-        out.append(row)
-    return out
+    """Per sink: (58), (77), (74), (76) (d_i = 0), the exact radius, (75), (71)-(72)
+    (:func:`netsim.models.dkfe.sink_conditions`)."""
+    return dk.sink_conditions(setup, lmis)
 
 
 def _mat(M: np.ndarray) -> list[list[float]]:

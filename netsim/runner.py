@@ -417,10 +417,13 @@ class MonteCarloResult:
 
 
 def _summarise(
-    family: str, trials: list[TrialResult], fraction: float, n_steps: int
+    family: str, trials: list[TrialResult], fraction: float, n_steps: int,
+    reported: Sequence[int] | None = None,
 ) -> EstimatorSummary:
     diverged = [(t, r.diverged_at) for t, r in enumerate(trials) if r.diverged_at is not None]
-    good = [r.squared_errors.mean(axis=1) for r in trials if r.diverged_at is None]
+    columns = slice(None) if reported is None else list(reported)
+    good = [r.squared_errors[:, columns].mean(axis=1) for r in trials
+            if r.diverged_at is None]
     if good:
         mse = np.mean(good, axis=0)
     else:
@@ -591,7 +594,8 @@ def run_monte_carlo(
                                               single, on_trace))
                     if progress is not None:
                         progress(1)
-        summary = _summarise(family, runs, scenario.steady_state_fraction, steps)
+        reported = None if fam.reported is None else list(fam.reported(scenario))
+        summary = _summarise(family, runs, scenario.steady_state_fraction, steps, reported)
         if fam.report is not None:
             summary.report = dict(fam.report(FamilyContext(scenario, gains, None, family),
                                              runs))

@@ -37,6 +37,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from netsim.estimators.registry import RECURSION_BLOCK
 from netsim.models.augmented import (
     DEFAULT_TAU_MAX,
     augmented_closed_loop,
@@ -567,7 +568,7 @@ def analyze_trace(trace: Trace, *, tau_max: int = DEFAULT_TAU_MAX,
 
     if trace.recursion_compensated is not None:
         _consensus(out, system, D, edge, trace.recursion_compensated)
-    elif trace.error_recursion == "block":
+    elif trace.error_recursion == RECURSION_BLOCK:
         _block(out, system, D, edge)
     else:
         out.notes.append(

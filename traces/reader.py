@@ -145,8 +145,9 @@ class Trace:
 
     @property
     def error_recursion(self) -> str | None:
-        """The augmented error recursion the run's family declares (``compensated``,
-        ``uncompensated``, ``block``) or None (:meth:`family_trait`)."""
+        """The augmented error recursion the run's family declares (one of the
+        ``RECURSION_*`` of :mod:`netsim.estimators.registry`) or None
+        (:meth:`family_trait`)."""
         return self.family_trait("error_recursion") or None
 
     @property
@@ -154,7 +155,10 @@ class Trace:
         """Which consensus error recursion replays the run: True, the A^(r+1)-compensated
         one (LCSYS2022 eq. 9); False, the uncompensated one (delay-tolerant eq. 11);
         None, neither (the block update has its own, see :attr:`error_recursion`)."""
-        return {"compensated": True, "uncompensated": False}.get(self.error_recursion)
+        from netsim.estimators.registry import RECURSION_COMPENSATED, RECURSION_UNCOMPENSATED
+
+        return {RECURSION_COMPENSATED: True,
+                RECURSION_UNCOMPENSATED: False}.get(self.error_recursion)
 
     @property
     def centralised(self) -> bool:

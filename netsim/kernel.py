@@ -359,7 +359,8 @@ class _Run:
         # below this, sqrt(sum_i ||x-hat^i||^2) + ||x|| bounds every agent's error
         # within the threshold (the margin covers round-off in the bound)
         self.norm_bound = math.sqrt(self.threshold_sq) * (1.0 - 1e-6)
-        self.flat_estimates = self.estimates.reshape(steps + 1, -1)
+        # every step's row of ``estimates`` flattened, in step order (views made as needed)
+        self.flat_rows = iter(self.estimates.reshape(steps + 1, -1))
         self.difference = np.empty((n_agents, n))
 
     def plant_process(self):
@@ -429,7 +430,7 @@ class _Run:
             self.estimates[k] = self.current
         # Within the norm bound every agent's error is within the threshold; beyond it
         # (or NaN) the exact test decides.
-        row = self.flat_estimates[k]
+        row = next(self.flat_rows)  # step k's: the monitor runs once per step, in order
         bounded = math.sqrt(row.dot(row)) + self.state_norms[k] < self.norm_bound
         if not bounded and self.diverged(k):
             self.diverged_at = k

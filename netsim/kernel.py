@@ -274,158 +274,29 @@ class Simulation:
 
     def run(self, steps: int) -> TrialResult:
         """Simulate steps 0..``steps`` and return the recorded result."""
-        env = self.env
-        plant = self.plant
-        plant_rng = self.plant_rng
-        n = plant.n_states
-        n_agents = len(self.agents)
-        # The plant does not depend on the estimators: its whole trajectory is drawn
-        # and simulated up front, from the same stream in the same order as step by
-        # step; the plant process publishes it one step at a time. Steps after a
-        # divergence are not reached and are set to NaN at the end.
-        trajectory = plant.simulate(plant.standard_noise(plant_rng, steps)[:, None, :])
-        states = trajectory.states[:, 0]
-        all_measurements = trajectory.measurements[:, 0]
-        estimates = np.full((steps + 1, n_agents, n), np.nan)
-        delays = (
-            np.full((steps + 1, n_agents, n_agents), NOT_USED, dtype=np.int32)
-            if self.record_delays
-            else None
-        )
-        # the step's tick (the agents wait on it) and measurements, set by the plant
-        tick_event = env.event()
-        step_measurements: Sequence[np.ndarray] = ()
-        diverged_at: int | None = None
-        done = env.event()
-        threshold_sq = squared_threshold(self.divergence_threshold)
-        # each agent's estimate of the current step, recorded by the monitor, unless
-        # every estimator writes its estimate into its row of ``estimates`` itself
-        current: list[Any] = [None] * n_agents
-        in_place = all(_takes_out(spec.estimator) for spec in self.agents)
-        observer = self.observer
-        sensor_slices = plant.sensor_slices
-
-        # every step's y^i_k (views of the trajectory), as the agents' ``measure`` takes them
-        measurements_by_step = list(zip(*(all_measurements[:, rows] for rows in sensor_slices),
-                                        strict=True))
-        check_interrupt = interrupt.check
-
-        def plant_process():
-            nonlocal tick_event, step_measurements
-            for k, ys in enumerate(measurements_by_step):
-                check_interrupt()  # a requested Ctrl-C stops here, between steps
-                if observer is not None:
-                    observer.on_plant(k, states[k], ys)
-                step_measurements = ys
-                tick, tick_event = tick_event, env.event()
-                # the agents wait on the tick already: the monitor runs after them
-                tick.callbacks.append(monitor)
-                tick.succeed(k)
-                yield env.timeout(1.0)
-
-        def agent_process(i: int, spec: AgentSpec):
-            # resolved once: the update, the payload hook, the sends
-            estimator = spec.estimator
-            update = estimator.step
-            measure = spec.measure
-            links = self._out_links[i]
-            send = sender_function(links) if links else None
-            outgoing = getattr(estimator, "outgoing", None) if links else None
-            has_delays = hasattr(estimator, "last_delays")
-            read_delays = has_delays and (delays is not None or observer is not None)
-            # this agent's row of every step, in step order (views made as needed)
-            own_rows = iter(estimates[:, i]) if in_place else None
-            while True:
-                k = yield tick_event
-                if own_rows is not None:
-                    row = next(own_rows)
-                    estimate = update(k, measure(step_measurements), row)
-                    if estimate is not row:
-                        row[...] = estimate
-                else:
-                    estimate = update(k, measure(step_measurements))
-                    current[i] = estimate
-                if read_delays:
-                    used = estimator.last_delays
-                    if delays is not None and used:
-                        row = delays[k, i]
-                        for j, r in used.items():
-                            row[j] = r
-                    if observer is not None:
-                        observer.on_update(i, k, estimate, used or {})
-                elif observer is not None:
-                    observer.on_update(i, k, estimate, {})
-                if send is not None:
-                    payload = estimate if outgoing is None else outgoing(k)
-                    if payload is not None:
-                        send(k, payload)
-
-        # Divergence test of step k: one sum of squares over all agents first. Every
-        # agent's squared error is at most the sum, so a sum within the threshold
-        # clears the step; otherwise (inf, NaN, or no threshold and an infinite sum)
-        # the exact per-agent test. The per-agent squared errors are computed for all
-        # steps at the end.
-        difference = np.empty((n_agents, n))
-        flat = difference.reshape(-1)
-        state_norms = np.sqrt(np.einsum("ki,ki->k", states, states)).tolist()
-        # below this, sqrt(sum_i ||x-hat^i||^2) + ||x|| bounds every agent's error
-        # within the threshold (the margin covers round-off in the bound)
-        norm_bound = math.sqrt(threshold_sq) * (1.0 - 1e-6)
-        flat_rows = iter(estimates.reshape(steps + 1, -1))
-
-        def monitor(tick: simpy.Event) -> None:
-            # a callback of every step's tick, after the agents' updates
-            nonlocal diverged_at
-            k = tick._value
-            if not in_place:
-                estimates[k] = current
-            flat_row = next(flat_rows)
-            if math.sqrt(flat_row.dot(flat_row)) + state_norms[k] < norm_bound:
-                if k == steps:
-                    done.succeed()
-                return
-            np.subtract(estimates[k], states[k], out=difference)
-            if not flat.dot(flat) < threshold_sq and diverged(states[k]):
-                diverged_at = k
-                done.succeed()
-            elif k == steps:
-                done.succeed()
-
-        def diverged(x: np.ndarray) -> bool:
-            # the step's errors are in ``difference``: one is not finite or above
-            # max(threshold, the round-off floor). max propagates NaN and NaN <= t is
-            # False; the floor (x @ x) is only computed when the threshold is exceeded
-            worst = np.einsum("ij,ij->i", difference, difference).max(initial=0.0)
-            return worst == math.inf or not (
-                worst <= threshold_sq or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
-
+        run = _Run(self, steps)
         # The agents start (and wait on the first tick) before the plant fires it;
         # their order is the order their updates run in at every step.
         for i, spec in enumerate(self.agents):
-            env.process(agent_process(i, spec))
-        env.process(plant_process())
+            self.env.process(run.agent_process(i, spec))
+        self.env.process(run.plant_process())
         with np.errstate(over="ignore", invalid="ignore"):
-            env.run(until=done)
+            self.env.run(until=run.done)
+            run.blank_unreached_steps()
+            squared_errors = run.squared_errors()
+        return self._result(run, squared_errors)
 
-            last = diverged_at
-            if last is None:
-                last = steps
-            states[last + 1:] = np.nan
-            all_measurements[last + 1:] = np.nan
-            err = estimates[: last + 1] - states[: last + 1, None, :]
-            sq_errors = np.full((steps + 1, n_agents), np.nan)
-            np.einsum("kij,kij->ki", err, err, out=sq_errors[: last + 1])
-            if diverged_at is not None:
-                sq_errors[last] = np.where(np.isfinite(sq_errors[last]), sq_errors[last],
-                                           np.inf)
+    def _result(self, run: _Run, squared_errors: np.ndarray) -> TrialResult:
+        """The record of ``run`` and the links' counts."""
         links = self.links.values()
         return TrialResult(
-            states=states,
-            measurements=[all_measurements[:, rows].copy() for rows in sensor_slices],
-            estimates=estimates,
-            squared_errors=sq_errors,
-            effective_delays=delays,
-            diverged_at=diverged_at,
+            states=run.states,
+            measurements=[run.all_measurements[:, rows].copy()
+                          for rows in self.plant.sensor_slices],
+            estimates=run.estimates,
+            squared_errors=squared_errors,
+            effective_delays=run.delays,
+            diverged_at=run.diverged_at,
             messages_sent=sum(link.sent for link in links),
             messages_delivered=sum(link.delivered for link in links),
             messages_dropped=sum(link.dropped for link in links),
@@ -433,3 +304,184 @@ class Simulation:
             messages=self._messages,
             drop_reasons=dict(self._drop_reasons),
         )
+
+
+class _Run:
+    """The state of one :meth:`Simulation.run`, shared by its processes and its monitor.
+
+    The plant process publishes step k (``measurements``, then fires ``tick`` with
+    value k); every agent process updates its estimator and writes x-hat^i_{k|k} into
+    the record (``estimates``, ``delays``); the monitor, a callback of the tick after
+    the agents, tests the step for divergence and fires ``done`` after the last step
+    or a divergence.
+
+    Parameters
+    ----------
+    sim : Simulation
+    steps : int
+        The run simulates steps 0..``steps``.
+    """
+
+    def __init__(self, sim: Simulation, steps: int) -> None:
+        plant = sim.plant
+        n, n_agents = plant.n_states, len(sim.agents)
+        self.env = sim.env
+        self.observer = sim.observer
+        self.out_links = sim._out_links
+        self.steps = steps
+        # The plant does not depend on the estimators: its whole trajectory is drawn
+        # and simulated up front, from the same stream in the same order as step by
+        # step; the plant process publishes it one step at a time. Steps after a
+        # divergence are not reached and are set to NaN at the end.
+        trajectory = plant.simulate(plant.standard_noise(sim.plant_rng, steps)[:, None, :])
+        self.states = trajectory.states[:, 0]
+        self.all_measurements = trajectory.measurements[:, 0]
+        # every step's y^i_k (views of the trajectory), as the agents' ``measure`` takes them
+        self.measurements_by_step = list(zip(
+            *(self.all_measurements[:, rows] for rows in plant.sensor_slices), strict=True))
+        # the record: each agent's estimate and effective delays r_ij[k] at every step
+        self.estimates = np.full((steps + 1, n_agents, n), np.nan)
+        self.delays = (
+            np.full((steps + 1, n_agents, n_agents), NOT_USED, dtype=np.int32)
+            if sim.record_delays
+            else None
+        )
+        # each agent's estimate of the current step, recorded by the monitor, unless
+        # every estimator writes its estimate into its row of ``estimates`` itself
+        self.in_place = all(_takes_out(spec.estimator) for spec in sim.agents)
+        self.current: list[Any] = [None] * n_agents
+        # the step being simulated: its tick (the agents wait on it) and measurements,
+        # both set by the plant
+        self.tick = self.env.event()
+        self.measurements: Sequence[np.ndarray] = ()
+        self.done = self.env.event()
+        self.diverged_at: int | None = None
+        # The divergence test (see ``monitor`` and ``diverged``).
+        self.threshold_sq = squared_threshold(sim.divergence_threshold)
+        self.state_norms = np.sqrt(np.einsum("ki,ki->k", self.states, self.states)).tolist()
+        # below this, sqrt(sum_i ||x-hat^i||^2) + ||x|| bounds every agent's error
+        # within the threshold (the margin covers round-off in the bound)
+        self.norm_bound = math.sqrt(self.threshold_sq) * (1.0 - 1e-6)
+        # every step's row of ``estimates`` flattened, in step order (views made as needed)
+        self.flat_rows = iter(self.estimates.reshape(steps + 1, -1))
+        self.difference = np.empty((n_agents, n))
+
+    def plant_process(self):
+        """Publish x_k and every y^i_k, then fire step k's tick; one step per Ts."""
+        env = self.env
+        observer = self.observer
+        states = self.states
+        monitor = self.monitor
+        check_interrupt = interrupt.check
+        for k, ys in enumerate(self.measurements_by_step):
+            check_interrupt()  # a requested Ctrl-C stops here, between steps
+            if observer is not None:
+                observer.on_plant(k, states[k], ys)
+            self.measurements = ys
+            tick, self.tick = self.tick, env.event()
+            # the agents wait on the tick already: the monitor runs after them
+            tick.callbacks.append(monitor)
+            tick.succeed(k)
+            yield env.timeout(1.0)
+
+    def agent_process(self, i: int, spec: AgentSpec):
+        """At every tick, agent i's update x-hat^i_{k|k}, then its sends."""
+        # resolved once: the update, the payload hook, the sends, the reporting
+        estimator = spec.estimator
+        update = estimator.step
+        measure = spec.measure
+        links = self.out_links[i]
+        send = sender_function(links) if links else None
+        outgoing = getattr(estimator, "outgoing", None)
+        has_delays = hasattr(estimator, "last_delays")
+        reports = self.observer is not None or (has_delays and self.delays is not None)
+        # this agent's row of every step, in step order (views made as needed)
+        own_rows = iter(self.estimates[:, i]) if self.in_place else None
+        current = self.current
+        while True:
+            k = yield self.tick
+            if own_rows is not None:
+                row = next(own_rows)
+                estimate = update(k, measure(self.measurements), row)
+                if estimate is not row:
+                    row[...] = estimate
+            else:
+                estimate = update(k, measure(self.measurements))
+                current[i] = estimate
+            if reports:
+                self.report_update(i, k, estimate,
+                                   estimator.last_delays if has_delays else None)
+            if send is not None:
+                payload = estimate if outgoing is None else outgoing(k)
+                if payload is not None:
+                    send(k, payload)
+
+    def report_update(self, i: int, k: int, estimate: np.ndarray,
+                      used: dict[int, int] | None) -> None:
+        """Record agent i's effective delays r_ij[k] (``used``: j -> r), tell the observer."""
+        if self.delays is not None and used:
+            row = self.delays[k, i]
+            for j, r in used.items():
+                row[j] = r
+        if self.observer is not None:
+            self.observer.on_update(i, k, estimate, used or {})
+
+    def monitor(self, tick: simpy.Event) -> None:
+        """Record step k and test it for divergence (a callback of the tick, after the agents)."""
+        k = tick.value
+        if not self.in_place:
+            self.estimates[k] = self.current
+        # Within the norm bound every agent's error is within the threshold; beyond it
+        # (or NaN) the exact test decides.
+        row = next(self.flat_rows)  # step k's: the monitor runs once per step, in order
+        bounded = math.sqrt(row.dot(row)) + self.state_norms[k] < self.norm_bound
+        if not bounded and self.diverged(k):
+            self.diverged_at = k
+            self.done.succeed()
+        elif k == self.steps:
+            self.done.succeed()
+
+    def diverged(self, k: int) -> bool:
+        """Whether some agent's error at step k is not finite or above the threshold.
+
+        Above the threshold means above max(threshold, the round-off floor
+        ROUNDOFF_RELATIVE_ERROR * ||x_k||). One sum of squares over all agents first:
+        every agent's squared error is at most the sum, so a sum within the threshold
+        clears the step; otherwise (inf, NaN, or no threshold and an infinite sum) the
+        test agent by agent.
+        """
+        difference = self.difference
+        np.subtract(self.estimates[k], self.states[k], out=difference)
+        flat = difference.reshape(-1)
+        if flat.dot(flat) < self.threshold_sq:
+            return False
+        # max propagates NaN and NaN <= t is False; the floor (x @ x) is only computed
+        # when the threshold is exceeded
+        worst = np.einsum("ij,ij->i", difference, difference).max(initial=0.0)
+        x = self.states[k]
+        return worst == math.inf or not (
+            worst <= self.threshold_sq or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
+
+    @property
+    def last_step(self) -> int:
+        """The last step reached: ``steps``, or the step that diverged."""
+        return self.steps if self.diverged_at is None else self.diverged_at
+
+    def blank_unreached_steps(self) -> None:
+        """Set the states and measurements after the last step reached to NaN."""
+        last = self.last_step
+        self.states[last + 1:] = np.nan
+        self.all_measurements[last + 1:] = np.nan
+
+    def squared_errors(self) -> np.ndarray:
+        """||x_k - x-hat^i_{k|k}||^2 up to the last step reached, NaN after it.
+
+        At a divergence, an agent's squared error that is not finite is reported as inf.
+        """
+        last = self.last_step
+        err = self.estimates[: last + 1] - self.states[: last + 1, None, :]
+        sq_errors = np.full(self.estimates.shape[:2], np.nan)
+        np.einsum("kij,kij->ki", err, err, out=sq_errors[: last + 1])
+        if self.diverged_at is not None:
+            sq_errors[last] = np.where(np.isfinite(sq_errors[last]), sq_errors[last], np.inf)
+        return sq_errors

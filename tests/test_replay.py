@@ -145,6 +145,17 @@ def test_replay_not_defined_for_other_families(record, family):
     json.dumps(report.to_dict())
 
 
+@pytest.mark.parametrize("family, kind", [("compensated", True), ("uncompensated", False),
+                                          ("block", None), ("centralized-kf", None)])
+def test_recursion_kind_is_the_one_family_decision(record, family, kind):
+    """Which recursion a trace's family has is decided in one place (_recursion_kind)."""
+    from netsim.traces.replay import _recursion_kind
+
+    trace = record(HET, 3, family, steps=40)
+    assert _recursion_kind(trace) is kind
+    assert replay_trace(trace).compensated is kind
+
+
 def test_replay_report_is_json_ready(record):
     report = replay_trace(record(HET, 3, "compensated"))
     data = json.loads(json.dumps(report.to_dict()))

@@ -398,7 +398,85 @@ class ReplayReport:
 # -- replay ----------------------------------------------------------------------------
 
 
-def _usable_steps(trace: Trace, system: TraceSystem, X: np.ndarray, Ys: list[np.ndarray],
+@dataclass
+class _Recorded:
+    """Steps 0..K of a consensus run as its trace recorded them.
+
+    Attributes
+    ----------
+    system : TraceSystem
+    X : numpy.ndarray, shape (K+1, n)
+        x_k.
+    Ys : list of numpy.ndarray, each (K+1, m_i)
+        y^i_k.
+    Xhat : numpy.ndarray, shape (K+1, N, n)
+        x-hat^i_{k|k}.
+    D : numpy.ndarray, shape (K+1, N, N), int
+        r_ij[k].
+    edge : numpy.ndarray, shape (N, N), bool
+        j -> i is a link of the graph (p_ij != 0, j != i).
+    errors : numpy.ndarray, shape (K+1, N, n)
+        The recorded errors e^i_k = x_k - x-hat^i_k.
+    """
+
+    system: TraceSystem
+    X: np.ndarray
+    Ys: list[np.ndarray]
+    Xhat: np.ndarray
+    D: np.ndarray
+    edge: np.ndarray
+    errors: np.ndarray
+
+    @property
+    def K(self) -> int:
+        return self.X.shape[0] - 1
+
+
+@dataclass
+class _Recursion:
+    """What the error recursion of one trace is built from.
+
+    Attributes
+    ----------
+    compensated : bool
+        Blocks ``P_r kron A^(r+1)`` (True) or ``P_r kron A`` (False).
+    tau : int
+        Augmentation depth.
+    powers : list of numpy.ndarray
+        A^0 .. A^(tau+1).
+    local : list of numpy.ndarray
+        I - L_i C_i.
+    terms : list (per step k >= 1) of list (per agent i) of list of (j, r, p_ij)
+        The terms of each agent's consensus step (see :func:`_consensus_terms`).
+    """
+
+    compensated: bool
+    tau: int
+    powers: list[np.ndarray]
+    local: list[np.ndarray]
+    terms: list[list[list[tuple[int, int, float]]]]
+
+
+def _recursion_kind(trace: Trace) -> bool | None:
+    """Whether the trace's family compensates with A^(r+1); None: it has no recursion."""
+    return REPLAY_FAMILIES.get(trace.family)
+
+
+def _no_recursion_reason(family: str) -> str:
+    """Why a family without the recursion (see :func:`_recursion_kind`) is not replayed."""
+    known = ", ".join(REPLAY_FAMILIES)
+    if family == "block":
+        return ("the block-update estimator (LCSYS2022 eqs. 15-16) updates every tau+1 "
+                "steps and predicts open loop in between; it has no per-step augmented "
+                "error recursion (only the consensus families have one: "
+                f"{known})")
+    if family == "centralized-kf":
+        return ("the centralised Kalman filter has no consensus step and no delays; "
+                f"the augmented error recursion exists only for {known}")
+    return f"family {family or '?'!r} has no augmented error recursion (only {known})"
+
+
+def _usable_steps(system: TraceSystem, X: np.ndarray, Ys: list[np.ndarray],
                   Xhat: np.ndarray, D: np.ndarray) -> tuple[int, str]:
     """Last step k such that steps 0..k are complete and finite; and why it stops."""
     N = system.n_agents
@@ -418,6 +496,190 @@ def _usable_steps(trace: Trace, system: TraceSystem, X: np.ndarray, Ys: list[np.
         if why:
             return k - 1, f"replay stops at step {k - 1}: step {k}: {why}"
     return K, ""
+
+
+def _read_run(trace: Trace, system: TraceSystem) -> tuple[_Recorded | None, str, str]:
+    """The complete steps 0..K of the run in ``trace``.
+
+    Returns (run, reason, stop): run is None when there is nothing to replay (reason
+    says why); stop says where and why the replay stops before the trace's last step.
+    """
+    N = system.n_agents
+    if trace.n_agents != N:
+        return None, f"the trace has {trace.n_agents} agents but P is {N}x{N}", ""
+    X = trace.states()
+    if X.shape[0] == 0:
+        return None, "the trace has no plant steps", ""
+    sensors = trace.sensors
+    if sensors != list(range(N)):
+        return None, (f"replay needs one sensor per agent (sensor i = agent i), the trace "
+                      f"has sensors {sensors}"), ""
+    Ys = [trace.measurements(i) for i in range(N)]
+    Xhat = trace.estimates()
+    D = trace.effective_delays()
+    K, stop = _usable_steps(system, X, Ys, Xhat, D)
+    if K < 0:
+        return None, "no complete step to replay", stop
+    X, Xhat, D = X[: K + 1], Xhat[: K + 1], D[: K + 1]
+    edge = (system.P != 0) & ~np.eye(N, dtype=bool)
+    return _Recorded(system, X, [Y[: K + 1] for Y in Ys], Xhat, D, edge,
+                     errors=X[:, None, :] - Xhat), "", stop
+
+
+def _status_notes(trace: Trace) -> list[str]:
+    """Notes on a trace whose writer never finished or whose run did not complete."""
+    notes = []
+    if trace.truncated:
+        notes.append("the trace is truncated (writer never finished); replayed the "
+                     "recovered steps")
+    status = (trace.status or {}).get("status")
+    if status and status != "complete":
+        notes.append(f"run status {status!r}")
+    return notes
+
+
+def _scales(run: _Recorded, tolerance: float) -> tuple[float, float, float, float]:
+    """(error_scale, state_scale, roundoff_floor, effective_tolerance) of the run."""
+    recorded = run.errors
+    error_scale = float(np.max(np.abs(recorded))) if recorded.size else 0.0
+    state_scale = float(np.max(np.abs(run.X)))
+    roundoff_floor = ROUNDOFF_STATE_FACTOR * float(np.finfo(float).eps) * state_scale
+    effective_tolerance = max(
+        float(tolerance), roundoff_floor / error_scale if error_scale > 0 else 0.0
+    )
+    return error_scale, state_scale, roundoff_floor, effective_tolerance
+
+
+def _delay_patterns(run: _Recorded) -> tuple[int, int, int]:
+    """(tau, substitutions, nonzero_delay_steps) of the effective delays of steps >= 1.
+
+    tau is the largest effective delay on an edge; substitutions counts the
+    (agent, step) pairs with some r_ij[k] = -1; nonzero_delay_steps the steps with
+    some r_ij[k] > 0.
+    """
+    edge, D = run.edge, run.D
+    used = np.where(edge[None, :, :], D, -1)  # -1 off the graph
+    tau = max(0, int(used[1:].max())) if run.K >= 1 else 0
+    substitutions = int(np.sum(np.any(edge[None] & (D[1:] == -1), axis=2)))
+    nonzero_delay_steps = int(np.sum(np.any(used[1:] > 0, axis=(1, 2))))
+    return tau, substitutions, nonzero_delay_steps
+
+
+def _choose_method(method: str, dim: int) -> str:
+    """``auto``: dense if the augmented dimension N n (tau+1) is at most DENSE_LIMIT."""
+    if method == "auto":
+        return "dense" if dim <= DENSE_LIMIT else "agents"
+    return method
+
+
+def _consensus_terms(run: _Recorded) -> list[list[list[tuple[int, int, float]]]]:
+    """Per step k >= 1 and agent i: the terms (j, r_ij[k], p_ij) of its consensus step.
+
+    The own term is (i, 0, p_ii); a substitution (r_ij[k] = -1) is the term
+    (i, 0, p_ij): the weight goes on agent i's own delay-0 term.
+    """
+    P, D = run.system.P, run.D
+    terms: list[list[list[tuple[int, int, float]]]] = [[] for _ in range(run.K + 1)]
+    for k in range(1, run.K + 1):
+        for i in range(run.system.n_agents):
+            row = [(i, 0, float(P[i, i]))]
+            for j in np.flatnonzero(run.edge[i]):
+                r = int(D[k, i, j])
+                w = float(P[i, j])
+                row.append((i, 0, w) if r < 0 else (int(j), r, w))
+            terms[k].append(row)
+    return terms
+
+
+def _recursion(run: _Recorded, compensated: bool, tau: int) -> _Recursion:
+    """The powers of A, the local gains and the consensus terms of the run's recursion."""
+    system = run.system
+    powers = [np.eye(system.n_states)]
+    for _ in range(tau + 1):
+        powers.append(system.A @ powers[-1])
+    local = [system.local_gain(i) for i in range(system.n_agents)]
+    return _Recursion(compensated, tau, powers, local, _consensus_terms(run))
+
+
+def _etas(run: _Recorded, rec: _Recursion) -> tuple[np.ndarray, np.ndarray]:
+    """(eta_exact, eta_paper), each (K+1, N, n), from the noise of the recorded run.
+
+    nu_k = x_k - A x_{k-1}, zeta^i_k = y^i_k - C_i x_k; paper: (I - L_i C_i) nu_k -
+    L_i zeta^i_k; exact: (I - L_i C_i) sum_j p_ij (x_k - B_r x_{k-1-r}) - L_i zeta^i_k
+    with B_r = A^(r+1) (compensated) or A.
+    """
+    system, X, K = run.system, run.X, run.K
+    nu = np.zeros_like(X)
+    nu[1:] = X[1:] - X[:-1] @ system.A.T
+    zeta = [Y - X @ Ci.T for Y, Ci in zip(run.Ys, system.C, strict=True)]
+    eta_exact = np.zeros((K + 1, system.n_agents, system.n_states))
+    eta_paper = np.zeros_like(eta_exact)
+    for k in range(1, K + 1):
+        for i, row in enumerate(rec.terms[k]):
+            meas = system.L[i] @ zeta[i][k]
+            eta_paper[k, i] = rec.local[i] @ nu[k] - meas
+            gap = np.zeros(system.n_states)
+            for _j, r, w in row:
+                Ar = rec.powers[r + 1] if rec.compensated else rec.powers[1]
+                gap += w * (X[k] - Ar @ X[k - 1 - r])
+            eta_exact[k, i] = rec.local[i] @ gap - meas
+    return eta_exact, eta_paper
+
+
+def _state_term(run: _Recorded, rec: _Recursion) -> float:
+    """max |(I - L_i C_i) sum_j p_ij (A^(r+1) - A) x_{k-1-r}| over steps and agents."""
+    A, X = run.system.A, run.X
+    out = 0.0
+    for k in range(1, run.K + 1):
+        for i, row in enumerate(rec.terms[k]):
+            drift = np.zeros(run.system.n_states)
+            for _j, r, w in row:
+                if r > 0:
+                    drift += w * ((rec.powers[r + 1] - A) @ X[k - 1 - r])
+            out = max(out, float(np.max(np.abs(rec.local[i] @ drift))))
+    return out
+
+
+def _replay_errors(run: _Recorded, rec: _Recursion, method: str, eta_exact: np.ndarray,
+                   eta_paper: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """(exact errors, paper errors, distinct delay patterns) of the recursion from e_0."""
+    system, D, K, tau, e0 = run.system, run.D, run.K, rec.tau, run.errors[0]
+    if method == "dense":
+        rows, distinct = _dense_rows(system, D, K, tau, rec.compensated)
+        N, n = system.n_agents, system.n_states
+        return (_run_dense(rows, e0, eta_exact, N, n, tau),
+                _run_dense(rows, e0, eta_paper, N, n, tau), distinct)
+    distinct = len({D[k].tobytes() for k in range(1, K + 1)})
+    blocks = [rec.powers[r + 1] if rec.compensated else system.A for r in range(tau + 1)]
+    return (_run_agents(rec.terms, rec.local, blocks, e0, eta_exact),
+            _run_agents(rec.terms, rec.local, blocks, e0, eta_paper), distinct)
+
+
+def _paper_cause(compensated: bool, delays_seen: bool) -> str:
+    """Why the paper's eta deviates from the run (used when it does)."""
+    if not delays_seen:
+        return _CAUSE_NO_DELAY
+    return _CAUSE_PAPER_COMPENSATED if compensated else _CAUSE_PAPER_UNCOMPENSATED
+
+
+def _exact_description(compensated: bool) -> str:
+    """The exact eta_k, as the report describes it."""
+    return ("(I - L_i C_i) sum_j p_ij (x_k - A^(r+1) x_{k-1-r}) - L_i zeta^i_k"
+            if compensated else
+            "(I - L_i C_i) sum_j p_ij (x_k - A x_{k-1-r}) - L_i zeta^i_k")
+
+
+def _exact_cause(report: ReplayReport) -> str:
+    """Why the exact recursion fails to reproduce the run (it is just algebra)."""
+    # failing to reproduce means the trace and the matrices disagree (or round-off on a
+    # huge state)
+    return (
+        "the exact eta must reproduce the run up to round-off; a larger deviation means "
+        "the recorded matrices/delays do not describe the run, or the state "
+        f"(max |x| {report.state_scale:.2e}) is so large that its round-off "
+        f"(~{np.finfo(float).eps * report.state_scale:.1e}) is not small against "
+        f"max |e| {report.error_scale:.2e}"
+    )
 
 
 def replay_trace(trace: Trace, *, method: str = "auto",
@@ -443,158 +705,54 @@ def replay_trace(trace: Trace, *, method: str = "auto",
     """
     if method not in ("auto", "dense", "agents"):
         raise ValueError(f"method must be auto, dense or agents, got {method!r}")
-    family = trace.family
-    report = ReplayReport(path=trace.path, family=family, trial=trace.trial, defined=False,
-                          tolerance=float(tolerance))
-    if family not in REPLAY_FAMILIES:
-        known = ", ".join(REPLAY_FAMILIES)
-        if family == "block":
-            why = ("the block-update estimator (LCSYS2022 eqs. 15-16) updates every tau+1 "
-                   "steps and predicts open loop in between; it has no per-step augmented "
-                   "error recursion (only the consensus families have one: "
-                   f"{known})")
-        elif family == "centralized-kf":
-            why = ("the centralised Kalman filter has no consensus step and no delays; "
-                   f"the augmented error recursion exists only for {known}")
-        else:
-            why = f"family {family or '?'!r} has no augmented error recursion (only {known})"
-        report.reason = why
+    report = ReplayReport(path=trace.path, family=trace.family, trial=trace.trial,
+                          defined=False, tolerance=float(tolerance))
+    # 1. the family's recursion, the system and the recorded run
+    compensated = _recursion_kind(trace)
+    if compensated is None:
+        report.reason = _no_recursion_reason(trace.family)
         return report
-    compensated = REPLAY_FAMILIES[family]
     report.compensated = compensated
     system, why = trace_system(trace)
     if system is None:
         report.reason = why
         return report
-    N, n = system.n_agents, system.n_states
-    report.n_agents, report.n_states = N, n
-    if trace.n_agents != N:
-        report.reason = f"the trace has {trace.n_agents} agents but P is {N}x{N}"
-        return report
-    X = trace.states()
-    if X.shape[0] == 0:
-        report.reason = "the trace has no plant steps"
-        return report
-    sensors = trace.sensors
-    if sensors != list(range(N)):
-        report.reason = (f"replay needs one sensor per agent (sensor i = agent i), the trace "
-                         f"has sensors {sensors}")
-        return report
-    Ys = [trace.measurements(i) for i in range(N)]
-    Xhat = trace.estimates()
-    D = trace.effective_delays()
-    K, stop = _usable_steps(trace, system, X, Ys, Xhat, D)
+    report.n_agents, report.n_states = system.n_agents, system.n_states
+    run, why, stop = _read_run(trace, system)
     if stop:
         report.notes.append(stop)
-    if K < 0:
-        report.reason = "no complete step to replay"
+    if run is None:
+        report.reason = why
         return report
     report.defined = True
-    report.steps_replayed = K
-    if trace.truncated:
-        report.notes.append("the trace is truncated (writer never finished); replayed the "
-                            "recovered steps")
-    status = (trace.status or {}).get("status")
-    if status and status != "complete":
-        report.notes.append(f"run status {status!r}")
-    X, Xhat, D = X[: K + 1], Xhat[: K + 1], D[: K + 1]
-    Ys = [Y[: K + 1] for Y in Ys]
-    recorded = X[:, None, :] - Xhat  # e^i_k = x_k - x-hat^i_k
-    report.recorded = recorded
-    error_scale = float(np.max(np.abs(recorded))) if recorded.size else 0.0
-    report.error_scale = error_scale
-    report.state_scale = float(np.max(np.abs(X)))
-    report.roundoff_floor = ROUNDOFF_STATE_FACTOR * float(np.finfo(float).eps) \
-        * report.state_scale
-    report.effective_tolerance = max(
-        float(tolerance), report.roundoff_floor / error_scale if error_scale > 0 else 0.0
-    )
-
-    edge = (system.P != 0) & ~np.eye(N, dtype=bool)
-    used = np.where(edge[None, :, :], D, -1)  # -1 off the graph
-    tau = max(0, int(used[1:].max())) if K >= 1 else 0
+    report.steps_replayed = run.K
+    report.notes.extend(_status_notes(trace))
+    report.recorded = run.errors
+    (report.error_scale, report.state_scale, report.roundoff_floor,
+     report.effective_tolerance) = _scales(run, tolerance)
+    # 2. the effective-delay patterns: the depth tau and how A-hat[k] is built
+    tau, report.substitutions, report.nonzero_delay_steps = _delay_patterns(run)
     report.tau = tau
-    report.substitutions = int(np.sum(np.any(edge[None] & (D[1:] == -1), axis=2)))
-    report.nonzero_delay_steps = int(np.sum(np.any(used[1:] > 0, axis=(1, 2))))
-    dim = N * n * (tau + 1)
-    if method == "auto":
-        method = "dense" if dim <= DENSE_LIMIT else "agents"
-    report.method = method
-
-    # noise from the recorded run
-    A = system.A
-    powers = [np.eye(n)]
-    for _ in range(tau + 1):
-        powers.append(A @ powers[-1])
-    nu = np.zeros_like(X)
-    if K >= 1:
-        nu[1:] = X[1:] - X[:-1] @ A.T
-    zeta = [Ys[i] - X @ system.C[i].T for i in range(N)]
-    local = [system.local_gain(i) for i in range(N)]
-
-    eta_paper = np.zeros((K + 1, N, n))
-    eta_exact = np.zeros((K + 1, N, n))
-    state_term = 0.0
-    # per step and agent: the terms (j, r, weight) of the consensus step
-    terms: list[list[list[tuple[int, int, float]]]] = [[] for _ in range(K + 1)]
-    for k in range(1, K + 1):
-        for i in range(N):
-            row = [(i, 0, float(system.P[i, i]))]
-            for j in np.flatnonzero(edge[i]):
-                r = int(D[k, i, j])
-                w = float(system.P[i, j])
-                row.append((i, 0, w) if r < 0 else (int(j), r, w))
-            terms[k].append(row)
-            Li = system.L[i]
-            meas = Li @ zeta[i][k]
-            eta_paper[k, i] = local[i] @ nu[k] - meas
-            gap = np.zeros(n)
-            for _j, r, w in row:
-                Ar = powers[r + 1] if compensated else powers[1]
-                gap += w * (X[k] - Ar @ X[k - 1 - r])
-            eta_exact[k, i] = local[i] @ gap - meas
-            if not compensated:
-                drift = np.zeros(n)
-                for _j, r, w in row:
-                    if r > 0:
-                        drift += w * ((powers[r + 1] - A) @ X[k - 1 - r])
-                state_term = max(state_term, float(np.max(np.abs(local[i] @ drift))))
-    report.eta_gap = float(np.max(np.abs(eta_exact - eta_paper))) if K >= 1 else 0.0
+    report.method = _choose_method(method, system.n_agents * system.n_states * (tau + 1))
+    # 3. the recursion E_k = A-hat[k] E_{k-1} + b_1 kron eta_k from e_0, both etas
+    rec = _recursion(run, compensated, tau)
+    eta_exact, eta_paper = _etas(run, rec)
+    report.eta_gap = float(np.max(np.abs(eta_exact - eta_paper))) if run.K >= 1 else 0.0
     if not compensated:
-        report.state_term = state_term
-
-    if method == "dense":
-        steps_F, report.distinct_patterns = _dense_rows(system, D, K, tau, compensated)
-        exact_err = _run_dense(steps_F, recorded[0], eta_exact, N, n, tau)
-        paper_err = _run_dense(steps_F, recorded[0], eta_paper, N, n, tau)
-    else:
-        report.distinct_patterns = len({D[k].tobytes() for k in range(1, K + 1)})
-        blocks = [powers[r + 1] if compensated else A for r in range(tau + 1)]
-        exact_err = _run_agents(terms, local, blocks, recorded[0], eta_exact)
-        paper_err = _run_agents(terms, local, blocks, recorded[0], eta_paper)
-
+        report.state_term = _state_term(run, rec)
+    exact_err, paper_err, report.distinct_patterns = _replay_errors(
+        run, rec, report.method, eta_exact, eta_paper)
+    # 4. compare with the recorded errors
     delays_seen = report.nonzero_delay_steps > 0
-    if compensated:
-        paper_cause = _CAUSE_PAPER_COMPENSATED if delays_seen else _CAUSE_NO_DELAY
-    else:
-        paper_cause = _CAUSE_PAPER_UNCOMPENSATED if delays_seen else _CAUSE_NO_DELAY
-    exact_desc = ("(I - L_i C_i) sum_j p_ij (x_k - A^(r+1) x_{k-1-r}) - L_i zeta^i_k"
-                  if compensated else
-                  "(I - L_i C_i) sum_j p_ij (x_k - A x_{k-1-r}) - L_i zeta^i_k")
     tol = report.effective_tolerance
-    report.exact = _compare("exact", exact_desc, exact_err, recorded, error_scale, tol, "")
+    report.exact = _compare("exact", _exact_description(compensated), exact_err, run.errors,
+                            report.error_scale, tol, "")
     report.paper = _compare("paper", "LCSYS2022 eq. 11: (I - L_i C_i) nu_k - L_i zeta^i_k",
-                            paper_err, recorded, error_scale, tol, paper_cause)
+                            paper_err, run.errors, report.error_scale, tol,
+                            _paper_cause(compensated, delays_seen))
     if not report.exact.reproduces:
-        # the exact recursion is just algebra: failing to reproduce means the trace and
-        # the matrices disagree (or round-off on a huge state)
-        report.exact.cause = (
-            "the exact eta must reproduce the run up to round-off; a larger deviation means "
-            "the recorded matrices/delays do not describe the run, or the state "
-            f"(max |x| {report.state_scale:.2e}) is so large that its round-off "
-            f"(~{np.finfo(float).eps * report.state_scale:.1e}) is not small against "
-            f"max |e| {error_scale:.2e}"
-        )
+        report.exact.cause = _exact_cause(report)
+    # 5. the verdict
     report.verdict = _verdict(report, compensated, delays_seen)
     return report
 

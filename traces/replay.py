@@ -52,7 +52,6 @@ from netsim.models.jsonsafe import json_number as _num
 from netsim.traces.reader import NOT_USED, Trace
 
 __all__ = [
-    "REPLAY_FAMILIES",
     "ROUNDOFF_TOLERANCE",
     "TraceSystem",
     "EtaReplay",
@@ -62,8 +61,6 @@ __all__ = [
     "replay_trace",
 ]
 
-#: Families with an augmented error recursion -> whether they compensate with A^(r+1).
-REPLAY_FAMILIES: dict[str, bool] = {"compensated": True, "uncompensated": False}
 #: Relative deviation (to max |e| of the trace) below which a replay "reproduces" the run.
 ROUNDOFF_TOLERANCE = 1e-9
 #: The recorded errors x_k - x-hat^i_k are differences of numbers of size |x|: an
@@ -458,22 +455,33 @@ class _Recursion:
 
 
 def _recursion_kind(trace: Trace) -> bool | None:
-    """Whether the trace's family compensates with A^(r+1); None: it has no recursion."""
-    return REPLAY_FAMILIES.get(trace.family)
+    """Whether the trace's family compensates with A^(r+1); None: it declares no
+    consensus error recursion (:attr:`netsim.traces.reader.Trace.recursion_compensated`,
+    what the family declares in the registry, recorded in the trace)."""
+    return trace.recursion_compensated
 
 
-def _no_recursion_reason(family: str) -> str:
+def _no_recursion_reason(trace: Trace) -> str:
     """Why a family without the recursion (see :func:`_recursion_kind`) is not replayed."""
-    known = ", ".join(REPLAY_FAMILIES)
-    if family == "block":
+    from netsim.estimators.registry import (
+        RECURSION_BLOCK,
+        RECURSION_COMPENSATED,
+        RECURSION_UNCOMPENSATED,
+        families,
+    )
+
+    known = ", ".join(f.name for f in families() if f.error_recursion in
+                      (RECURSION_COMPENSATED, RECURSION_UNCOMPENSATED))
+    if trace.error_recursion == RECURSION_BLOCK:
         return ("the block-update estimator (LCSYS2022 eqs. 15-16) updates every tau+1 "
                 "steps and predicts open loop in between; it has no per-step augmented "
                 "error recursion (only the consensus families have one: "
                 f"{known})")
-    if family == "centralized-kf":
+    if trace.centralised:
         return ("the centralised Kalman filter has no consensus step and no delays; "
                 f"the augmented error recursion exists only for {known}")
-    return f"family {family or '?'!r} has no augmented error recursion (only {known})"
+    return (f"family {trace.family or '?'!r} has no augmented error recursion (only "
+            f"{known})")
 
 
 def _usable_steps(system: TraceSystem, X: np.ndarray, Ys: list[np.ndarray],
@@ -710,7 +718,7 @@ def replay_trace(trace: Trace, *, method: str = "auto",
     # 1. the family's recursion, the system and the recorded run
     compensated = _recursion_kind(trace)
     if compensated is None:
-        report.reason = _no_recursion_reason(trace.family)
+        report.reason = _no_recursion_reason(trace)
         return report
     report.compensated = compensated
     system, why = trace_system(trace)

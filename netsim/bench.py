@@ -1293,7 +1293,7 @@ def _executor_options(parser: Any) -> None:
 
 
 def _ints(text: str | None, option: str) -> list[int] | None:
-    from netsim.cli import CommandError
+    from netsim.cliutil import CommandError
 
     if text is None:
         return None
@@ -1310,7 +1310,7 @@ def _ints(text: str | None, option: str) -> list[int] | None:
 
 
 def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list[str] | None:
-    from netsim.cli import CommandError
+    from netsim.cliutil import CommandError
 
     if text is None:
         return None
@@ -1326,8 +1326,8 @@ def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list
 
 
 def cmd_bench(args: Any) -> int:
-    """Run ``netsim bench ...``; raise ``netsim.cli.CommandError`` on bad input."""
-    from netsim.cli import CommandError
+    """Run ``netsim bench ...``; raise ``netsim.cliutil.CommandError`` on bad input."""
+    from netsim.cliutil import CommandError
 
     command = getattr(args, "bench_command", None)
     if command is None:
@@ -1346,7 +1346,7 @@ def _executor(args: Any) -> dict[str, Any]:
 
 
 def _cmd_delay_tolerance(args: Any) -> int:
-    from netsim.cli import EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
+    from netsim.cliutil import EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
     from netsim.estimators.gains import GainDesignError
     from netsim.models.scenario import ScenarioError, resolve_scenario
     from netsim.runner import scenario_gains
@@ -1433,7 +1433,7 @@ def _strict(value: Any) -> Any:
 
 
 def _cmd_sweep(args: Any) -> int:
-    from netsim.cli import EXIT_INTERRUPTED, CommandError
+    from netsim.cliutil import EXIT_INTERRUPTED, CommandError
     from netsim.models.scenario import ScenarioError
     from netsim.sweep import SweepInterrupted
 
@@ -1488,7 +1488,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     codes as ``netsim``; ``netsim bench`` once registered in :mod:`netsim.cli`)."""
     import argparse
 
-    from netsim.cli import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CommandError
+    from netsim.cliutil import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CommandError
 
     parser = argparse.ArgumentParser(prog="netsim")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")

@@ -49,6 +49,7 @@ import json
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from functools import partial
 from operator import itemgetter
 from typing import Any
 
@@ -62,6 +63,7 @@ from netsim.estimators.aoi import (
 )
 from netsim.kernel import AgentSpec, Simulation, TrialResult
 from netsim.models.delays import homogeneous_delays
+from netsim.models.jsonsafe import json_default, json_number
 from netsim.models.plant import LinearPlant
 from netsim.models.seeding import SeedLike, child_sequence, stream
 from netsim.models.topology import (
@@ -538,11 +540,11 @@ class FamilyResult:
         out = {
             "family": self.family,
             "verdict": self.verdict,
-            "growth_rate": _json_float(self.growth_rate),
+            "growth_rate": json_number(self.growth_rate),
             "converged_at": self.converged_at,
             "diverged_at": self.diverged_at,
-            "max_error_at": {str(k): _json_float(v) for k, v in self.error_at.items()},
-            "max_relative_error_at": {str(k): _json_float(v)
+            "max_error_at": {str(k): json_number(v) for k, v in self.error_at.items()},
+            "max_relative_error_at": {str(k): json_number(v)
                                       for k, v in self.relative_error_at.items()},
             "messages": {"sent": self.messages_sent, "delivered": self.messages_delivered,
                          "dropped_link_down": self.messages_dropped,
@@ -552,17 +554,6 @@ class FamilyResult:
             out["freshness"] = {"all_triggered_by": self.triggered_by,
                                 "max_index_after_trigger_bound": self.freshness_max_after}
         return out
-
-
-def _json_float(value: float | None) -> float | str | None:
-    if value is None:
-        return None
-    value = float(value)
-    if math.isnan(value):
-        return None
-    if math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    return value
 
 
 def _noise_free(scenario: AoIScenario) -> bool:
@@ -814,7 +805,8 @@ def run_aoi_example(steps: int = 60, seed: int = 0, noise: float = 0.0, *,
 
 def _metadata(scenario: AoIScenario, design: AoIDesign) -> dict[str, str]:
     def js(v: Any) -> str:
-        return v if isinstance(v, str) else json.dumps(v, sort_keys=True, default=_jsd)
+        return v if isinstance(v, str) else json.dumps(
+            v, sort_keys=True, default=partial(json_default, fallback=str))
 
     out = {str(k): js(v) for k, v in scenario.summary().items()}
     out["sample_period"] = "1.0"
@@ -825,14 +817,6 @@ def _metadata(scenario: AoIScenario, design: AoIDesign) -> dict[str, str]:
                             "tau": scenario.delay, "default": scenario.delay, "seed": 0,
                             "links": [[j, i, scenario.delay] for j, i in scenario.links()]})
     return out
-
-
-def _jsd(v: Any) -> Any:
-    if isinstance(v, np.ndarray):
-        return v.tolist()
-    if isinstance(v, np.generic):
-        return v.item()
-    return str(v)
 
 
 def _matrices(scenario: AoIScenario, design: AoIDesign) -> dict[str, np.ndarray]:

@@ -54,6 +54,7 @@ from typing import Any
 
 import numpy as np
 
+from netsim.models.jsonsafe import json_tree
 from netsim.models.scenario import DelaySpec, Scenario
 from netsim.models.seeding import child_sequence
 
@@ -1409,27 +1410,13 @@ def _cmd_delay_tolerance(args: Any) -> int:
         except OSError as exc:
             raise CommandError(f"cannot write {args.plot}: {exc.strerror or exc}") from None
     if args.json:
-        json.dump(_strict(data), sys.stdout, indent=2, allow_nan=False)
+        json.dump(json_tree(data), sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
     else:
         sys.stdout.write(format_report(data))
         if args.plot:
             sys.stdout.write(f"plot: {data['plot']}\n")
     return 0
-
-
-def _strict(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _strict(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_strict(v) for v in value]
-    if isinstance(value, float | np.floating):
-        value = float(value)
-        if math.isnan(value):
-            return None
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-    return value
 
 
 def _cmd_sweep(args: Any) -> int:

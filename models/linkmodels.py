@@ -95,6 +95,7 @@ from typing import Any, Literal
 
 import numpy as np
 from netsim.models.delays import BatchedDraws, DelayModel, latency_to_steps
+from netsim.models.delaysources import delay_source
 from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
@@ -115,6 +116,7 @@ __all__ = [
     "BernoulliLoss",
     "GilbertElliottLoss",
     "Outages",
+    "LinkRecord",
     "TraceReplay",
     "TraceDelays",
     "TraceLoss",
@@ -733,7 +735,7 @@ class Outages:
 
 
 @dataclass(frozen=True)
-class _LinkRecord:
+class LinkRecord:
     """What a trace recorded for one link, indexed by sequence number."""
 
     sent_steps: np.ndarray
@@ -754,14 +756,14 @@ class TraceReplay:
 
     Parameters
     ----------
-    records : mapping (j, i) -> _LinkRecord
+    records : mapping (j, i) -> LinkRecord
     sample_period : float
         Ts of the recorded run.
     source : str
         The trace file.
     """
 
-    def __init__(self, records: Mapping[Link, _LinkRecord], sample_period: float,
+    def __init__(self, records: Mapping[Link, LinkRecord], sample_period: float,
                  source: str = "") -> None:
         self.records = dict(records)
         self.sample_period = float(sample_period)
@@ -791,8 +793,9 @@ class TraceReplay:
 def load_trace_replay(path: str | Path) -> TraceReplay:
     """Read the link events of an MCAP trace written by netsim into a :class:`TraceReplay`.
 
-    This is the one place ``models`` reads a trace; it imports :mod:`netsim.traces.reader`
-    when called (``traces`` imports ``models``, never the reverse at import time).
+    ``models`` does not read traces itself: this calls the ``"trace"`` delay source of
+    :mod:`netsim.models.delaysources`, which the ``netsim`` package registers
+    (:func:`netsim.traces.linkdelays.load_trace_replay`, imported when first called).
 
     Raises
     ------
@@ -800,41 +803,7 @@ def load_trace_replay(path: str | Path) -> TraceReplay:
         Naming the file: not readable as a netsim trace, no link topics, or a link
         whose sequence numbers do not start at 0.
     """
-    from netsim.traces.reader import TraceError, read_trace
-
-    try:
-        trace = read_trace(path)
-    except TraceError as exc:
-        raise ValueError(str(exc)) from None
-    ts = trace.sample_period
-    records: dict[Link, _LinkRecord] = {}
-    for link in trace.links:
-        sent: dict[int, Any] = {}
-        dropped: dict[int, str] = {}
-        for ev in trace.link_events(*link):
-            if ev.event == "sent":
-                sent[int(ev.sequence)] = ev
-            elif ev.event == "dropped":
-                dropped[int(ev.sequence)] = str(ev.reason)
-        count = 0
-        while count in sent:
-            count += 1
-        if sent and count == 0:
-            raise ValueError(f"trace {path}: link {link[0]}->{link[1]} has no message with "
-                             "sequence number 0")
-        evs = [sent[q] for q in range(count)]
-        steps = np.array([int(e.sent_step) for e in evs], dtype=np.int64)
-        lat = np.array([float(e.arrival_time) - float(e.send_time) for e in evs])
-        d = np.array([int(e.delay_steps) for e in evs], dtype=np.int64)
-        boundary = all(
-            float(e.arrival_time) == (float(e.sent_step) + 1.0 + int(e.delay_steps)) * ts
-            for e in evs
-        )
-        records[link] = _LinkRecord(steps, lat, d, boundary,
-                                    {q: r for q, r in dropped.items() if q < count})
-    if not records:
-        raise ValueError(f"trace {path} has no link topics (/link/<j>/<i>) to replay")
-    return TraceReplay(records, ts, str(path))
+    return delay_source("trace")(path)
 
 
 class TraceDelays:

@@ -19,6 +19,23 @@ import os as _os
 # machine. Only a default: a value set by the user wins. Must run before numpy loads.
 _os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
+from netsim.models.delaysources import (  # noqa: E402
+    register_delay_source as _register_delay_source,
+)
+
+
+def _trace_replay(path):
+    """The ``"trace"`` delay source: imports :mod:`netsim.traces` only when a scenario
+    names a trace, so ``netsim.models`` never loads ``netsim.traces`` by itself."""
+    from netsim.traces.linkdelays import load_trace_replay
+
+    return load_trace_replay(path)
+
+
+# Before any netsim.models module runs (netsim/__init__ always loads first), give the
+# scenario loader its reader of trace-driven delays ([links] delay.distribution = "trace").
+_register_delay_source("trace", _trace_replay)
+
 from importlib import metadata as _metadata  # noqa: E402
 
 try:

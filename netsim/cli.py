@@ -16,21 +16,13 @@ from typing import Any
 
 import numpy as np
 
+from netsim.cliutil import EXIT_BAD_INPUT, EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
 from netsim.models.jsonsafe import json_number as _num
 
-__all__ = ["main", "build_parser"]
-
-EXIT_BAD_INPUT = 2
-EXIT_DESIGN_FAILED = 3
-EXIT_INTERRUPTED = 130
-
-
-class CommandError(Exception):
-    """A user-facing error: one line on stderr and an exit code."""
-
-    def __init__(self, message: str, code: int = EXIT_BAD_INPUT) -> None:
-        super().__init__(message)
-        self.code = code
+# CommandError and the exit codes live in netsim.cliutil (shared with netsim.bench);
+# re-exported here so ``from netsim.cli import CommandError`` keeps working.
+__all__ = ["main", "build_parser", "CommandError", "EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED",
+           "EXIT_INTERRUPTED"]
 
 
 def build_parser() -> argparse.ArgumentParser:

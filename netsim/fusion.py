@@ -54,6 +54,7 @@ from netsim.estimators.kalman import CentralizedKalmanFilter
 from netsim.kernel import AgentSpec, Simulation, TrialResult
 from netsim.models import dkfe as dk
 from netsim.models.delays import DelayModel, FixedDelays
+from netsim.models.jsonsafe import json_tree
 from netsim.models.seeding import SeedLike, child_sequence, stream
 
 __all__ = [
@@ -229,18 +230,18 @@ class FusionRunResult:
             "engine": self.engine,
             "time_varying_delays": self.time_varying,
             "marks": self.marks,
-            "mse": _jsonable(self.empirical),
-            "mse_standard_error": _jsonable(self.standard_error),
-            "exact_trace": _jsonable(self.theory),
-            "steady_state": _jsonable({
+            "mse": json_tree(self.empirical),
+            "mse_standard_error": json_tree(self.standard_error),
+            "exact_trace": json_tree(self.theory),
+            "steady_state": json_tree({
                 "converged": self.steady.converged,
                 "steps": self.steady.steps,
                 "trace_P": float(np.trace(self.steady.P)),
                 "trace_P_odkfe": float(np.trace(self.odkfe_steady.P)),
                 "weights": [_mat(w) for w in self.steady.weights],
             }),
-            "dkfe_minus_sdkfe_mean_abs": _jsonable(self.fused_gap),
-            "conditions": _jsonable(self.conditions),
+            "dkfe_minus_sdkfe_mean_abs": json_tree(self.fused_gap),
+            "conditions": json_tree(self.conditions),
             "diverged_trials": self.diverged_trials,
         }
 
@@ -286,25 +287,6 @@ class FusionRunResult:
             lines.append(f"{self.diverged_trials} trials diverged and are left out")
         lines.append("Monte Carlo standard errors are in --json (mse_standard_error).")
         return "\n".join(lines) + "\n"
-
-
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {k: _jsonable(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, float | np.floating):
-        v = float(value)
-        if math.isnan(v):
-            return None
-        return v if math.isfinite(v) else ("inf" if v > 0 else "-inf")
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
 
 
 def _exact_traces(setup: dk.DkfeSetup, cov: FusionCovariance, ocov: FusionCovariance,
@@ -426,7 +408,7 @@ def table1(json: bool = False) -> tuple[dict[str, Any], str]:
     data = {
         "example": "dkfe-example1",
         "delay": 0,
-        "rows": _jsonable(rows),
+        "rows": json_tree(rows),
         "all_agree_with_paper": all(r["agrees"] for r in rows),
         "paper_D1_check": d1,
         "G_K1": _mat(ss.G),
@@ -510,7 +492,7 @@ def example2(json: bool = False) -> tuple[dict[str, Any], str]:
         "Phi_K_minus_paper_eq88_max_abs": [float(np.max(np.abs(p - q)))
                                            for p, q in zip(phis, dk.PAPER_EX2_PHI_K,
                                                            strict=True)],
-        "conditions": _jsonable(conds),
+        "conditions": json_tree(conds),
     }
     lines = [
         "Example 2 (dkfe paper, 4-bus grid, d_1 = 1, d_2 = 2): steady-state fusion",

@@ -39,7 +39,6 @@ import csv
 import hashlib
 import itertools
 import json
-import math
 import multiprocessing
 import os
 import socket
@@ -52,6 +51,7 @@ from typing import Any
 
 import numpy as np
 
+from netsim.models.jsonsafe import json_default, json_tree
 from netsim.models.seeding import child_sequence
 
 __all__ = [
@@ -141,17 +141,7 @@ def grid(**axes: Any) -> list[dict[str, Any]]:
 
 def _canonical(value: Any) -> str:
     return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False,
-                      default=_json_default)
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.floating):
-        return float(value)
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    raise TypeError(f"not JSON-able: {value!r}")
+                      default=json_default)
 
 
 def cell_key(params: Mapping[str, Any], root_seed: int = 0, sweep: str = "") -> str:
@@ -209,7 +199,7 @@ def flatten(value: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         if isinstance(v, Mapping):
             out.update(flatten(v, f"{name}."))
         elif isinstance(v, list | tuple):
-            out[name] = json.dumps(v, default=_json_default)
+            out[name] = json.dumps(v, default=json_default)
         else:
             out[name] = v
     return out
@@ -282,30 +272,8 @@ def _run_cell(fn: Callable[..., dict[str, Any]], params: dict[str, Any],
     start = time.perf_counter()
     result = fn(params, seed, context)
     # normalise to plain JSON types here, so every executor returns the same thing
-    result = json.loads(_canonical(_finite_floats(result)))
+    result = json.loads(_canonical(json_tree(result, str_keys=True)))
     return result, time.perf_counter() - start, _worker_name()
-
-
-def _finite_floats(value: Any) -> Any:
-    """NaN -> None, +-inf -> "inf"/"-inf" (strict JSON)."""
-    if isinstance(value, Mapping):
-        return {str(k): _finite_floats(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_finite_floats(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _finite_floats(value.tolist())
-    if isinstance(value, float | np.floating):
-        value = float(value)
-        if math.isnan(value):
-            return None
-        if math.isinf(value):
-            return "inf" if value > 0 else "-inf"
-        return value
-    if isinstance(value, np.integer):
-        return int(value)
-    if isinstance(value, np.bool_):
-        return bool(value)
-    return value
 
 
 def _serial(todo: list[tuple[str, dict[str, Any]]], fn: Callable, seeds: dict[str, Any],
@@ -437,7 +405,7 @@ def run_sweep(
     ordered: list[tuple[str, dict[str, Any]]] = []
     seen: set[str] = set()
     for params in cells:
-        params = json.loads(json.dumps(dict(params), allow_nan=False, default=_json_default))
+        params = json.loads(json.dumps(dict(params), allow_nan=False, default=json_default))
         key = cell_key(params, root_seed, sweep)
         if key not in seen:
             seen.add(key)

@@ -95,6 +95,7 @@ def test_every_builtin_family_declares_itself_in_its_own_module():
 def test_declared_traits_match_what_the_families_do():
     # the traits are claims about the estimator objects: check them on built agents
     from netsim.models.scenario import resolve_scenario
+
     from netsim.runner import scenario_gains
 
     scenario = resolve_scenario("lcsys2022-heterogeneous")

@@ -74,12 +74,14 @@ import os
 import re
 import time
 from collections.abc import Mapping, Sequence
+from functools import partial
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
+from netsim.models.jsonsafe import json_default
 from netsim.traces.schemas import file_descriptor_set, message_classes, schema_name
 
 __all__ = [
@@ -163,15 +165,7 @@ def trace_path(base: str | os.PathLike[str], family: str | None = None,
 def _meta_value(value: Any) -> str:
     if isinstance(value, str):
         return value
-    return json.dumps(value, sort_keys=True, default=_json_default)
-
-
-def _json_default(value: Any) -> Any:
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, np.generic):
-        return value.item()
-    return str(value)
+    return json.dumps(value, sort_keys=True, default=partial(json_default, fallback=str))
 
 
 def scenario_metadata(scenario: Any) -> dict[str, str]:

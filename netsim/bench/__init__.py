@@ -1,0 +1,93 @@
+"""``netsim bench``: how much delay does each estimator tolerate, do the bounds predict it?
+
+``netsim bench delay-tolerance SCENARIO|PRESET`` runs, for every delay setting and
+delay bound tau of a grid and for every estimator family (compensated LCSYS2022
+eqs. 4-5, uncompensated delay-tolerant eqs. 6-7, block update LCSYS2022 eqs. 15-16,
+and the centralised Kalman filter as the reference), M Monte Carlo trials in the
+event kernel, and puts next to each other:
+
+* measured: the steady-state network MSE (mean over the last ``steady_state_fraction``
+  of the steps, trials that blew up left out), the fitted MSE growth per step over the
+  second half, and the empirical decay factor of the error norm per step
+  (``netsim.traces.analysis.decay_fit``: exp(slope/2) of log MSE over the transient);
+  ``stable`` / ``diverging`` / ``diverged`` exactly as ``netsim run`` decides;
+* exact: for time-invariant delays the spectral radius of the augmented closed loop
+  of the realised delays (LCSYS2022 eq. 9-10 for ``compensated``, the delay-tolerant
+  paper's eq. 11 for ``uncompensated``, which describes its error only for a still
+  state; for ``block`` its own per-step rate rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)),
+  exact when every message arrives within its block); for time-varying delays (or
+  lossy links) the realised growth factor of the product A-hat[k]...A-hat[1] along
+  trial 0's effective delays (``netsim.traces.analysis.growth_rates``; second-half rate);
+* the papers' bounds at tau: LCSYS2022 eq. (26) and Theorem 1 (tau*), the delay-
+  tolerant paper's rho(A-hat)^(1/(tau+1)) (its Theorem 1 / Lemma 5);
+* a verdict per cell: ``stable`` (measured stable, as the bound predicts),
+  ``diverging`` (measured not stable, and the bound did not predict stability),
+  ``bound violated`` (the bound predicts stability but the run is not stable, or the
+  exact value exceeds the bound), ``bound conservative`` (the bound does not predict
+  stability, but the run is stable).
+
+It also reports the largest tolerated delay per estimator and setting, measured on
+the grid, next to the predicted one (Theorem 1's tau*), and the exact homogeneous
+tolerance (largest tau with every smaller tau's exact rho < 1); it checks the papers'
+statements for the presets and prints, with the numbers, where they disagree. The
+cells run on the sweep machinery (:mod:`netsim.sweep`): a local process pool by
+default, Dask with ``--dask ADDRESS``, resumable with ``--resume FILE``.
+
+Trial t of every cell uses the seed ``child_sequence(seed, "trial", t)``, the same as
+``netsim run``: every estimator and delay setting sees the same initial states and
+noise, and a cell's numbers equal ``netsim run``'s for the same scenario, tau and seed.
+
+Modules
+-------
+:mod:`~netsim.bench.presets`
+    estimator families, delay settings, the papers' presets;
+:mod:`~netsim.bench.variants`
+    the scenario of a cell (delay-setting and sweep variants) and its fingerprint;
+:mod:`~netsim.bench.cells`
+    one delay-tolerance cell: Monte Carlo measurement, exact analytics, verdict;
+:mod:`~netsim.bench.delay_tolerance`
+    the benchmark: the grid of cells on the sweep machinery, the tolerance table;
+:mod:`~netsim.bench.claims`
+    the papers' statements checked against the report;
+:mod:`~netsim.bench.fmt`, :mod:`~netsim.bench.report`, :mod:`~netsim.bench.plots`
+    the report as text and as a PNG;
+:mod:`~netsim.bench.scenario_sweep`
+    ``netsim bench sweep``: a parameter grid of Monte Carlo runs;
+:mod:`~netsim.bench.command`
+    the ``netsim bench`` command line (``python -m netsim.bench``).
+"""
+
+from netsim.bench.cells import BOUND_SLACK as BOUND_SLACK
+from netsim.bench.cells import CURVE_POINTS as CURVE_POINTS
+from netsim.bench.cells import ROUNDOFF_WARNING as ROUNDOFF_WARNING
+from netsim.bench.cells import _verdict as _verdict
+from netsim.bench.cells import delay_tolerance_cell
+from netsim.bench.command import add_bench_parser, cmd_bench
+from netsim.bench.command import main as main
+from netsim.bench.delay_tolerance import SCAN_TAU_MIN as SCAN_TAU_MIN
+from netsim.bench.delay_tolerance import run_delay_tolerance
+from netsim.bench.plots import plot_report
+from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, PRESETS, Preset
+from netsim.bench.report import format_report
+from netsim.bench.scenario_sweep import run_scenario_sweep, scenario_sweep_cell
+from netsim.bench.variants import scenario_data as scenario_data
+from netsim.bench.variants import scenario_fingerprint as scenario_fingerprint
+from netsim.bench.variants import sweep_variant as sweep_variant
+
+#: The name benchmarks/engine_scaling.py imports (bench.py's private name before the split).
+_scenario_data = scenario_data
+
+__all__ = [
+    "DELAY_SETTINGS",
+    "PRESETS",
+    "FAMILIES",
+    "Preset",
+    "run_delay_tolerance",
+    "delay_tolerance_cell",
+    "format_report",
+    "plot_report",
+    "scenario_sweep_cell",
+    "run_scenario_sweep",
+    "add_bench_parser",
+    "cmd_bench",
+]

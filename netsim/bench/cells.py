@@ -1,0 +1,290 @@
+"""One delay-tolerance cell: a Monte Carlo run or the exact scan, measured and analysed.
+
+A cell (:func:`delay_tolerance_cell`, a sweep function for :func:`netsim.sweep.run_sweep`)
+runs M trials of one estimator family at one delay setting and bound tau and returns the
+measured summary, the exact value and the papers' bounds, a verdict and notes; the
+``scan`` cell is the exact homogeneous analysis up to tau_max. :func:`find_cell` looks a
+cell up in the finished report.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+
+from netsim.bench.variants import delay_variant
+from netsim.models.scenario import Scenario
+from netsim.models.seeding import child_sequence
+
+__all__ = ["BOUND_SLACK", "CURVE_POINTS", "ROUNDOFF_WARNING", "delay_tolerance_cell", "find_cell"]
+
+
+#: An exact value above a bound by more than this counts as a violation.
+BOUND_SLACK = 1e-9
+
+
+#: MSE curves kept per cell (for the plot), at most this many points.
+CURVE_POINTS = 240
+
+
+#: Relative double-precision round-off of the state: eps |x_K|.
+_EPS = float(np.finfo(float).eps)
+
+
+#: A cell is flagged when eps |x_K| exceeds this fraction of its RMS steady error.
+ROUNDOFF_WARNING = 1e-3
+
+
+def _curve(mse: np.ndarray) -> dict[str, list]:
+    k = len(mse) - 1
+    idx = np.unique(np.round(np.linspace(0, k, min(CURVE_POINTS, k + 1))).astype(int))
+    return {"steps": idx.tolist(), "mse": [float(v) for v in mse[idx]]}
+
+
+def _measure(results: list, steps: int, fraction: float) -> dict[str, Any]:
+    """Monte Carlo summary with ``netsim run``'s definitions, plus the decay fit."""
+    from netsim.runner import GROWTH_TOLERANCE
+    from netsim.traces.analysis import decay_fit
+
+    diverged = [(t, int(r.diverged_at)) for t, r in enumerate(results)
+                if r.diverged_at is not None]
+    good = [r.squared_errors.mean(axis=1) for r in results if r.diverged_at is None]
+    mse = np.mean(good, axis=0) if good else np.full(steps + 1, np.nan)
+    tail = max(1, int(round(fraction * (steps + 1))))
+    steady = float(np.mean(mse[-tail:])) if good else math.nan
+    half = mse[(steps + 1) // 2:]
+    growth = math.nan
+    if good and len(half) >= 2 and np.all(half > 0):
+        growth = float(np.exp(np.polyfit(np.arange(len(half)), np.log(half), 1)[0]))
+    if diverged:
+        verdict = "diverged"
+    elif not math.isfinite(growth) or growth ** len(half) > GROWTH_TOLERANCE:
+        verdict = "diverging"
+    else:
+        verdict = "stable"
+    fit = decay_fit(mse) if good else None
+    state_max = max((float(np.nanmax(np.abs(r.states))) for r in results), default=0.0)
+    rms = math.sqrt(steady) if math.isfinite(steady) and steady > 0 else math.nan
+    roundoff = _EPS * state_max
+    return {
+        "verdict": verdict,
+        "steady_state_mse": steady,
+        "growth_rate": growth,
+        "decay_factor": fit.factor if fit is not None and fit.transient else math.nan,
+        "excess_decay_factor": (fit.excess_factor if fit is not None and fit.transient
+                                else math.nan),
+        "tail_factor": fit.tail_factor if fit is not None else math.nan,
+        "transient_steps": fit.end if fit is not None and fit.transient else None,
+        "diverged_trials": len(diverged),
+        "first_divergence": min((s for _, s in diverged), default=None),
+        "messages": {
+            "sent": int(sum(r.messages_sent for r in results)),
+            "delivered": int(sum(r.messages_delivered for r in results)),
+            "discarded_stale": int(sum(r.messages_discarded for r in results)),
+            "dropped": int(sum(r.messages_dropped for r in results)),
+        },
+        "curve": _curve(mse) if good else None,
+        "state_norm_max": state_max,
+        "roundoff_floor": roundoff,
+        "roundoff_warning": bool(math.isfinite(rms) and roundoff > ROUNDOFF_WARNING * rms),
+    }
+
+
+def _analytics(variant: Scenario, gains: Any, family: str, tau: int,
+               first: Any) -> dict[str, Any]:
+    """Exact rho (fixed delays) or realised growth (time-varying), bounds, prediction."""
+    from netsim.models.augmented import (
+        augmented_spectral_radius,
+        delay_bound_lcsys,
+        delay_bound_tolerant,
+    )
+    from netsim.runner import fixed_delay_matrix
+
+    plant = variant.plant
+    P, A, C, L = variant.weights, plant.A, plant.C, gains.L
+    out: dict[str, Any] = {"exact_kind": None, "exact": None}
+    if family == "centralized-kf":
+        out.update(bound_name=None, bound=None, predicted_stable=None)
+        return out
+    eq26 = float(delay_bound_lcsys(P, A, C, L, tau))
+    tolerant = float(delay_bound_tolerant(P, A, C, L, tau))
+    out["bound_eq26"] = eq26
+    out["bound_tolerant"] = tolerant
+    if family == "uncompensated":
+        out.update(bound_name="delay-tolerant rho(A-hat)^(1/(tau+1))", bound=tolerant)
+    else:
+        out.update(bound_name="LCSYS2022 eq. (26)", bound=eq26)
+    out["predicted_stable"] = bool(out["bound"] < 1.0)
+    delays = fixed_delay_matrix(variant)
+    if family == "block":
+        out.update(exact_kind="block rate (eq. 26 expression, exact for eqs. 15-16)",
+                   exact=eq26)
+    elif delays is not None:
+        out["realised_delays"] = {f"{j}->{i}": int(delays[i, j]) for j, i in variant.links}
+        with np.errstate(over="ignore", invalid="ignore"):
+            rho = float(augmented_spectral_radius(P, A, C, L, delays, None,
+                                                  compensated=family == "compensated"))
+        out.update(exact_kind="augmented rho (LCSYS2022 eq. 9)" if family == "compensated"
+                   else "augmented rho (delay-tolerant eq. 11, still state only)", exact=rho)
+    elif first is not None and first.effective_delays is not None:
+        out.update(_realised_growth(P, A, C, L, first.effective_delays,
+                                    family == "compensated"))
+    exact = out["exact"]
+    out["exact_violates_bound"] = bool(exact is not None and math.isfinite(exact)
+                                       and exact > out["bound"] + BOUND_SLACK)
+    return out
+
+
+def _realised_growth(P: np.ndarray, A: np.ndarray, C: Sequence[np.ndarray],
+                     L: Sequence[np.ndarray], D: np.ndarray, compensated: bool
+                     ) -> dict[str, Any]:
+    """Realised growth factor of A-hat[k] ... A-hat[h] over the second half of the steps
+    after start-up (every neighbour heard from), from one trial's effective delays.
+
+    ``netsim.models.augmented.closed_loop_sequence_growth`` (matrix-free; exact up to rounding
+    for augmented dimension <= 600, a random 8-vector block above): exp of
+    (1/m) log ||A-hat[K] ... A-hat[h]||, h = the middle of the post-start-up steps.
+    """
+    from netsim.kernel import NOT_USED
+    from netsim.models.augmented import closed_loop_sequence_growth
+
+    edge = (P != 0) & ~np.eye(P.shape[0], dtype=bool)
+    seq = []
+    for k in range(1, D.shape[0]):
+        d = D[k]
+        if np.any(edge & (d == NOT_USED)):
+            break  # the run stopped (diverged)
+        if np.any(edge & (d < 0)):
+            if seq:
+                break
+            continue  # start-up: an own estimate substituted
+        seq.append(np.where(edge, d, 0).astype(np.int64))
+    half = seq[len(seq) // 2:]
+    if len(half) < 4:
+        return {"realised_steps": len(seq)}
+    depth = max(0, int(max(int(d[edge].max()) for d in half)))
+    with np.errstate(over="ignore", invalid="ignore"):
+        rate = closed_loop_sequence_growth(P, A, C, L, half, depth, compensated)
+    return {
+        "exact_kind": "realised growth factor (trial 0, second half)",
+        "exact": _exp(rate),
+        "realised_steps": len(half),
+        "realised_max_delay": depth,
+    }
+
+
+def _exp(value: float) -> float:
+    if value is None or math.isnan(value):
+        return math.nan
+    return math.inf if value > 700 else math.exp(value)
+
+
+def _verdict(family: str, measured: dict[str, Any], analytics: dict[str, Any]) -> str:
+    stable = measured["verdict"] == "stable"
+    if family == "centralized-kf":
+        return "stable" if stable else "diverging"
+    if analytics.get("exact_violates_bound") or (analytics["predicted_stable"] and not stable):
+        return "bound violated"
+    if stable and not analytics["predicted_stable"]:
+        return "bound conservative"
+    return "stable" if stable else "diverging"
+
+
+def _notes(family: str, measured: dict[str, Any], analytics: dict[str, Any]) -> list[str]:
+    notes = []
+    exact = analytics.get("exact")
+    stable = measured["verdict"] == "stable"
+    if exact is not None and math.isfinite(exact):
+        if exact < 1 and not stable:
+            notes.append(f"the exact value {exact:.4f} < 1 predicts decay, the run is "
+                         f"{measured['verdict']}")
+            if family == "uncompensated":
+                notes.append("eq. (11) leaves out the (A^(r+1) - A) x term of a moving state")
+        elif exact >= 1 and stable:
+            notes.append(f"the exact value {exact:.4f} >= 1, yet the run stays bounded over "
+                         "its steps")
+    if analytics.get("exact_violates_bound"):
+        notes.append(f"exact {exact:.6f} > bound {analytics['bound']:.6f}")
+    if measured.get("roundoff_warning"):
+        notes.append(f"round-off regime: the state reached {measured['state_norm_max']:.2e}, "
+                     f"double precision leaves ~{measured['roundoff_floor']:.1e} absolute "
+                     "error in every estimate (use fewer steps)")
+    return notes
+
+
+def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, Any]
+                         ) -> dict[str, Any]:
+    """Compute one benchmark cell (a sweep function, see :func:`netsim.sweep.run_sweep`).
+
+    ``params``: ``kind`` = ``mc`` (``setting``, ``tau``, ``family``, ``trials``, ``steps``,
+    ``seed``) or ``scan`` (``tau_max``); ``context``: ``{"scenario", "gains"}``.
+    """
+    scenario: Scenario = context["scenario"]
+    gains = context["gains"]
+    if params["kind"] == "scan":
+        return _scan(scenario, gains, int(params["tau_max"]))
+    from netsim.runner import run_trials
+
+    setting, tau, family = params["setting"], int(params["tau"]), params["family"]
+    trials, steps, root = int(params["trials"]), int(params["steps"]), int(params["seed"])
+    variant = delay_variant(scenario, setting, tau)
+    time_varying = not variant.delay_model(0).time_invariant
+    keep = time_varying and family in ("compensated", "uncompensated")
+    seeds = [child_sequence(root, "trial", t) for t in range(trials)]
+    # trial 0's effective delays feed the realised growth rate
+    results = run_trials(variant, family, gains if family != "centralized-kf" else None,
+                         seeds, steps, engine=params.get("engine", "events"),
+                         record_delays=[0] if keep else False, record_estimates=False)
+    measured = _measure(results, steps, variant.steady_state_fraction)
+    analytics = _analytics(variant, gains, family, tau, results[0] if results else None)
+    return {
+        "measured": measured,
+        "analytics": analytics,
+        "verdict": _verdict(family, measured, analytics),
+        "notes": _notes(family, measured, analytics),
+    }
+
+
+def _scan(scenario: Scenario, gains: Any, tau_max: int) -> dict[str, Any]:
+    from netsim.analysis import analyze
+
+    report = analyze(scenario.with_tau(0) if scenario.delays.model not in ("fixed", "latency")
+                     else scenario, gains, tau_max)
+
+    def tolerance(values: list[float]) -> int | None:
+        last = None
+        for tau, v in enumerate(values):
+            if not v < 1.0:
+                break
+            last = tau
+        return last
+
+    rows = report.rows
+    comp = tolerance([r.rho_compensated for r in rows])
+    uncomp = tolerance([r.rho_uncompensated for r in rows])
+    return {
+        "rho_delay_free": report.rho_delay_free,
+        "tau_star": report.tau_star,
+        "tau_star_isolated": list(report.tau_star_isolated),
+        "tau_max": tau_max,
+        "homogeneous": [{"tau": r.tau, "rho_compensated": r.rho_compensated,
+                         "rho_uncompensated": r.rho_uncompensated, "bound_eq26": r.bound_eq26,
+                         "bound_tolerant": r.bound_tolerant} for r in rows],
+        "exact_tolerance_compensated": comp,
+        "exact_tolerance_uncompensated_eq11": uncomp,
+        "exact_tolerance_censored": {"compensated": comp == tau_max,
+                                     "uncompensated_eq11": uncomp == tau_max},
+        "eq26_violations": [r.tau for r in rows if r.verdict_eq26 == "violated"],
+    }
+
+
+def find_cell(data: dict[str, Any], setting: str, tau: int, family: str
+              ) -> dict[str, Any] | None:
+    """Return the cell of a delay-tolerance report at (setting, tau, family), or None."""
+    for c in data["cells"]:
+        if c["setting"] == setting and c["tau"] == tau and c["family"] == family:
+            return c
+    return None

@@ -1,0 +1,307 @@
+"""The ``netsim bench`` command line: its argument parser, :func:`cmd_bench` and ``main``."""
+
+from __future__ import annotations
+
+import json
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from netsim.bench.delay_tolerance import run_delay_tolerance
+from netsim.bench.fmt import fmt_value as _f
+from netsim.bench.plots import plot_report
+from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, PRESETS
+from netsim.bench.report import format_report
+from netsim.bench.scenario_sweep import run_scenario_sweep
+from netsim.models.jsonsafe import json_tree
+
+__all__ = ["add_bench_parser", "cmd_bench", "main"]
+
+
+def add_bench_parser(subparsers: Any) -> Any:
+    """Add ``bench`` (with ``delay-tolerance`` and ``sweep``) to the ``netsim`` parser."""
+    bench = subparsers.add_parser(
+        "bench",
+        help="benchmarks: delay tolerance of each estimator vs the papers' bounds; sweeps",
+        description="Benchmarks that run many Monte Carlo cells on a local process pool "
+                    "(default, 2 workers) or a Dask cluster, resumable.",
+    )
+    sub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
+    presets = ", ".join(PRESETS)
+    dt = sub.add_parser(
+        "delay-tolerance",
+        help="how much delay each estimator tolerates, measured and predicted",
+        description=(
+            "For each delay setting, delay bound tau and estimator family: Monte Carlo "
+            "steady-state MSE, MSE growth and error decay factor, the exact augmented "
+            "spectral radius (fixed delays) or the realised growth factor (time-varying), "
+            "the papers' bounds (LCSYS2022 eq. 26 and Theorem 1's tau*, the delay-tolerant "
+            "rho(A-hat)^(1/(tau+1))) and a verdict (stable / diverging / bound violated / "
+            "bound conservative); the largest tolerated delay per estimator, measured vs "
+            "predicted; the papers' statements checked, with the numbers where they "
+            f"disagree. Presets: {presets}."
+        ),
+    )
+    dt.add_argument("scenario", help=f"a preset ({presets}), a built-in scenario or a "
+                    "scenario TOML file")
+    dt.add_argument("--taus", help="comma-separated delay bounds (default: the preset's, "
+                    "else 0,3,8,19)")
+    dt.add_argument("--delays", help="comma-separated delay settings: "
+                    f"{', '.join(DELAY_SETTINGS)} (default: the preset's, else "
+                    "homogeneous,heterogeneous,time-varying)")
+    dt.add_argument("--estimators", help="comma-separated subset of "
+                    f"{', '.join(FAMILIES)} (default: all)")
+    dt.add_argument("--trials", type=int, help="Monte Carlo trials per cell (default: the "
+                    "preset's, else the scenario's)")
+    dt.add_argument("--steps", type=int, help="steps per trial (default: the preset's, else "
+                    "the scenario's)")
+    dt.add_argument("--seed", type=int, help="root seed (default: the scenario's run.seed)")
+    dt.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
+                    help="engine of the Monte Carlo trials: vectorised (all trials of a "
+                    "cell in lockstep), events (the SimPy kernel), auto (default: "
+                    "vectorised)")
+    dt.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    dt.add_argument("--plot", metavar="FILE.png", help="write MSE vs tau per estimator and "
+                    "delay setting, and the MSE over time, to a PNG")
+    _executor_options(dt)
+    dt.add_argument("--resume", metavar="FILE.jsonl", help="results file: finished cells are "
+                    "appended as they finish; cells already in it are not recomputed")
+
+    sw = sub.add_parser(
+        "sweep",
+        help="a parameter grid of Monte Carlo runs, streamed to CSV / JSON lines",
+        description=(
+            "Run a scenario over the Cartesian product of the given axes (delay settings, "
+            "taus, topologies, network sizes, run seeds); each cell runs every estimator "
+            "family for M trials. Rows stream into the JSON-lines file as cells finish "
+            "(a re-run with the same file computes only the missing cells) and the CSV "
+            "table is written in grid order at the end."
+        ),
+    )
+    sw.add_argument("scenario", help="built-in scenario name or TOML file")
+    sw.add_argument("--delays", help="comma-separated delay settings or delays.model values")
+    sw.add_argument("--taus", help="comma-separated delay bounds")
+    sw.add_argument("--topologies", help="comma-separated: cycle, random, geometric")
+    sw.add_argument("--sizes", help="comma-separated numbers of agents (agent i carries "
+                    "sensor i mod m of the base plant)")
+    sw.add_argument("--seeds", help="comma-separated run seeds")
+    sw.add_argument("--estimators", help=f"comma-separated subset of {', '.join(FAMILIES)}")
+    sw.add_argument("--trials", type=int, default=10, help="trials per cell (default 10)")
+    sw.add_argument("--steps", type=int, default=200, help="steps per trial (default 200)")
+    sw.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
+    sw.add_argument("--out", metavar="FILE.jsonl", required=True,
+                    help="JSON-lines results file (resumed if it exists)")
+    sw.add_argument("--csv", metavar="FILE.csv", help="also write the table as CSV")
+    sw.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
+                    help="engine of the Monte Carlo trials (default auto: vectorised)")
+    sw.add_argument("--json", action="store_true", help="print the rows as one JSON object")
+    _executor_options(sw)
+    return bench
+
+
+def _executor_options(parser: Any) -> None:
+    parser.add_argument("--dask", metavar="ADDRESS", help="run the cells on a Dask "
+                        "distributed scheduler (e.g. tcp://127.0.0.1:8786)")
+    parser.add_argument("--workers", type=int, default=2, help="local worker processes "
+                        "(default 2; 1 runs in this process)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+
+
+def _ints(text: str | None, option: str) -> list[int] | None:
+    from netsim.cliutil import CommandError
+
+    if text is None:
+        return None
+    try:
+        values = [int(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise CommandError(f"{option}: expected comma-separated integers, got {text!r}"
+                           ) from None
+    if not values:
+        raise CommandError(f"{option}: empty list")
+    if any(v < 0 for v in values):
+        raise CommandError(f"{option}: values must be >= 0, got {text!r}")
+    return values
+
+
+def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list[str] | None:
+    from netsim.cliutil import CommandError
+
+    if text is None:
+        return None
+    values = [v.strip() for v in text.split(",") if v.strip()]
+    if not values:
+        raise CommandError(f"{option}: empty list")
+    if allowed is not None:
+        bad = [v for v in values if v not in allowed]
+        if bad:
+            raise CommandError(f"{option}: unknown {', '.join(bad)}; expected some of "
+                               f"{', '.join(allowed)}")
+    return values
+
+
+def cmd_bench(args: Any) -> int:
+    """Run ``netsim bench ...``; raise ``netsim.cliutil.CommandError`` on bad input."""
+    from netsim.cliutil import CommandError
+
+    command = getattr(args, "bench_command", None)
+    if command is None:
+        raise CommandError("bench: name a benchmark: delay-tolerance or sweep")
+    if args.workers is not None and args.workers < 1:
+        raise CommandError(f"--workers must be a positive integer, got {args.workers}")
+    if command == "sweep":
+        return _cmd_sweep(args)
+    return _cmd_delay_tolerance(args)
+
+
+def _executor(args: Any) -> dict[str, Any]:
+    if args.dask:
+        return {"executor": "dask", "dask_address": args.dask, "workers": args.workers}
+    return {"executor": "serial" if args.workers == 1 else "local", "workers": args.workers}
+
+
+def _cmd_delay_tolerance(args: Any) -> int:
+    from netsim.cliutil import EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
+    from netsim.estimators.gains import GainDesignError
+    from netsim.models.scenario import ScenarioError, resolve_scenario
+    from netsim.runner import scenario_gains
+    from netsim.sweep import SweepInterrupted
+
+    preset = PRESETS.get(args.scenario)
+    for option in ("trials", "steps"):
+        value = getattr(args, option)
+        if value is not None and value < 1:
+            raise CommandError(f"--{option} must be a positive integer, got {value}")
+    if args.seed is not None and args.seed < 0:
+        raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
+    if args.plot and not args.plot.lower().endswith(".png"):
+        raise CommandError(f"--plot {args.plot}: the output must be a .png file")
+    try:
+        scenario = resolve_scenario(preset.scenario if preset else args.scenario)
+    except ScenarioError as exc:
+        extra = "" if preset else f" (or a preset: {', '.join(PRESETS)})"
+        raise CommandError(f"scenario {args.scenario}: {exc}{extra}") from None
+    if scenario.link_spec is not None and scenario.link_spec.sets_delays:
+        raise CommandError(f"scenario {args.scenario}: its [links] table sets the link delays; "
+                           "the benchmark sets them per cell (drop links.delay)")
+    if scenario.delays.model in ("fixed", "latency"):
+        raise CommandError(f"scenario {args.scenario}: per-link '{scenario.delays.model}' "
+                           "delays have no bound tau to vary; use a homogeneous, heterogeneous "
+                           "or time-varying scenario")
+    taus = _ints(args.taus, "--taus") or list(preset.taus if preset else (0, 3, 8, 19))
+    delays = _names(args.delays, "--delays", list(DELAY_SETTINGS)) or list(
+        preset.delays if preset else ("homogeneous", "heterogeneous", "time-varying"))
+    families = _names(args.estimators, "--estimators", list(FAMILIES)) or list(FAMILIES)
+    families = [f for f in FAMILIES if f in families]
+    trials = args.trials or (preset.trials if preset else scenario.trials)
+    steps = args.steps or (preset.steps if preset else scenario.steps)
+    seed = scenario.seed if args.seed is None else args.seed
+    gains = None
+    if any(f != "centralized-kf" for f in families):
+        try:
+            gains = scenario_gains(scenario)
+        except (GainDesignError, ValueError) as exc:
+            raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
+                               EXIT_DESIGN_FAILED) from None
+    if args.resume:
+        parent = Path(args.resume).resolve().parent
+        if not parent.is_dir():
+            raise CommandError(f"--resume {args.resume}: directory {parent} does not exist")
+    try:
+        data = run_delay_tolerance(
+            scenario, taus=taus, delays=delays, trials=trials, steps=steps, seed=seed,
+            families=families, gains=gains, preset=preset, results=args.resume,
+            progress=not args.no_progress, engine=args.engine, **_executor(args))
+    except SweepInterrupted as exc:
+        raise CommandError(str(exc), EXIT_INTERRUPTED) from None
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    except OSError as exc:
+        raise CommandError(f"cannot write results: {exc}") from None
+    if args.plot:
+        try:
+            data["plot"] = str(plot_report(data, args.plot))
+        except OSError as exc:
+            raise CommandError(f"cannot write {args.plot}: {exc.strerror or exc}") from None
+    if args.json:
+        json.dump(json_tree(data), sys.stdout, indent=2, allow_nan=False)
+        sys.stdout.write("\n")
+    else:
+        sys.stdout.write(format_report(data))
+        if args.plot:
+            sys.stdout.write(f"plot: {data['plot']}\n")
+    return 0
+
+
+def _cmd_sweep(args: Any) -> int:
+    from netsim.cliutil import EXIT_INTERRUPTED, CommandError
+    from netsim.models.scenario import ScenarioError
+    from netsim.sweep import SweepInterrupted
+
+    for option in ("trials", "steps"):
+        if getattr(args, option) < 1:
+            raise CommandError(f"--{option} must be a positive integer")
+    axes = {
+        "delays": _names(args.delays, "--delays", None),
+        "tau": _ints(args.taus, "--taus"),
+        "topology": _names(args.topologies, "--topologies", ["cycle", "random", "geometric"]),
+        "agents": _ints(args.sizes, "--sizes"),
+        "seed": _ints(args.seeds, "--seeds"),
+    }
+    if axes["agents"] and min(axes["agents"]) < 2:
+        raise CommandError("--sizes: a network needs at least 2 agents")
+    families = _names(args.estimators, "--estimators", list(FAMILIES)) or list(FAMILIES)
+    try:
+        result = run_scenario_sweep(
+            args.scenario, axes=axes, trials=args.trials, steps=args.steps,
+            families=families, seed=args.seed, results=args.out, csv_path=args.csv,
+            progress=not args.no_progress, description=f"sweep {args.scenario}",
+            engine=args.engine, **_executor(args))
+    except ScenarioError as exc:
+        raise CommandError(f"scenario {args.scenario}: {exc}") from None
+    except SweepInterrupted as exc:
+        raise CommandError(str(exc), EXIT_INTERRUPTED) from None
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    if args.json:
+        json.dump({"rows": result.rows, "computed": result.computed, "reused": result.reused,
+                   "results": result.path, "csv": result.csv_path}, sys.stdout, indent=2)
+        sys.stdout.write("\n")
+        return 0
+    lines = [f"{len(result.rows)} cells ({result.computed} computed, {result.reused} reused) "
+             f"in {result.elapsed_s:.1f} s; rows in {result.path}"
+             + (f", table in {result.csv_path}" if result.csv_path else "")]
+    for row in result.rows:
+        p = {k: v for k, v in row["params"].items() if not k.startswith("_")}
+        res = row["result"]
+        if "error" in res:
+            lines.append(f"  {p}: ERROR {res['error']}")
+            continue
+        verdicts = ", ".join(f"{k} {v['verdict']} (MSE {_f(v['steady_state_mse'])})"
+                             for k, v in res["estimators"].items())
+        lines.append(f"  {p}: {verdicts}")
+    sys.stdout.write("\n".join(lines) + "\n")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m netsim.bench ...``: the ``bench`` subcommand on its own (same exit
+    codes as ``netsim``; ``netsim bench`` once registered in :mod:`netsim.cli`)."""
+    import argparse
+
+    from netsim.cliutil import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CommandError
+
+    parser = argparse.ArgumentParser(prog="netsim")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    add_bench_parser(sub)
+    args = parser.parse_args(["bench", *(sys.argv[1:] if argv is None else argv)])
+    try:
+        return cmd_bench(args)
+    except CommandError as exc:
+        sys.stderr.write(f"netsim bench: error: {exc}\n")
+        return exc.code
+    except KeyboardInterrupt:
+        sys.stderr.write("netsim bench: interrupted\n")
+        return EXIT_INTERRUPTED
+    del EXIT_BAD_INPUT

@@ -1,0 +1,110 @@
+"""The scenario of a benchmark cell: delay-setting and sweep variants, fingerprints."""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+import tomllib
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from netsim.bench.presets import DELAY_SETTINGS, NO_DELAY
+from netsim.models.scenario import DelaySpec, Scenario
+
+__all__ = ["delay_variant", "scenario_data", "scenario_fingerprint", "sweep_variant"]
+
+
+def delay_variant(scenario: Scenario, setting: str, tau: int) -> Scenario:
+    """The scenario with the delay setting's model at bound tau (tau 0: no delay)."""
+    model = "none" if setting == NO_DELAY or tau == 0 else DELAY_SETTINGS[setting][0]
+    spec = DelaySpec(model=model, tau=int(tau), links={}, default=0,
+                     seed=scenario.delays.seed)
+    return replace(scenario, delays=spec)
+
+
+def scenario_fingerprint(scenario: Scenario, gains: Any = None) -> str:
+    """16 hex digits identifying the scenario's matrices, settings and gains."""
+    h = hashlib.sha256()
+    plant = scenario.plant
+    arrays = [plant.A, plant.Q, plant.x0_mean, plant.x0_cov, scenario.weights,
+              *plant.C, *plant.R]
+    if gains is not None:
+        arrays += list(gains.L)
+    for a in arrays:
+        a = np.ascontiguousarray(np.asarray(a, dtype=float))
+        h.update(str(a.shape).encode())
+        h.update(a.tobytes())
+    summary = scenario.summary()
+    summary.pop("source", None)
+    h.update(json.dumps(summary, sort_keys=True, default=str).encode())
+    h.update(repr((scenario.sample_period, scenario.divergence_threshold,
+                   scenario.steady_state_fraction, scenario.delays.seed)).encode())
+    return h.hexdigest()[:16]
+
+
+def scenario_data(name_or_path: str) -> tuple[dict[str, Any], str]:
+    """Return the TOML table of a built-in scenario or scenario file, and its source.
+
+    Raises
+    ------
+    netsim.models.scenario.ScenarioError
+        If the file cannot be read or parsed as TOML.
+    """
+    from netsim.models.scenario import ScenarioError, builtin_scenarios
+
+    builtins = builtin_scenarios()
+    if name_or_path in builtins:
+        path = builtins[name_or_path]
+        source = f"builtin:{name_or_path}"
+    else:
+        path = Path(name_or_path)
+        source = str(path)
+    try:
+        return tomllib.loads(Path(path).read_text(encoding="utf-8")), source
+    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
+        raise ScenarioError("", f"cannot read scenario {name_or_path}: {exc}") from None
+
+
+def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> Scenario:
+    """The scenario of one sweep cell: ``delays`` (a delay setting or ``delays.model``),
+    ``tau``, ``topology``, ``agents`` (agent i carries sensor i mod m of the base plant),
+    ``seed`` (run seed)."""
+    from netsim.models.scenario import parse_scenario
+
+    data = copy.deepcopy(data)
+    net = data.setdefault("network", {})
+    plant = data.setdefault("plant", {})
+    delays = data.setdefault("delays", {})
+    if "agents" in params:
+        n_agents = int(params["agents"])
+        C = plant["C"]
+        plant["C"] = [C[i % len(C)] for i in range(n_agents)]
+        if isinstance(plant.get("R"), list):
+            plant["R"] = [plant["R"][i % len(plant["R"])] for i in range(n_agents)]
+        net["agents"] = n_agents
+        net.pop("P", None)
+        if net.get("topology", "edges") == "edges":
+            net["topology"] = "cycle"
+        net.pop("edges", None)
+        net.setdefault("weights", "random")
+    if "topology" in params:
+        net["topology"] = params["topology"]
+        net.pop("P", None)
+        if params["topology"] != "edges":
+            net.pop("edges", None)
+        net.setdefault("agents", len(plant["C"]))
+    if "delays" in params:
+        setting = params["delays"]
+        delays["model"] = DELAY_SETTINGS[setting][0] if setting in DELAY_SETTINGS else setting
+        delays.pop("links", None)
+    if "tau" in params:
+        delays["tau"] = int(params["tau"])
+        if delays.get("model", "none") == "none" and int(params["tau"]) > 0:
+            delays["model"] = "homogeneous"
+    if "seed" in params:
+        data.setdefault("run", {})["seed"] = int(params["seed"])
+    return parse_scenario(data, source)

@@ -128,7 +128,7 @@ register(EstimatorFamily(
     build=_centralised,
     description="centralised Kalman filter on every sensor's measurement (the optimum)",
     paper="reference baseline (DESIGN.md)",
-    centralised=True,
+    centralised=True, delay_free=True,
     batched="netsim.vectorised:run_vectorised",
     batched_options={"rule": "kalman"},
     source="builtin",
@@ -138,5 +138,6 @@ register(EstimatorFamily(
     build=_local,
     description="each agent's own Kalman filter on its measurement, no communication",
     paper="baseline (DESIGN.md): local filters without communication",
+    delay_free=True,
     source="builtin",
 ))

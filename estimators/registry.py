@@ -251,6 +251,9 @@ class EstimatorFamily:
         augmented-matrix analytics; None: none.
     centralised : bool
         One agent on every sensor (the reference filter); has no network.
+    delay_free : bool
+        Its agents exchange no messages (a centralised or local filter), so its results
+        do not depend on the links: a delay sweep computes it once.
     batched : str or callable or None
         The batched (vectorised) form, ``module:attribute`` resolved on use: a callable
         ``(scenario, family, gains, trial_seeds, steps, **options) -> batch`` with the
@@ -278,6 +281,10 @@ class EstimatorFamily:
     reported : callable or None
         ``(scenario) -> sequence of int``: the agents whose estimates the run's MSE and
         verdict are about (a fusion centre, not its sinks); None: every agent.
+    reference : str
+        What resolves the family in a fresh process (``module:attribute`` or the entry
+        point's name; "" for built-ins and families registered from Python), so the
+        worker processes of a sweep find a plugin: :attr:`key`.
     """
 
     name: str
@@ -289,6 +296,7 @@ class EstimatorFamily:
     needs_graph_sequence: bool = False
     error_recursion: str | None = None
     centralised: bool = False
+    delay_free: bool = False
     batched: str | Callable[..., Any] | None = None
     batched_options: dict[str, Any] = field(default_factory=dict)
     source: str = "python"
@@ -297,6 +305,12 @@ class EstimatorFamily:
     analytics: Callable[..., dict[str, Any]] | None = None
     analytics_key: str = ""
     reported: Callable[..., Sequence[int]] | None = None
+    reference: str = ""
+
+    @property
+    def key(self) -> str:
+        """The name to resolve it by elsewhere: its reference, else its name."""
+        return self.reference or self.name
 
     @property
     def vectorised(self) -> bool:
@@ -338,6 +352,7 @@ class EstimatorFamily:
             "needs_graph_sequence": self.needs_graph_sequence,
             "error_recursion": self.error_recursion,
             "centralised": self.centralised,
+            "delay_free": self.delay_free,
             "vectorised": self.vectorised,
             "source": self.source,
         }
@@ -507,7 +522,8 @@ def get_family(name: str, key: str = "run.estimators",
         return family
     if ":" in name:
         obj = resolve_reference(name, key, base)
-        family = family_from_object(obj, name, key, source="scenario")
+        family = replace(family_from_object(obj, name, key, source="scenario"),
+                         reference=name)
         if family.name != name:
             other = _REGISTRY.get(family.name)
             if other is not None and other is not family and other.source == "builtin":
@@ -522,7 +538,8 @@ def get_family(name: str, key: str = "run.estimators",
         except Exception as error:
             raise FamilyError(key, f"entry point {name!r} ({points[name].value}) failed to "
                               f"load: {type(error).__name__}: {error}") from None
-        return register(family_from_object(obj, name, key, source="entry-point"))
+        return register(replace(family_from_object(obj, name, key, source="entry-point"),
+                                reference=name))
     known = ", ".join(family_names())
     raise FamilyError(key, f"unknown estimator {name!r}; expected one of {known}, or "
                       "module:attribute of your own estimator")
@@ -541,10 +558,25 @@ def resolve_families(names: Iterable[str], key: str = "run.estimators",
     return out
 
 
+def _ordered() -> list[EstimatorFamily]:
+    """Registered families: built-ins in the order of :data:`BUILTIN_MODULES`, then the
+    others in the order they were registered."""
+    _load_builtins()
+    unique = [f for n, f in _REGISTRY.items() if n == f.name]
+
+    def rank(item: tuple[int, EstimatorFamily]) -> tuple[int, int]:
+        index, family = item
+        module = getattr(family.build, "__module__", "")
+        if family.source == "builtin" and module in BUILTIN_MODULES:
+            return (BUILTIN_MODULES.index(module), index)
+        return (len(BUILTIN_MODULES), index)
+
+    return [f for _, f in sorted(enumerate(unique), key=rank)]
+
+
 def family_names(include_entry_points: bool = True) -> list[str]:
     """Names of the registered families (built-ins first) and of installed entry points."""
-    _load_builtins()
-    names = [n for n, f in _REGISTRY.items() if n == f.name]
+    names = [f.name for f in _ordered()]
     if include_entry_points:
         names += [n for n in _entry_points() if n not in _REGISTRY]
     return names
@@ -552,5 +584,4 @@ def family_names(include_entry_points: bool = True) -> list[str]:
 
 def families() -> list[EstimatorFamily]:
     """The registered families (built-ins and those resolved so far)."""
-    _load_builtins()
-    return [f for n, f in _REGISTRY.items() if n == f.name]
+    return _ordered()

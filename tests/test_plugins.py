@@ -319,3 +319,39 @@ def test_entry_point_family(tmp_path):
                           env=env, timeout=120, cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert done.stdout.split() == ["True", "True", "True"]
+
+
+def test_example_takes_part_in_bench_delay_tolerance_and_sweep(capsys, tmp_path):
+    code, out, err = run_cli(capsys, "bench", "delay-tolerance", str(EXAMPLE), "--taus", "0,2",
+                             "--delays", "homogeneous", "--trials", "2", "--steps", "60",
+                             "--json", "--no-progress")
+    assert code == 0, err
+    assert "ci-filter, local-kf have no batched form" in err
+    data = json.loads(out)
+    assert data["families"] == ["compensated", "ci-filter", "local-kf", "centralized-kf"]
+    cells = {(c["tau"], c["family"]): c for c in data["cells"]}
+    for tau in (0, 2):
+        plugin = cells[(tau, "ci-filter")]
+        # no recursion declared: no bound, no prediction, the measurement decides
+        assert plugin["analytics"]["bound"] is None
+        assert plugin["verdict"] == plugin["measured"]["verdict"]
+    # its cell runs the same trials as netsim run with the same seed: the same MSE
+    import netsim
+    from netsim.bench.variants import delay_variant
+
+    variant = delay_variant(netsim.load_scenario(EXAMPLE), "homogeneous", 2)
+    same = netsim.run(variant, steps=60, trials=2, seed=data["seed"],
+                      estimators=["ci-filter"])
+    assert cells[(2, "ci-filter")]["measured"]["steady_state_mse"] == pytest.approx(
+        same.summary["ci-filter"].steady_state_mse, rel=1e-12)
+    tolerance = {(t["family"], t["setting"]): t for t in data["tolerance"]}
+    assert tolerance[("ci-filter", "homogeneous")]["predicted"] is None
+    assert ("local-kf", "homogeneous") not in tolerance  # no communication: no tolerance
+    code, out, err = run_cli(capsys, "bench", "sweep", str(EXAMPLE), "--estimators",
+                             "compensated,ci-filter", "--taus", "0,2", "--delays",
+                             "homogeneous", "--trials", "2", "--steps", "40", "--out",
+                             str(tmp_path / "rows.jsonl"), "--json", "--no-progress")
+    assert code == 0, err
+    rows = json.loads(out)["rows"]
+    assert len(rows) == 2
+    assert all(set(r["result"]["estimators"]) == {"compensated", "ci-filter"} for r in rows)

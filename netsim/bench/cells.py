@@ -16,6 +16,12 @@ from typing import Any
 import numpy as np
 
 from netsim.bench.variants import delay_variant
+from netsim.estimators.registry import (
+    RECURSION_BLOCK,
+    RECURSION_COMPENSATED,
+    RECURSION_UNCOMPENSATED,
+    EstimatorFamily,
+)
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import child_sequence
 
@@ -93,9 +99,11 @@ def _measure(results: list, steps: int, fraction: float) -> dict[str, Any]:
     }
 
 
-def _analytics(variant: Scenario, gains: Any, family: str, tau: int,
+def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
                first: Any) -> dict[str, Any]:
-    """Exact rho (fixed delays) or realised growth (time-varying), bounds, prediction."""
+    """Exact rho (fixed delays) or realised growth (time-varying), bounds, prediction,
+    for the families that declare an augmented error recursion (the registry's
+    ``error_recursion``); the others get no bound and no prediction."""
     from netsim.models.augmented import (
         augmented_spectral_radius,
         delay_bound_lcsys,
@@ -103,35 +111,36 @@ def _analytics(variant: Scenario, gains: Any, family: str, tau: int,
     )
     from netsim.runner import fixed_delay_matrix
 
-    plant = variant.plant
-    P, A, C, L = variant.weights, plant.A, plant.C, gains.L
     out: dict[str, Any] = {"exact_kind": None, "exact": None}
-    if family == "centralized-kf":
+    recursion = family.error_recursion
+    if recursion is None or gains is None:
         out.update(bound_name=None, bound=None, predicted_stable=None)
         return out
+    compensated = recursion == RECURSION_COMPENSATED
+    plant = variant.plant
+    P, A, C, L = variant.weights, plant.A, plant.C, gains.L
     eq26 = float(delay_bound_lcsys(P, A, C, L, tau))
     tolerant = float(delay_bound_tolerant(P, A, C, L, tau))
     out["bound_eq26"] = eq26
     out["bound_tolerant"] = tolerant
-    if family == "uncompensated":
+    if recursion == RECURSION_UNCOMPENSATED:
         out.update(bound_name="delay-tolerant rho(A-hat)^(1/(tau+1))", bound=tolerant)
     else:
         out.update(bound_name="LCSYS2022 eq. (26)", bound=eq26)
     out["predicted_stable"] = bool(out["bound"] < 1.0)
     delays = fixed_delay_matrix(variant)
-    if family == "block":
+    if recursion == RECURSION_BLOCK:
         out.update(exact_kind="block rate (eq. 26 expression, exact for eqs. 15-16)",
                    exact=eq26)
     elif delays is not None:
         out["realised_delays"] = {f"{j}->{i}": int(delays[i, j]) for j, i in variant.links}
         with np.errstate(over="ignore", invalid="ignore"):
             rho = float(augmented_spectral_radius(P, A, C, L, delays, None,
-                                                  compensated=family == "compensated"))
-        out.update(exact_kind="augmented rho (LCSYS2022 eq. 9)" if family == "compensated"
+                                                  compensated=compensated))
+        out.update(exact_kind="augmented rho (LCSYS2022 eq. 9)" if compensated
                    else "augmented rho (delay-tolerant eq. 11, still state only)", exact=rho)
     elif first is not None and first.effective_delays is not None:
-        out.update(_realised_growth(P, A, C, L, first.effective_delays,
-                                    family == "compensated"))
+        out.update(_realised_growth(P, A, C, L, first.effective_delays, compensated))
     exact = out["exact"]
     out["exact_violates_bound"] = bool(exact is not None and math.isfinite(exact)
                                        and exact > out["bound"] + BOUND_SLACK)
@@ -182,9 +191,11 @@ def _exp(value: float) -> float:
     return math.inf if value > 700 else math.exp(value)
 
 
-def _verdict(family: str, measured: dict[str, Any], analytics: dict[str, Any]) -> str:
+def _verdict(family: Any, measured: dict[str, Any], analytics: dict[str, Any]) -> str:
+    """``family`` is unused: the verdict follows from the cell's own prediction (None
+    for families that declare no recursion, e.g. the reference Kalman filter)."""
     stable = measured["verdict"] == "stable"
-    if family == "centralized-kf":
+    if analytics.get("predicted_stable") is None:
         return "stable" if stable else "diverging"
     if analytics.get("exact_violates_bound") or (analytics["predicted_stable"] and not stable):
         return "bound violated"
@@ -193,7 +204,8 @@ def _verdict(family: str, measured: dict[str, Any], analytics: dict[str, Any]) -
     return "stable" if stable else "diverging"
 
 
-def _notes(family: str, measured: dict[str, Any], analytics: dict[str, Any]) -> list[str]:
+def _notes(family: EstimatorFamily, measured: dict[str, Any], analytics: dict[str, Any]
+           ) -> list[str]:
     notes = []
     exact = analytics.get("exact")
     stable = measured["verdict"] == "stable"
@@ -201,7 +213,7 @@ def _notes(family: str, measured: dict[str, Any], analytics: dict[str, Any]) -> 
         if exact < 1 and not stable:
             notes.append(f"the exact value {exact:.4f} < 1 predicts decay, the run is "
                          f"{measured['verdict']}")
-            if family == "uncompensated":
+            if family.error_recursion == RECURSION_UNCOMPENSATED:
                 notes.append("eq. (11) leaves out the (A^(r+1) - A) x term of a moving state")
         elif exact >= 1 and stable:
             notes.append(f"the exact value {exact:.4f} >= 1, yet the run stays bounded over "
@@ -226,17 +238,23 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
     gains = context["gains"]
     if params["kind"] == "scan":
         return _scan(scenario, gains, int(params["tau_max"]))
-    from netsim.runner import run_trials
+    from netsim.runner import engines_for, family_of, run_trials
 
-    setting, tau, family = params["setting"], int(params["tau"]), params["family"]
+    setting, tau = params["setting"], int(params["tau"])
+    # a plugin is resolved by its reference (module:attribute, entry point) in workers
+    family = family_of(params.get("family_ref") or params["family"], scenario)
     trials, steps, root = int(params["trials"]), int(params["steps"]), int(params["seed"])
     variant = delay_variant(scenario, setting, tau)
     time_varying = not variant.delay_model(0).time_invariant
-    keep = time_varying and family in ("compensated", "uncompensated")
+    keep = time_varying and family.error_recursion in (RECURSION_COMPENSATED,
+                                                        RECURSION_UNCOMPENSATED)
     seeds = [child_sequence(root, "trial", t) for t in range(trials)]
+    engine = params.get("engine", "events")
+    if engine == "vectorised" and not family.vectorised:
+        engine = engines_for("auto", [family], variant)[family.name]
     # trial 0's effective delays feed the realised growth rate
-    results = run_trials(variant, family, gains if family != "centralized-kf" else None,
-                         seeds, steps, engine=params.get("engine", "events"),
+    results = run_trials(variant, family, gains if family.needs_gains else None,
+                         seeds, steps, engine=engine,
                          record_delays=[0] if keep else False, record_estimates=False)
     measured = _measure(results, steps, variant.steady_state_fraction)
     analytics = _analytics(variant, gains, family, tau, results[0] if results else None)

@@ -50,8 +50,9 @@ def add_bench_parser(subparsers: Any) -> Any:
     dt.add_argument("--delays", help="comma-separated delay settings: "
                     f"{', '.join(DELAY_SETTINGS)} (default: the preset's, else "
                     "homogeneous,heterogeneous,time-varying)")
-    dt.add_argument("--estimators", help="comma-separated subset of "
-                    f"{', '.join(FAMILIES)} (default: all)")
+    dt.add_argument("--estimators", help="comma-separated estimator families: built-in ("
+                    "netsim scenarios shows them), module:attribute of your own, or an "
+                    "installed entry point (default: the scenario's run.estimators)")
     dt.add_argument("--trials", type=int, help="Monte Carlo trials per cell (default: the "
                     "preset's, else the scenario's)")
     dt.add_argument("--steps", type=int, help="steps per trial (default: the preset's, else "
@@ -86,7 +87,8 @@ def add_bench_parser(subparsers: Any) -> Any:
     sw.add_argument("--sizes", help="comma-separated numbers of agents (agent i carries "
                     "sensor i mod m of the base plant)")
     sw.add_argument("--seeds", help="comma-separated run seeds")
-    sw.add_argument("--estimators", help=f"comma-separated subset of {', '.join(FAMILIES)}")
+    sw.add_argument("--estimators", help="comma-separated estimator families (default: "
+                    f"{', '.join(FAMILIES)})")
     sw.add_argument("--trials", type=int, default=10, help="trials per cell (default 10)")
     sw.add_argument("--steps", type=int, default=200, help="steps per trial (default 200)")
     sw.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
@@ -123,6 +125,23 @@ def _ints(text: str | None, option: str) -> list[int] | None:
     if any(v < 0 for v in values):
         raise CommandError(f"{option}: values must be >= 0, got {text!r}")
     return values
+
+
+def _families(option: str | None, scenario: Any) -> list[Any]:
+    """``--estimators`` (any registered family, module:attribute or entry point) or the
+    scenario's own estimators, resolved in the registry (one-line error)."""
+    from netsim.cliutil import CommandError
+    from netsim.estimators.registry import FamilyError, resolve_families
+    from netsim.runner import scenario_folder
+
+    base = scenario_folder(scenario)
+    try:
+        own = resolve_families(scenario.estimators, "run.estimators", base)
+        if option is None:
+            return own
+        return resolve_families(_names(option, "--estimators", None), "--estimators", base)
+    except FamilyError as exc:
+        raise CommandError(str(exc)) from None
 
 
 def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list[str] | None:
@@ -192,13 +211,13 @@ def _cmd_delay_tolerance(args: Any) -> int:
     taus = _ints(args.taus, "--taus") or list(preset.taus if preset else (0, 3, 8, 19))
     delays = _names(args.delays, "--delays", list(DELAY_SETTINGS)) or list(
         preset.delays if preset else ("homogeneous", "heterogeneous", "time-varying"))
-    families = _names(args.estimators, "--estimators", list(FAMILIES)) or list(FAMILIES)
-    families = [f for f in FAMILIES if f in families]
+    declared = _families(args.estimators, scenario)
+    families = [f.name for f in declared]
     trials = args.trials or (preset.trials if preset else scenario.trials)
     steps = args.steps or (preset.steps if preset else scenario.steps)
     seed = scenario.seed if args.seed is None else args.seed
     gains = None
-    if any(f != "centralized-kf" for f in families):
+    if any(f.needs_gains for f in declared):
         try:
             gains = scenario_gains(scenario)
         except (GainDesignError, ValueError) as exc:
@@ -208,6 +227,17 @@ def _cmd_delay_tolerance(args: Any) -> int:
         parent = Path(args.resume).resolve().parent
         if not parent.is_dir():
             raise CommandError(f"--resume {args.resume}: directory {parent} does not exist")
+    from netsim.runner import kernel_fallbacks
+
+    try:
+        fallbacks = kernel_fallbacks(args.engine, declared)
+    except ValueError as exc:
+        raise CommandError(f"--engine {args.engine}: {exc}") from None
+    if fallbacks:
+        sys.stderr.write(f"netsim bench: note: {', '.join(fallbacks)} "
+                         f"{'has' if len(fallbacks) == 1 else 'have'} no batched form; "
+                         f"--engine auto runs {'its' if len(fallbacks) == 1 else 'their'} "
+                         "cells in the event kernel\n")
     try:
         data = run_delay_tolerance(
             scenario, taus=taus, delays=delays, trials=trials, steps=steps, seed=seed,
@@ -251,7 +281,7 @@ def _cmd_sweep(args: Any) -> int:
     }
     if axes["agents"] and min(axes["agents"]) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
-    families = _names(args.estimators, "--estimators", list(FAMILIES)) or list(FAMILIES)
+    families = _names(args.estimators, "--estimators", None) or list(FAMILIES)
     try:
         result = run_scenario_sweep(
             args.scenario, axes=axes, trials=args.trials, steps=args.steps,

@@ -12,6 +12,11 @@ from netsim.bench.cells import find_cell as _cell
 from netsim.bench.claims import CLAIMS, disagreements
 from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, NO_DELAY, Preset
 from netsim.bench.variants import scenario_fingerprint
+from netsim.estimators.registry import (
+    RECURSION_BLOCK,
+    RECURSION_UNCOMPENSATED,
+    EstimatorFamily,
+)
 from netsim.models.scenario import Scenario
 
 __all__ = ["SCAN_TAU_MIN", "run_delay_tolerance"]
@@ -21,24 +26,38 @@ __all__ = ["SCAN_TAU_MIN", "run_delay_tolerance"]
 SCAN_TAU_MIN = 10
 
 
-def _cells(taus: Sequence[int], settings: Sequence[str], families: Sequence[str],
-           trials: int, steps: int, seed: int, fingerprint: str, engine: str
+def _family_params(family: EstimatorFamily, engines: dict[str, str]) -> dict[str, Any]:
+    """A cell's family and engine; a plugin also its reference (resolved in workers)."""
+    params: dict[str, Any] = {"family": family.name, "engine": engines[family.name]}
+    if family.reference:
+        params["family_ref"] = family.reference
+    return params
+
+
+def _shared(family: EstimatorFamily, setting: str, tau: int) -> tuple[str, int]:
+    """The (setting, tau) a cell is computed as: once for a family whose results do not
+    depend on the links, once for tau = 0 for the others."""
+    if family.delay_free or tau == 0:
+        return NO_DELAY, 0
+    return setting, tau
+
+
+def _cells(taus: Sequence[int], settings: Sequence[str], families: Sequence[EstimatorFamily],
+           trials: int, steps: int, seed: int, fingerprint: str, engines: dict[str, str]
            ) -> list[dict[str, Any]]:
     """Distinct computations, longest first (big tau, time-varying)."""
     out = []
     seen = set()
     common = {"kind": "mc", "scenario": fingerprint, "trials": trials, "steps": steps,
-              "seed": seed, "engine": engine}
+              "seed": seed}
     for setting in settings:
         for tau in taus:
             for family in families:
-                if family == "centralized-kf":
-                    key = (NO_DELAY, 0, family)
-                else:
-                    key = (NO_DELAY if tau == 0 else setting, 0 if tau == 0 else tau, family)
+                key = (*_shared(family, setting, tau), family.name)
                 if key not in seen:
                     seen.add(key)
-                    out.append({**common, "setting": key[0], "tau": key[1], "family": key[2]})
+                    out.append({**common, **_family_params(family, engines),
+                                "setting": key[0], "tau": key[1]})
     weight = {"time-varying": 3, "synchronous": 3}
     out.sort(key=lambda c: -(c["tau"] + 1) * weight.get(c["setting"], 1))
     return out
@@ -68,19 +87,22 @@ def run_delay_tolerance(
     ``engine`` (``auto``, ``vectorised`` or ``events``) runs each cell's trials; it is
     part of the cell's key in a results file, so a resumed run never mixes engines.
     """
-    from netsim.runner import choose_engine, scenario_gains
+    from netsim.runner import choose_engine, engines_for, family_of, scenario_gains
     from netsim.sweep import run_sweep
 
     started = time.perf_counter()
-    engine = choose_engine(engine, families)
+    declared = [family_of(f, scenario, "--estimators") for f in families]
+    families = [f.name for f in declared]
+    engines = engines_for(engine, declared)
+    engine = choose_engine(engine, declared)
     taus = sorted({int(t) for t in taus})
     for s in delays:
         if s not in DELAY_SETTINGS:
             raise ValueError(f"unknown delay setting {s!r}")
-    if gains is None and any(f != "centralized-kf" for f in families):
+    if gains is None and any(f.needs_gains for f in declared):
         gains = scenario_gains(scenario)
     fingerprint = scenario_fingerprint(scenario, gains)
-    cells = _cells(taus, delays, families, trials, steps, seed, fingerprint, engine)
+    cells = _cells(taus, delays, declared, trials, steps, seed, fingerprint, engines)
     scan = {"kind": "scan", "scenario": fingerprint,
             "tau_max": max(SCAN_TAU_MIN, max(taus) if taus else 0)}
     has_consensus = gains is not None
@@ -98,17 +120,15 @@ def run_delay_tolerance(
 
     scan_result = lookup(scan)["result"] if has_consensus else None
     common = {"kind": "mc", "scenario": fingerprint, "trials": trials, "steps": steps,
-              "seed": seed, "engine": engine}
+              "seed": seed}
     table = []
     for setting in delays:
         for tau in taus:
-            for family in families:
-                if family == "centralized-kf":
-                    shared = (NO_DELAY, 0)
-                else:
-                    shared = (NO_DELAY, 0) if tau == 0 else (setting, tau)
-                row = lookup({**common, "setting": shared[0], "tau": shared[1],
-                              "family": family})
+            for fam in declared:
+                family = fam.name
+                shared = _shared(fam, setting, tau)
+                row = lookup({**common, **_family_params(fam, engines),
+                              "setting": shared[0], "tau": shared[1]})
                 table.append({"setting": setting, "tau": tau, "family": family,
                               **({"computed_as": f"{shared[0]}, tau {shared[1]}"}
                                  if shared != (setting, tau) else {}),
@@ -125,14 +145,16 @@ def run_delay_tolerance(
         "settings": {s: DELAY_SETTINGS[s][1] for s in delays},
         "taus": taus,
         "families": list(families),
+        "family_traits": {f.name: f.traits() for f in declared},
         "trials": trials,
         "steps": steps,
         "seed": seed,
         "engine": engine,
+        **({"engines": engines} if engine == "mixed" else {}),
         "analysis": scan_result,
         "cells": table,
     }
-    data["tolerance"] = _tolerance(data)
+    data["tolerance"] = _tolerance(data, {f.name: f for f in declared})
     claims = preset.claims if preset is not None else ("T-theorem1", "L-theorem1")
     data["claims"] = [CLAIMS[c](data) for c in claims]
     data["disagreements"] = disagreements(data)
@@ -147,12 +169,14 @@ def run_delay_tolerance(
     return data
 
 
-def _tolerance(data: dict[str, Any]) -> list[dict[str, Any]]:
+def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
+               ) -> list[dict[str, Any]]:
     scan = data["analysis"] or {}
     out = []
     for family in data["families"]:
-        if family == "centralized-kf":
-            continue
+        recursion = declared[family].error_recursion
+        if declared[family].delay_free:
+            continue  # the reference: its results do not depend on the delays
         for setting in data["settings"]:
             stable = []
             measured = None
@@ -167,7 +191,11 @@ def _tolerance(data: dict[str, Any]) -> list[dict[str, Any]]:
                 else:
                     broken = True
             censored = scan.get("exact_tolerance_censored") or {}
-            if family == "uncompensated":
+            if recursion is None:
+                predicted = exact = None
+                why = "no prediction: the family declares no augmented error recursion"
+                exact_why = "no exact analysis for this family"
+            elif recursion == RECURSION_UNCOMPENSATED:
                 predicted = ("any" if (scan.get("rho_delay_free") or 2) < 1 else None)
                 why = "delay-tolerant Theorem 1: any bounded delay when rho(A-hat) < 1"
                 exact = scan.get("exact_tolerance_uncompensated_eq11")
@@ -177,7 +205,7 @@ def _tolerance(data: dict[str, Any]) -> list[dict[str, Any]]:
             else:
                 predicted = scan.get("tau_star")
                 why = "LCSYS2022 Theorem 1 tau*"
-                if family == "block":
+                if recursion == RECURSION_BLOCK:
                     exact = scan.get("tau_star")
                     exact_why = "block rate < 1 (= Theorem 1's condition)"
                 else:

@@ -42,11 +42,14 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
                 pts.append((tau, v, c["measured"]["verdict"]))
                 if isinstance(v, float) and math.isfinite(v) and v > 0:
                     finite_top.append(v)
-            if family == "centralized-kf":
+            traits = data.get("family_traits", {}).get(family, {})
+            if traits.get("delay_free"):  # one value whatever the delays: a line
                 vals = [v for _, v, _ in pts if isinstance(v, float) and v > 0]
                 if vals:
-                    ax.axhline(vals[0], color=colours[family], ls="--", lw=1,
-                               label="centralised KF (reference)")
+                    label = ("centralised KF (reference)" if traits.get("centralised")
+                             else f"{family} (no communication)")
+                    ax.axhline(vals[0], color=colours.get(family, "0.6"), ls="--", lw=1,
+                               label=label)
                 continue
             xs = [t for t, v, _ in pts if isinstance(v, float) and v > 0]
             ys = [v for _, v, _ in pts if isinstance(v, float) and v > 0]

@@ -47,7 +47,8 @@ def format_report(data: dict[str, Any]) -> str:
                 if m["diverged_trials"]:
                     measured = f"div@{m['first_divergence']}"
                 pred = {True: "yes", False: "no", None: ""}[a.get("predicted_stable")]
-                name = family if family != "centralized-kf" else "kf (reference)"
+                centralised = data.get("family_traits", {}).get(family, {}).get("centralised")
+                name = "kf (reference)" if centralised else family
                 lines.append(
                     f"{tau:>4}  {name:<15}{measured:<11}{_f(m['steady_state_mse']):>11}"
                     f"{_f(m['growth_rate']):>10}{_f(m['decay_factor'], 3):>8}"

@@ -30,10 +30,13 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
         scenario = sweep_variant(context["data"], context["source"], params)
     except ScenarioError as exc:
         return {"error": f"scenario: {exc}"}
+    from netsim.runner import family_of
+
+    # the families by the keys that resolve them here (a plugin by its reference)
     families = [f for f in context["families"] if f in scenario.estimators] or \
         list(context["families"])
     gains = None
-    if any(f != "centralized-kf" for f in families):
+    if any(family_of(f, scenario).needs_gains for f in families):
         fp = scenario_fingerprint(replace(scenario, delays=DelaySpec()))
         gains = _GAIN_CACHE.get(fp)
         if gains is None:
@@ -72,15 +75,22 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list], trials: int, ste
 
     ``engine`` runs the trials (``auto``: vectorised); it is part of every cell's key.
     """
-    from netsim.runner import choose_engine
+    from netsim.runner import choose_engine, family_of
     from netsim.sweep import grid, run_sweep
-
-    engine = choose_engine(engine, families)
 
     data, source = scenario_data(scenario)
     base = sweep_variant(data, source, {})
+    from netsim.estimators.registry import resolve_families
+    from netsim.runner import scenario_folder
+
+    # the scenario's own first, so --estimators may use their short names
+    resolve_families(base.estimators, "run.estimators", scenario_folder(base))
+    declared = [family_of(f, base, "--estimators") for f in families]
+    engine = choose_engine(engine, declared)
+    if engine == "mixed":  # each run picks per family (auto)
+        engine = "auto"
     cells = grid(**{k: v for k, v in axes.items() if v})
-    context = {"data": data, "source": source, "families": list(families),
+    context = {"data": data, "source": source, "families": [f.key for f in declared],
                "trials": trials, "steps": steps, "fingerprint": scenario_fingerprint(base)}
     cells = [{**c, "_scenario": context["fingerprint"], "_trials": trials, "_steps": steps,
               "_engine": engine} for c in cells]

@@ -99,11 +99,21 @@ class SelectedComponents:
     """What a sink sends at step ``step``: the pattern index and the r_i values.
 
     ``index`` has shape (B,) and ``values`` (B, r_i) (B = 1 in the kernel).
+    ``numpy.asarray(message)`` gives what crosses the link as numbers, [index, values]
+    (shape (1 + r_i,) in the kernel), so a trace recorder stores the transmitted
+    selection.
     """
 
     step: int
     index: np.ndarray
     values: np.ndarray
+
+    def __array__(self, dtype: Any = None, copy: Any = None) -> np.ndarray:
+        flat = np.concatenate([np.asarray(self.index, dtype=float).reshape(-1, 1),
+                               np.asarray(self.values, dtype=float).reshape(
+                                   np.size(self.index), -1)], axis=1)
+        out = flat[0] if flat.shape[0] == 1 else flat
+        return out if dtype is None else out.astype(dtype)
 
 
 class _Batch:

@@ -759,6 +759,7 @@ from netsim.estimators.registry import (  # noqa: E402  (declared after the clas
     EstimatorFamily,
     FamilyContext,
     FamilyError,
+    ObserverTap,
     register,
 )
 from netsim.models.seeding import stream  # noqa: E402
@@ -881,7 +882,7 @@ def _aoi_agents(kind: str) -> Callable[[FamilyContext], list[AgentPlan]]:
     return build
 
 
-class FreshnessTap:
+class FreshnessTap(ObserverTap):
     """Kernel observer of one AoI run: records every agent's freshness indices and
     adoptions after each update, forwards every hook to ``inner`` (a trace recorder)
     and calls its ``on_freshness(agent, k, freshness, adopted_from, substate_dims)``
@@ -893,29 +894,13 @@ class FreshnessTap:
 
     def __init__(self, estimators: Sequence[Any], steps: int, dims: Sequence[int],
                  inner: Any = None) -> None:
+        super().__init__(inner)
         N = len(estimators)
         self.estimators = list(estimators)
         self.freshness = np.full((steps + 1, N, N), OMEGA, dtype=np.int64)
         self.adopted = np.full((steps + 1, N, N), -1, dtype=np.int64)
         self.dims = list(dims)
-        self.inner = inner
         self._on_freshness = getattr(inner, "on_freshness", None)
-
-    def on_plant(self, k, state, measurements):
-        if self.inner is not None:
-            self.inner.on_plant(k, state, measurements)
-
-    def on_sent(self, message):
-        if self.inner is not None:
-            self.inner.on_sent(message)
-
-    def on_delivered(self, message, accepted):
-        if self.inner is not None:
-            self.inner.on_delivered(message, accepted)
-
-    def on_dropped(self, message, reason="", drop_time=None):
-        if self.inner is not None and hasattr(self.inner, "on_dropped"):
-            self.inner.on_dropped(message, reason, drop_time)
 
     def on_update(self, agent, k, estimate, delays):
         est = self.estimators[agent]
@@ -924,11 +909,10 @@ class FreshnessTap:
             self.adopted[k, agent] = est.adopted_from
             if tau is not None:
                 self.freshness[k, agent] = tau
-        if self.inner is not None:
-            self.inner.on_update(agent, k, estimate, delays)
-            if self._on_freshness is not None and isinstance(est, FreshnessObserver):
-                self._on_freshness(agent, k, np.asarray(tau).copy(),
-                                   np.asarray(est.adopted_from).copy(), self.dims)
+        super().on_update(agent, k, estimate, delays)
+        if self._on_freshness is not None and isinstance(est, FreshnessObserver):
+            self._on_freshness(agent, k, np.asarray(tau).copy(),
+                               np.asarray(est.adopted_from).copy(), self.dims)
 
     def collect(self) -> dict[str, np.ndarray]:
         return {"freshness": self.freshness, "adopted": self.adopted}

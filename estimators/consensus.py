@@ -448,36 +448,22 @@ def _consensus_agents(make: type[_ConsensusBase] | None, block: bool = False):
 #: The batched form: the vectorised engine's consensus lockstep (netsim.vectorised).
 _LOCKSTEP = "netsim.vectorised:run_vectorised"
 
-register(EstimatorFamily(
-    name="compensated",
-    build=_consensus_agents(CompensatingEstimator),
-    description="consensus + innovation with A^(k - s_j) delay compensation",
-    paper="LCSYS2022 eqs. (4)-(5); augmented error recursion eq. (9)",
-    needs_gains=True, timestamps=True, error_recursion=RECURSION_COMPENSATED,
-    batched=_LOCKSTEP,
-    batched_options={"rule": "consensus", "compensate": True, "timestamps": True,
-                     "block": False},
-    source="builtin",
-))
-register(EstimatorFamily(
-    name="uncompensated",
-    build=_consensus_agents(UncompensatedEstimator),
-    description="consensus + innovation with A, no time-stamps (most recently arrived)",
-    paper="delay-tolerant paper eqs. (6)-(7); augmented recursion eq. (11)",
-    needs_gains=True, timestamps=False, error_recursion=RECURSION_UNCOMPENSATED,
-    batched=_LOCKSTEP,
-    batched_options={"rule": "consensus", "compensate": False, "timestamps": False,
-                     "block": False},
-    source="builtin",
-))
-register(EstimatorFamily(
-    name="block",
-    build=_consensus_agents(None, block=True),
-    description="block update: update and communicate every tau+1 steps with A^(tau+1)",
-    paper="LCSYS2022 eqs. (15)-(16)",
-    needs_gains=True, timestamps=True, error_recursion=RECURSION_BLOCK,
-    batched=_LOCKSTEP,
-    batched_options={"rule": "consensus", "compensate": True, "timestamps": True,
-                     "block": True},
-    source="builtin",
-))
+for _name, _make, _block, _recursion, _compensate, _stamps, _text, _paper in (
+    ("compensated", CompensatingEstimator, False, RECURSION_COMPENSATED, True, True,
+     "consensus + innovation with A^(k - s_j) delay compensation",
+     "LCSYS2022 eqs. (4)-(5); augmented error recursion eq. (9)"),
+    ("uncompensated", UncompensatedEstimator, False, RECURSION_UNCOMPENSATED, False, False,
+     "consensus + innovation with A, no time-stamps (most recently arrived)",
+     "delay-tolerant paper eqs. (6)-(7); augmented recursion eq. (11)"),
+    ("block", None, True, RECURSION_BLOCK, True, True,
+     "block update: update and communicate every tau+1 steps with A^(tau+1)",
+     "LCSYS2022 eqs. (15)-(16)"),
+):
+    register(EstimatorFamily(
+        name=_name, build=_consensus_agents(_make, block=_block), description=_text,
+        paper=_paper, needs_gains=True, timestamps=_stamps, error_recursion=_recursion,
+        batched=_LOCKSTEP,
+        batched_options={"rule": "consensus", "compensate": _compensate,
+                         "timestamps": _stamps, "block": _block},
+        source="builtin",
+    ))

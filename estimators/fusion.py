@@ -929,6 +929,7 @@ from netsim.estimators.registry import (  # noqa: E402  (declared after the clas
     EstimatorFamily,
     FamilyContext,
     FamilyError,
+    ObserverTap,
     register,
 )
 from netsim.models.dkfe import sink_conditions  # noqa: E402
@@ -1074,33 +1075,13 @@ def _fusion_agents(output: str) -> Any:
     return build
 
 
-class _CentreTap:
+class _CentreTap(ObserverTap):
     """Forwards the kernel's hooks to ``inner``; collects the centre's compensating
     estimates (K+1, L, n) and its count of missing selections."""
 
     def __init__(self, centre: FusionCentre, inner: Any) -> None:
-        self.centre, self.inner = centre, inner
-
-    def __getattr__(self, name: str) -> Any:  # on_plant, on_sent, ... when inner has them
-        if self.inner is None or name.startswith("_"):
-            raise AttributeError(name)
-        return getattr(self.inner, name)
-
-    def on_plant(self, k, state, measurements):
-        if self.inner is not None:
-            self.inner.on_plant(k, state, measurements)
-
-    def on_sent(self, message):
-        if self.inner is not None:
-            self.inner.on_sent(message)
-
-    def on_delivered(self, message, accepted):
-        if self.inner is not None:
-            self.inner.on_delivered(message, accepted)
-
-    def on_update(self, agent, k, estimate, delays):
-        if self.inner is not None:
-            self.inner.on_update(agent, k, estimate, delays)
+        super().__init__(inner)
+        self.centre = centre
 
     def collect(self) -> dict[str, Any]:
         history = self.centre.history["cse"]

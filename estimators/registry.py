@@ -42,6 +42,7 @@ __all__ = [
     "ENTRY_POINT_GROUP",
     "FamilyError",
     "FamilyContext",
+    "ObserverTap",
     "AgentSetup",
     "AgentPlan",
     "EstimatorFamily",
@@ -141,6 +142,46 @@ class FamilyContext:
     def out_neighbours(self, agent: int) -> list[int]:
         """Agents that agent ``agent`` sends to (self excluded)."""
         return sorted(j for j in self.scenario.graph.successors(agent) if j != agent)
+
+
+class ObserverTap:
+    """Base of a family's own observer (``EstimatorFamily.observer``).
+
+    It receives every kernel hook and forwards it to ``inner`` (a trace recorder, or
+    None); a subclass overrides the hooks it needs (calling ``super()``) and
+    :meth:`collect`. Hooks the inner observer has beyond these (``on_freshness``) are
+    reached through attribute access.
+    """
+
+    def __init__(self, inner: Any = None) -> None:
+        self.inner = inner
+
+    def __getattr__(self, name: str) -> Any:
+        inner = self.__dict__.get("inner")
+        if inner is None or name.startswith("_"):
+            raise AttributeError(name)
+        return getattr(inner, name)
+
+    def on_plant(self, k: int, state: np.ndarray, measurements: Sequence[np.ndarray]) -> None:
+        if self.inner is not None:
+            self.inner.on_plant(k, state, measurements)
+
+    def on_sent(self, message: Any) -> None:
+        if self.inner is not None:
+            self.inner.on_sent(message)
+
+    def on_delivered(self, message: Any, accepted: bool) -> None:
+        if self.inner is not None:
+            self.inner.on_delivered(message, accepted)
+
+    def on_update(self, agent: int, k: int, estimate: np.ndarray,
+                  delays: dict[int, int]) -> None:
+        if self.inner is not None:
+            self.inner.on_update(agent, k, estimate, delays)
+
+    def collect(self) -> dict[str, Any]:
+        """What the run's ``TrialResult.extras`` keeps (default: nothing)."""
+        return {}
 
 
 @dataclass(frozen=True)

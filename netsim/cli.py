@@ -16,7 +16,14 @@ from typing import Any
 
 import numpy as np
 
-from netsim.cliutil import EXIT_BAD_INPUT, EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
+from netsim.cliutil import (
+    EXIT_BAD_INPUT,
+    EXIT_DESIGN_FAILED,
+    EXIT_INTERRUPTED,
+    CommandError,
+    gains_if_needed,
+    note_kernel_fallbacks,
+)
 from netsim.models.jsonsafe import json_number as _num
 
 # CommandError and the exit codes live in netsim.cliutil (shared with netsim.bench);
@@ -261,15 +268,6 @@ def _apply_noise(args: argparse.Namespace, scenario: Any) -> Any:
                                noise if measurement is None else measurement)
 
 
-def _note_fallbacks(command: str, names: Sequence[str]) -> None:
-    """Say on stderr which families ``--engine auto`` runs in the event kernel."""
-    if names:
-        sys.stderr.write(f"netsim {command}: note: {', '.join(names)} "
-                         f"{'has' if len(names) == 1 else 'have'} no batched form; "
-                         "--engine auto runs "
-                         f"{'it' if len(names) == 1 else 'them'} in the event kernel\n")
-
-
 def _positive(value: int | None, option: str) -> None:
     if value is not None and value < 1:
         raise CommandError(f"{option} must be a positive integer, got {value}")
@@ -278,9 +276,8 @@ def _positive(value: int | None, option: str) -> None:
 def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
-    from netsim.estimators.gains import GainDesignError
     from netsim.models.scenario import ScenarioError, resolve_scenario
-    from netsim.runner import run_monte_carlo, scenario_gains
+    from netsim.runner import run_monte_carlo
 
     _positive(args.steps, "--steps")
     _positive(args.trials, "--trials")
@@ -299,13 +296,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"{where}: {exc}") from None
     declared = _families(scenario, args.estimators)
     families = tuple(f.name for f in declared)
-    gains = None
-    if any(f.needs_gains for f in declared):
-        try:
-            gains = scenario_gains(scenario)
-        except (GainDesignError, ValueError) as exc:
-            raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
-                               EXIT_DESIGN_FAILED) from None
+    gains = gains_if_needed(scenario, declared, args.scenario)
     from netsim.runner import check_agents, choose_engine, kernel_fallbacks
 
     try:
@@ -318,7 +309,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise CommandError(f"--engine {args.engine}: scenario {args.scenario}: {exc}"
                            ) from None
-    _note_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
+    note_kernel_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
     trials = args.trials or scenario.trials
     total = trials * len(families)
     bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",

@@ -10,7 +10,12 @@ Exit codes: 0 success (an estimator that diverged is a result, not an error);
 
 from __future__ import annotations
 
-__all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError"]
+import sys
+from collections.abc import Sequence
+from typing import Any
+
+__all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
+           "gains_if_needed", "note_kernel_fallbacks"]
 
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
@@ -23,3 +28,30 @@ class CommandError(Exception):
     def __init__(self, message: str, code: int = EXIT_BAD_INPUT) -> None:
         super().__init__(message)
         self.code = code
+
+
+def gains_if_needed(scenario: Any, families: Sequence[Any], name: str) -> Any:
+    """The scenario's gains when one of ``families`` needs them, else None.
+
+    Raises CommandError (exit 3) naming the scenario when the design fails.
+    """
+    from netsim.estimators.gains import GainDesignError
+    from netsim.runner import scenario_gains
+
+    if not any(f.needs_gains for f in families):
+        return None
+    try:
+        return scenario_gains(scenario)
+    except (GainDesignError, ValueError) as exc:
+        raise CommandError(f"scenario {name}: gain design failed: {exc}",
+                           EXIT_DESIGN_FAILED) from None
+
+
+def note_kernel_fallbacks(command: str, names: Sequence[str], what: str = "them") -> None:
+    """Say on stderr which families ``--engine auto`` runs in the event kernel."""
+    if not names:
+        return
+    one = len(names) == 1
+    sys.stderr.write(f"netsim {command}: note: {', '.join(names)} "
+                     f"{'has' if one else 'have'} no batched form; --engine auto runs "
+                     f"{'it' if one and what == 'them' else what} in the event kernel\n")

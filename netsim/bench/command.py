@@ -181,10 +181,13 @@ def _executor(args: Any) -> dict[str, Any]:
 
 
 def _cmd_delay_tolerance(args: Any) -> int:
-    from netsim.cliutil import EXIT_DESIGN_FAILED, EXIT_INTERRUPTED, CommandError
-    from netsim.estimators.gains import GainDesignError
+    from netsim.cliutil import (
+        EXIT_INTERRUPTED,
+        CommandError,
+        gains_if_needed,
+        note_kernel_fallbacks,
+    )
     from netsim.models.scenario import ScenarioError, resolve_scenario
-    from netsim.runner import scenario_gains
     from netsim.sweep import SweepInterrupted
 
     preset = PRESETS.get(args.scenario)
@@ -216,13 +219,7 @@ def _cmd_delay_tolerance(args: Any) -> int:
     trials = args.trials or (preset.trials if preset else scenario.trials)
     steps = args.steps or (preset.steps if preset else scenario.steps)
     seed = scenario.seed if args.seed is None else args.seed
-    gains = None
-    if any(f.needs_gains for f in declared):
-        try:
-            gains = scenario_gains(scenario)
-        except (GainDesignError, ValueError) as exc:
-            raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
-                               EXIT_DESIGN_FAILED) from None
+    gains = gains_if_needed(scenario, declared, args.scenario)
     if args.resume:
         parent = Path(args.resume).resolve().parent
         if not parent.is_dir():
@@ -233,11 +230,7 @@ def _cmd_delay_tolerance(args: Any) -> int:
         fallbacks = kernel_fallbacks(args.engine, declared)
     except ValueError as exc:
         raise CommandError(f"--engine {args.engine}: {exc}") from None
-    if fallbacks:
-        sys.stderr.write(f"netsim bench: note: {', '.join(fallbacks)} "
-                         f"{'has' if len(fallbacks) == 1 else 'have'} no batched form; "
-                         f"--engine auto runs {'its' if len(fallbacks) == 1 else 'their'} "
-                         "cells in the event kernel\n")
+    note_kernel_fallbacks("bench", fallbacks, "the cells")
     try:
         data = run_delay_tolerance(
             scenario, taus=taus, delays=delays, trials=trials, steps=steps, seed=seed,

@@ -964,14 +964,6 @@ def _connectivity(scenario: Any) -> tuple[ConnectivityReport, int | None]:
     return conn, T
 
 
-def _json_float(value: float | None) -> float | str | None:
-    if value is None or math.isnan(value):
-        return None
-    if math.isinf(value):
-        return "inf" if value > 0 else "-inf"
-    return float(value)
-
-
 def _merged(counts: Any) -> dict[str, int]:
     out: dict[str, int] = {}
     for c in counts:
@@ -1023,12 +1015,12 @@ def aoi_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
     marks = sorted({0, steps // 10, steps // 4, steps // 2, (3 * steps) // 4, steps})
     out: dict[str, Any] = {
         "verdict": verdict,
-        "growth_rate": _json_float(growth),
+        "growth_rate": growth,
         "converged_at": converged_at,
         "diverged_at": min(diverged) if diverged else None,
-        "max_error_at": {str(m): _json_float(float(worst[m])) for m in marks
+        "max_error_at": {str(m): float(worst[m]) for m in marks
                          if m < len(worst)},
-        "max_relative_error_at": {str(m): _json_float(float(rel[m])) for m in marks
+        "max_relative_error_at": {str(m): float(rel[m]) for m in marks
                                   if m < len(rel)},
         "messages": {"sent": sum(t.messages_sent for t in trials),
                      "delivered": sum(t.messages_delivered for t in trials),

@@ -13,9 +13,10 @@ At step k the host (``../shared/DESIGN.md``, "What every estimator may rely on")
 3. sends what ``outgoing(k)`` returns on every out-link (optional; default: the
    estimate; None: nothing this step).
 
-Optional attributes the host reads when present: ``estimate`` (the current estimate,
-shape (n,)), ``last_delays`` (dict j -> r_ij[k], the effective delay of each
-neighbour's estimate used by the last update; -1 when the agent substituted its own),
+Every estimator also has ``estimate``, its current estimate x-hat^i (shape (n,); a
+property or an attribute). Optional attributes the host reads when present:
+``last_delays`` (dict j -> r_ij[k], the effective delay of each neighbour's estimate
+used by the last update; -1 when the agent substituted its own),
 and an ``out`` parameter of ``step`` (``step(k, y, out)`` may write the estimate into
 the host's row ``out``, shape (n,), float64, and return it).
 
@@ -51,6 +52,11 @@ class Estimator(Protocol):
 
     def step(self, k: int, y: np.ndarray) -> np.ndarray:
         """Run step k with the agent's measurement y^i_k; return x-hat^i_{k|k}, (n,)."""
+        ...
+
+    @property
+    def estimate(self) -> np.ndarray:
+        """The current estimate x-hat^i, shape (n,)."""
         ...
 
 
@@ -105,6 +111,8 @@ def missing_methods(obj: Any) -> list[str]:
             problems.append(f"{name} is not callable")
         elif not _accepts(method, count):
             problems.append(f"{name}() does not take {count} arguments")
+    if not hasattr(obj, "estimate"):
+        problems.append("no attribute estimate")
     for name, count in _OPTIONAL.items():
         method = getattr(obj, name, None)
         if method is not None and not (callable(method) and _accepts(method, count)):
@@ -119,4 +127,5 @@ def check_estimator(obj: Any, key: str) -> None:
         raise ContractError(
             key, f"{type(obj).__name__} is not an estimator: {'; '.join(problems)} "
             "(the contract: message_arrived(sender, sent_step, payload) -> bool, "
-            "step(k, y) -> estimate; see netsim.estimators.contract)")
+            "step(k, y) -> estimate, an estimate attribute; see "
+            "netsim.estimators.contract)")

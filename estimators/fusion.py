@@ -1099,10 +1099,6 @@ def _marks(steps: int) -> list[int]:
     return sorted({0, 1, 2, steps // 10, steps // 4, steps // 2, steps})
 
 
-def _float(value: float) -> float | None:
-    return None if not math.isfinite(value) else float(value)
-
-
 def fusion_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
     """Monte Carlo MSE E||x - x-hat||^2 at the paper's marks beside the trace of the exact
     error covariance, for the family's fused estimate, each sink's local filter and
@@ -1132,8 +1128,8 @@ def fusion_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, An
     mse, se = {}, {}
     for name, est in series.items():
         sq = np.sum((states - est) ** 2, axis=-1)                # (M, K+1)
-        mse[name] = [_float(sq[:, m].mean()) for m in marks]
-        se[name] = [_float(sq[:, m].std(ddof=1) / math.sqrt(sq.shape[0]))
+        mse[name] = [float(sq[:, m].mean()) for m in marks]
+        se[name] = [float(sq[:, m].std(ddof=1) / math.sqrt(sq.shape[0]))
                     if sq.shape[0] > 1 else None for m in marks]
     exact: dict[str, list[float | None]] = {}
     if family == "dkfe":

@@ -355,3 +355,59 @@ def test_example_takes_part_in_bench_delay_tolerance_and_sweep(capsys, tmp_path)
     rows = json.loads(out)["rows"]
     assert len(rows) == 2
     assert all(set(r["result"]["estimators"]) == {"compensated", "ci-filter"} for r in rows)
+
+
+class _Hold:
+    """Keeps the prior: x-hat_k = x0_mean (a user's estimator with a batched form)."""
+
+    def __init__(self, setup):
+        self.estimate = np.array(setup.prior_mean, dtype=float)
+
+    def message_arrived(self, sender, sent_step, payload):
+        return False
+
+    def step(self, k, y):
+        return self.estimate
+
+
+def _hold_batched(scenario, family, gains, trial_seeds, steps, *, record_delays=False,
+                  record_estimates=True, progress=None):
+    # the batched contract: one TrialResult per trial, the per-agent form's numbers
+    from netsim.kernel import TrialResult
+    from netsim.vectorised import simulate_plant
+
+    K = scenario.steps if steps is None else int(steps)
+    batch = simulate_plant(scenario, trial_seeds, K)
+    N, prior = scenario.n_agents, scenario.plant.x0_mean
+    out = []
+    for t in range(len(trial_seeds)):
+        x = batch.states[:, t]
+        sq = np.repeat(((x - prior) ** 2).sum(axis=1)[:, None], N, axis=1)
+        out.append(TrialResult(
+            states=x.copy(), measurements=[], estimates=np.broadcast_to(
+                prior, (K + 1, N, len(prior))).copy(), squared_errors=sq,
+            effective_delays=None, diverged_at=None, messages_sent=0,
+            messages_delivered=0, messages_discarded=0))
+    if progress is not None:
+        progress(len(trial_seeds))
+    return out
+
+
+def test_a_plugin_with_its_own_batched_form_gets_the_vectorised_engine():
+    import netsim
+
+    _Hold.batched = staticmethod(_hold_batched)
+    family = netsim.register_estimator(_Hold, "hold-batched", replace_existing=True)
+    try:
+        assert family.vectorised
+        scenario = netsim.load_scenario("lcsys2022-heterogeneous")
+        fast = netsim.run(scenario, steps=30, trials=3, estimators=["hold-batched"],
+                          engine="vectorised")
+        slow = netsim.run(scenario, steps=30, trials=3, estimators=["hold-batched"],
+                          engine="events")
+        assert fast.monte_carlo.engine == "vectorised" and slow.monte_carlo.engine == "events"
+        np.testing.assert_allclose(fast["hold-batched"].squared_errors,
+                                   slow["hold-batched"].squared_errors, rtol=1e-12)
+    finally:
+        unregister("hold-batched")
+        del _Hold.batched

@@ -21,6 +21,7 @@ from netsim.cliutil import (
     EXIT_DESIGN_FAILED,
     EXIT_INTERRUPTED,
     CommandError,
+    OneLineParser,
     gains_if_needed,
     note_kernel_fallbacks,
 )
@@ -34,7 +35,7 @@ __all__ = ["main", "build_parser", "CommandError", "EXIT_BAD_INPUT", "EXIT_DESIG
 
 def build_parser() -> argparse.ArgumentParser:
     """Return the argument parser of ``netsim``."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="netsim",
         description=(
             "Discrete-event simulation of distributed state estimation over networks with "

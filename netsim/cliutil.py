@@ -10,12 +10,13 @@ Exit codes: 0 success (an estimator that diverged is a result, not an error);
 
 from __future__ import annotations
 
+import argparse
 import sys
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NoReturn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
-           "gains_if_needed", "note_kernel_fallbacks"]
+           "OneLineParser", "gains_if_needed", "note_kernel_fallbacks"]
 
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
@@ -55,3 +56,15 @@ def note_kernel_fallbacks(command: str, names: Sequence[str], what: str = "them"
     sys.stderr.write(f"netsim {command}: note: {', '.join(names)} "
                      f"{'has' if one else 'have'} no batched form; --engine auto runs "
                      f"{'it' if one and what == 'them' else what} in the event kernel\n")
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line on stderr (exit 2).
+
+    argparse prints its usage before the error; netsim's promise is one line naming
+    what is wrong, so the usage is left to ``--help``. Subcommand parsers inherit it.
+    """
+
+    def error(self, message: str) -> NoReturn:
+        self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} "
+                  "--help)\n")

@@ -932,7 +932,7 @@ from netsim.estimators.registry import (  # noqa: E402  (declared after the clas
     ObserverTap,
     register,
 )
-from netsim.models.dkfe import sink_conditions  # noqa: E402
+from netsim.models.dkfe import sink_conditions, steady_state_local_filter  # noqa: E402
 from netsim.models.seeding import stream  # noqa: E402
 
 #: Keys of ``[options.fusion]`` (``on_missing`` defaults to ``predict``).
@@ -1160,6 +1160,13 @@ def fusion_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, An
 def fusion_analytics(scenario: Any, gains: Any = None) -> dict[str, Any]:
     """The example's stability conditions per sink and the steady state (Theorem 3)."""
     setup = fusion_setup(scenario)
+    for i in range(setup.n_sinks):  # each sink's local filter needs a steady state (58)
+        try:
+            with np.errstate(all="ignore"):
+                steady_state_local_filter(setup.A, setup.C[i], setup.Q, setup.R[i])
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            raise FamilyError(f"plant.C[{i}]", f"sink {i}'s local Kalman filter has no "
+                              f"steady state (discrete Riccati equation: {exc})") from None
     steady, osteady = _steady(setup)
     conds = sink_conditions(setup)
     lines = [f"fusion: L = {setup.n_sinks} sinks, delays d = {list(setup.delays)}, "

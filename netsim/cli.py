@@ -344,8 +344,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
     finally:
         bar.close()
     data = result.to_dict()
+    kind, quantile = delay_bound_kind(scenario)
+    data["delay_bound"] = {"value": data["scenario"]["delays"]["bound"], "kind": kind,
+                           "quantile": quantile, "realised_max": None}
     if args.trace:
         data["traces"] = written
+        data["delay_bound"]["realised_max"] = _trace_max_delay(written)
     if args.json:
         json.dump(data, sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
@@ -364,13 +368,60 @@ def _fmt(value: Any) -> str:
     return f"{value:.3e}"
 
 
+def delay_bound_kind(scenario: Any) -> tuple[str, float | None]:
+    """What the scenario's delay bound ``summary()['delays']['bound']`` is: ``("bound",
+    None)`` a hard bound no delay exceeds, ``("links.bound", None)`` the bound the
+    ``[links]`` table states, or ``("quantile", q)`` the q-quantile of an unbounded
+    delay distribution of the ``[links]`` table (delays beyond it do occur)."""
+    import math as _math
+
+    from netsim.models.linkmodels import NOMINAL_QUANTILE
+
+    spec = scenario.link_spec
+    if spec is None:
+        return "bound", None
+    if spec.bound is not None:
+        return "links.bound", None
+    for link in scenario.links:
+        cfg = spec.config(link).delay
+        upper = getattr(getattr(cfg, "distribution", None), "upper", None)
+        if upper is not None and not _math.isfinite(upper):
+            return "quantile", NOMINAL_QUANTILE
+    return "bound", None
+
+
+def _trace_max_delay(paths: Sequence[str]) -> int | None:
+    """The largest delivered step delay recorded in the traces' ``run_status``."""
+    from netsim.traces.reader import read_status
+
+    worst = None
+    for path in paths:
+        value = (read_status(path) or {}).get("max_delay_steps", "")
+        if value.lstrip("-").isdigit() and int(value) >= 0:
+            worst = int(value) if worst is None else max(worst, int(value))
+    return worst
+
+
+def _format_delays(s: dict[str, Any], bound: dict[str, Any] | None) -> str:
+    d = s["delays"]
+    text = f"delays: {d['model']}, tau = {d['tau']}; bound {d['bound']}"
+    kind = (bound or {}).get("kind", "bound")
+    if kind == "quantile":
+        text += (f" (the {bound['quantile']:.1%} quantile of the links' unbounded delay "
+                 "distributions; delays beyond it occur)")
+    elif kind == "links.bound":
+        text += " (links.bound)"
+    if (bound or {}).get("realised_max") is not None:
+        text += f"; realised max step delay {bound['realised_max']} (traces)"
+    return text
+
+
 def _format_run(data: dict[str, Any]) -> str:
     s = data["scenario"]
     lines = [
         f"scenario {s['name']} ({s['source']}): n = {s['n_states']} states, "
         f"N = {s['n_agents']} agents, {len(s['links'])} links",
-        f"delays: {s['delays']['model']}, tau = {s['delays']['tau']} "
-        f"(max step delay {s['delays']['max_delay']})",
+        _format_delays(s, data.get("delay_bound")),
         f"run: {data['steps']} steps x {data['trials']} trials, seed {data['seed']}, "
         f"{data.get('engine', 'events')} engine",
     ]

@@ -201,6 +201,13 @@ class InspectReport:
                     f"{s.in_flight:>5}{_fmt(d.get('min')):>5}{_fmt(d.get('mean'), 2):>7}"
                     f"{_fmt(d.get('max')):>5}  {hist}   | {rtxt}"
                 )
+        dropping = {name: s for name, s in self.links.items() if s.drop_reasons}
+        if dropping:
+            lines.append("drop reasons (messages lost per link and cause)")
+            for name, s in dropping.items():
+                causes = ", ".join(f"{reason} {count}" for reason, count
+                                   in sorted(s.drop_reasons.items()))
+                lines.append(f"  {name:<8}{causes}")
         if self.agents:
             lines.append("agents (squared error ||x-hat - x||^2)")
             lines.append(f"  {'agent':<6}{'updates':>8}{'mse':>12}{'tail mse':>12}"

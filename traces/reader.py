@@ -35,7 +35,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
 from netsim.traces.schemas import PACKAGE
 
-__all__ = ["NOT_USED", "TraceError", "TraceRecord", "Trace", "read_trace"]
+__all__ = ["NOT_USED", "TraceError", "TraceRecord", "Trace", "read_trace", "read_status"]
 
 #: Entry of :meth:`Trace.effective_delays` where agent i did not use j's estimate
 #: (equal to ``netsim.kernel.NOT_USED``).
@@ -326,6 +326,19 @@ def read_trace(path: str | os.PathLike[str]) -> Trace:
         raise
     except OSError as exc:
         raise TraceError(f"{where}: cannot read file ({exc.strerror or exc})") from None
+
+
+def read_status(path: str | os.PathLike[str]) -> dict[str, str] | None:
+    """The ``run_status`` metadata of a finished trace, read from its index alone (None
+    for a file that is unreadable, unfinished or has none)."""
+    try:
+        with open(path, "rb") as f:
+            for record in make_reader(f).iter_metadata():
+                if record.name == "run_status":
+                    return dict(record.metadata)
+    except Exception:  # noqa: BLE001 - any failure: no status to report
+        return None
+    return None
 
 
 class _Collector:

@@ -24,6 +24,7 @@ Metadata records (written first, so even a file whose writer was killed has them
   ``complete`` | ``interrupted`` (KeyboardInterrupt) | ``failed`` (other exception)
   | anything given to :meth:`TraceRecorder.set_status` (e.g. ``diverged``),
   ``last_step`` (last plant step recorded, -1 if none), ``messages`` (count written),
+  ``max_delay_steps`` (largest step delay of a delivered message, -1 if none),
   ``expected_steps`` and a ``note`` if the run ended before them, and after an
   exception ``interrupted_at`` (the last plant step recorded) and ``reason``.
   Missing in a file whose writer never finished.
@@ -295,6 +296,8 @@ class TraceRecorder:
         #: Messages written per topic.
         self.counts: dict[str, int] = {}
         self.messages_written = 0
+        #: Largest ``delay_steps`` of a delivered message so far (-1 before the first).
+        self.max_delay_steps = -1
         self.closed = False
         self._status: str | None = None
         self._status_info: dict[str, str] = {}
@@ -477,6 +480,7 @@ class TraceRecorder:
         """Record a delivery (log_time = arrival time); ``accepted``: the receiver kept
         it (False: stale under the freshest-message rule)."""
         self._check_open()
+        self.max_delay_steps = max(self.max_delay_steps, int(message.delay_steps))
         self._link_event(message, "delivered", message.arrival_time, accepted=bool(accepted))
 
     def on_dropped(self, message: Any, reason: str = "", drop_time: float | None = None) -> None:
@@ -520,6 +524,7 @@ class TraceRecorder:
                 "status": status,
                 "last_step": str(self.last_step),
                 "messages": str(self.messages_written),
+                "max_delay_steps": str(self.max_delay_steps),
             }
             if self.interrupted_at is not None:
                 record["interrupted_at"] = str(self.interrupted_at)

@@ -126,3 +126,141 @@ def test_inspect_text_prints_the_drop_reasons_of_every_link(tmp_path, capsys):
     for link, reasons in expected.items():
         for reason, count in reasons.items():
             assert f"{reason} {count}" in rows[link]
+
+
+# -- trace paths that are refused, results kept when a trace cannot be written ---------
+
+
+@pytest.mark.parametrize("trials", ["1", "2"])
+def test_trace_to_a_special_file_is_refused_and_nothing_is_created(geometric, tmp_path,
+                                                                   capsys, trials):
+    before = set(Path("/dev").iterdir())
+    code, out, err = _run(capsys, geometric, "--trials", trials, "--trace", "/dev/full")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "/dev/full" in err and "character device" in err
+    assert set(Path("/dev").iterdir()) == before
+
+
+def test_trace_to_a_directory_or_a_missing_folder_is_refused(geometric, tmp_path, capsys):
+    code, _, err = _run(capsys, geometric, "--trace", tmp_path)
+    assert code == 2 and f"{tmp_path}: is a directory" in err
+    code, _, err = _run(capsys, geometric, "--trace", tmp_path / "no" / "x.mcap")
+    assert code == 2 and f"directory {tmp_path / 'no'} does not exist" in err
+    assert list(tmp_path.iterdir()) == [geometric]
+
+
+def test_existing_trace_is_refused_unless_force(geometric, tmp_path, capsys):
+    path = tmp_path / "one.mcap"
+    args = (geometric, "--trials", "1", "--estimators", "compensated", "--steps", "20",
+            "--trace", path)
+    assert _run(capsys, *args)[0] == 0
+    first = path.read_bytes()
+    code, out, err = _run(capsys, *args, "--seed", "5")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert f"{path}: exists; pass --force" in err
+    assert path.read_bytes() == first  # untouched
+    sibling = tmp_path / "many.compensated.trial1.mcap"
+    sibling.write_bytes(b"keep")
+    code, _, err = _run(capsys, geometric, "--trace", tmp_path / "many.mcap")
+    assert code == 2 and str(sibling) in err and sibling.read_bytes() == b"keep"
+    code, _, err = _run(capsys, *args, "--seed", "5", "--force")
+    assert code == 0, err
+    assert read_trace(path).seed != first and path.read_bytes() != first
+
+
+class _FillingDisk:
+    """``open`` for the recorder whose files share ``budget`` bytes, then ENOSPC."""
+
+    def __init__(self, budget):
+        self.left = budget
+
+    def __call__(self, path, mode="r", *args, **kwargs):
+        import builtins
+
+        real = builtins.open(path, mode, *args, **kwargs)
+        disk = self
+
+        class Stream:
+            def write(self, data):
+                import errno
+                import os
+
+                if len(data) > disk.left:
+                    disk.left = 0
+                    raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+                disk.left -= len(data)
+                return real.write(data)
+
+            def __getattr__(self, name):
+                return getattr(real, name)
+
+        return Stream()
+
+
+def _sizes(tmp_path, geometric, capsys, engine):
+    """The file sizes of a full traced run (to place the disk-full point)."""
+    folder = tmp_path / f"full-{engine}"
+    folder.mkdir()
+    code, out, err = _run(capsys, geometric, "--trials", "3", "--engine", engine, "--json",
+                          "--trace", folder / "t.mcap")
+    assert code == 0, err
+    return json.loads(out), [Path(p).stat().st_size for p in json.loads(out)["traces"]]
+
+
+@pytest.mark.parametrize("engine", ["vectorised", "events"])
+def test_disk_full_prints_the_finished_runs_then_one_error_line(geometric, tmp_path, capsys,
+                                                               monkeypatch, engine):
+    import netsim.traces.recorder as recorder
+
+    full, sizes = _sizes(tmp_path, geometric, capsys, engine)
+    # the disk fills in the middle of the second family's first trial (file 4 of 6)
+    budget = sum(sizes[:3]) + sizes[3] // 2
+    monkeypatch.setattr(recorder, "open", _FillingDisk(budget), raising=False)
+    base = tmp_path / "t.mcap"
+    code, out, err = _run(capsys, geometric, "--trials", "3", "--engine", engine,
+                          "--trace", base)
+    assert code == 2
+    failed = tmp_path / "t.uncompensated.trial0.mcap"
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert f"cannot write trace {failed}: No space left on device" in err
+    assert "compensated" in out and "INCOMPLETE" in out
+    row = next(line for line in out.splitlines() if line.startswith("compensated "))
+    steady = full["estimators"]["compensated"]["steady_state_mse"]
+    assert f"{steady:.4f}" in row  # the finished family's numbers, as in the full run
+    # --json: what finished plus an error field
+    for p in tmp_path.glob("t.*.mcap"):
+        p.unlink()
+    monkeypatch.setattr(recorder, "open", _FillingDisk(budget), raising=False)
+    code, out, err = _run(capsys, geometric, "--trials", "3", "--engine", engine, "--json",
+                          "--trace", base)
+    assert code == 2 and err.count("\n") == 1
+    data = json.loads(out)
+    assert data["error"].startswith(f"cannot write trace {failed}")
+    assert data["estimators"]["compensated"] == full["estimators"]["compensated"]
+    assert "uncompensated" not in data["estimators"]
+    assert data["traces"] == [str(tmp_path / f"t.compensated.trial{t}.mcap") for t in range(3)]
+    for path in data["traces"]:
+        assert read_trace(path).status["status"] in ("complete", "diverged")
+
+
+def test_disk_full_within_a_family_keeps_its_finished_trials(geometric, tmp_path, capsys,
+                                                            monkeypatch):
+    import netsim.traces.recorder as recorder
+
+    _, sizes = _sizes(tmp_path, geometric, capsys, "vectorised")
+    monkeypatch.setattr(recorder, "open", _FillingDisk(sizes[0] + sizes[1] // 2),
+                        raising=False)
+    code, out, err = _run(capsys, geometric, "--trials", "3", "--json",
+                          "--trace", tmp_path / "t.mcap")
+    assert code == 2
+    data = json.loads(out)
+    assert data["estimators"]["compensated"]["trials_finished"] == 1
+    monkeypatch.undo()
+    one = tmp_path / "single"
+    one.mkdir()
+    code, single, _ = _run(capsys, geometric, "--trials", "1", "--estimators", "compensated",
+                           "--json", "--trace", one / "s.mcap")
+    assert code == 0
+    # the one finished trial's numbers are those of a run of that trial alone
+    assert (data["estimators"]["compensated"]["mse_at"]
+            == json.loads(single)["estimators"]["compensated"]["mse_at"])

@@ -73,6 +73,7 @@ import json
 import math
 import os
 import re
+import stat
 import time
 from collections.abc import Mapping, Sequence
 from functools import partial
@@ -91,6 +92,7 @@ __all__ = [
     "TraceRecorder",
     "TraceOrderError",
     "trace_path",
+    "check_trace_target",
     "scenario_metadata",
     "run_matrices",
     "to_ns",
@@ -161,6 +163,31 @@ def trace_path(base: str | os.PathLike[str], family: str | None = None,
     if len(parts) == 1:
         return base
     return base.with_name(".".join(parts) + ".mcap")
+
+
+def check_trace_target(path: str | os.PathLike[str], *, force: bool = False) -> None:
+    """Refuse a file a trace must not be written to (ValueError naming it): a
+    directory or special file (device, pipe, socket), a file in a directory that does
+    not exist or is not writable, or an existing trace unless ``force``."""
+    path = Path(path)
+    if str(path).endswith(os.sep) or path.is_dir():
+        raise ValueError(f"{path}: is a directory; give a file name, e.g. {path}/run.mcap")
+    if path.exists() or path.is_symlink():
+        mode = path.stat().st_mode if path.exists() else 0
+        if path.exists() and not stat.S_ISREG(mode):
+            kind = ("a character device" if stat.S_ISCHR(mode) else
+                    "a block device" if stat.S_ISBLK(mode) else
+                    "a named pipe" if stat.S_ISFIFO(mode) else
+                    "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+            raise ValueError(f"{path}: is {kind}, not a regular file; traces are written "
+                             "to regular files")
+        if not force:
+            raise ValueError(f"{path}: exists; pass --force to overwrite it")
+    folder = path.parent
+    if not folder.is_dir():
+        raise ValueError(f"{path}: directory {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{path}: directory {folder} is not writable")
 
 
 def _meta_value(value: Any) -> str:

@@ -264,3 +264,36 @@ def test_disk_full_within_a_family_keeps_its_finished_trials(geometric, tmp_path
     # the one finished trial's numbers are those of a run of that trial alone
     assert (data["estimators"]["compensated"]["mse_at"]
             == json.loads(single)["estimators"]["compensated"]["mse_at"])
+
+
+# -- a damaged trace: every intact chunk, and which were lost --------------------------
+
+
+def test_inspect_reports_the_lost_chunk_of_a_damaged_trace(geometric, tmp_path, capsys):
+    from mcap.reader import make_reader
+
+    path = tmp_path / "one.mcap"
+    code, _, err = _run(capsys, geometric, "--trials", "1", "--estimators", "compensated",
+                        "--steps", "120", "--trace", path)
+    assert code == 0, err
+    with open(path, "rb") as f:
+        summary = make_reader(f).get_summary()
+        chunks = sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset)
+        total = summary.statistics.message_count
+    middle = chunks[len(chunks) // 2]
+    data = bytearray(path.read_bytes())
+    data[middle.chunk_start_offset + middle.chunk_length // 2] ^= 0xFF
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(bytes(data))
+    assert main(["inspect", str(bad), "--json"]) == 0
+    info = json.loads(capsys.readouterr().out)
+    [lost] = info["lost_chunks"]
+    assert lost["chunk"] == len(chunks) // 2 and lost["offset"] == middle.chunk_start_offset
+    assert info["damaged"] and info["recovered_messages"] + lost["messages"] == total
+    first, last = (middle.message_start_time // 10**9, middle.message_end_time // 10**9)
+    assert lost["steps"] == [first, last]
+    assert info["steps"]["first"] == 0 and info["steps"]["last"] == 120  # chunks after it
+    assert main(["inspect", str(bad)]) == 0
+    text = capsys.readouterr().out
+    assert f"lost chunk {lost['chunk']} at byte {lost['offset']}" in text
+    assert f"steps {first}..{last}" in text

@@ -416,7 +416,7 @@ class Scenario:
                 "bound": self.delay_bound,
                 "max_delay": self.max_delay,
             },
-            **({"links": self.link_spec.describe(self.plant.n_states)}
+            **({"link_models": self.link_spec.describe(self.plant.n_states)}
                if self.link_spec is not None else {}),
             "estimators": list(self.estimators),
             "steps": self.steps,

@@ -69,6 +69,8 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--trace", metavar="FILE.mcap",
                      help="record every run to MCAP: FILE.mcap for a single run, else one "
                      "file per estimator and trial, FILE.<estimator>.trial<k>.mcap")
+    run.add_argument("--force", action="store_true",
+                     help="overwrite trace files that exist (default: refuse, naming them)")
     run.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
                      help="vectorised: all trials advance together in numpy arrays (fast; "
                      "same results and traces as the kernel, to round-off); events: the "
@@ -278,7 +280,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from netsim.models.scenario import ScenarioError, resolve_scenario
-    from netsim.runner import run_monte_carlo
+    from netsim.runner import TraceWriteError, run_monte_carlo
 
     _positive(args.steps, "--steps")
     _positive(args.trials, "--trials")
@@ -312,6 +314,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
                            ) from None
     note_kernel_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
     trials = args.trials or scenario.trials
+    if args.trace is not None:
+        _check_traces(args.trace, families, trials, args.force)
     total = trials * len(families)
     bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",
                disable=True if args.no_progress else None, file=sys.stderr, leave=False)
@@ -337,22 +341,74 @@ def _cmd_run(args: argparse.Namespace) -> int:
         kept = f"; trace files finished: {len(written)}" if args.trace else ""
         raise CommandError(f"interrupted during {where} ({done[0]} of {total} trials "
                            f"done){kept}", EXIT_INTERRUPTED) from None
+    except TraceWriteError as exc:
+        bar.close()
+        return _partial_run(args, exc, scenario, written, families)
     except OSError as exc:
-        raise CommandError(f"cannot write trace {args.trace}: {exc}") from None
+        raise CommandError(f"cannot write trace {args.trace}: "
+                           f"{exc.strerror or exc}") from None
     except ValueError as exc:
         # e.g. a trace-driven link asked for more messages than its trace recorded
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
     finally:
         bar.close()
-    data = result.to_dict()
-    if args.trace:
-        data["traces"] = written
+    data = _run_data(result, scenario, args.trace, written)
     if args.json:
         json.dump(data, sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
     else:
         sys.stdout.write(_format_run(data))
     return 0
+
+
+def _check_traces(trace: str, families: Sequence[str], trials: int, force: bool) -> None:
+    """Refuse --trace paths that are special files, directories, in a missing or
+    read-only directory, or existing files without --force (naming the file)."""
+    from netsim.runner import trace_files
+    from netsim.traces.recorder import check_trace_target
+
+    try:
+        check_trace_target(trace, force=True)  # the base: no special file, a real folder
+        for path in trace_files(trace, families, trials):
+            check_trace_target(path, force=force)
+    except (ValueError, OSError) as exc:
+        raise CommandError(f"--trace {exc}") from None
+
+
+def _partial_run(args: argparse.Namespace, exc: Any, scenario: Any, written: list[str],
+                 families: Sequence[str]) -> int:
+    """A trace could not be written: print what finished, then one error line."""
+    reason = exc.cause.strerror or str(exc.cause)
+    message = f"cannot write trace {exc.path}: {reason}"
+    partial = exc.partial
+    finished = sum(e.trials_finished or partial.trials
+                   for e in partial.estimators.values()) if partial else 0
+    if partial is not None and (partial.estimators or args.json):
+        data = _run_data(partial, scenario, args.trace, written)
+        data["error"] = message
+        data["incomplete_trace"] = exc.path
+        data["families"] = list(families)
+        if args.json:
+            json.dump(data, sys.stdout, indent=2, allow_nan=False)
+            sys.stdout.write("\n")
+        elif partial.estimators:
+            sys.stdout.write(_format_run(data))
+    kept = (f"; results of the {finished} finished trials printed, {len(written)} traces "
+            "complete" if finished else "; no trial had finished")
+    sys.stderr.write(f"netsim run: error: {message} (the file is incomplete{kept})\n")
+    return EXIT_BAD_INPUT
+
+
+def _run_data(result: Any, scenario: Any, trace: str | None,
+              written: list[str]) -> dict[str, Any]:
+    data = result.to_dict()
+    kind, quantile = delay_bound_kind(scenario)
+    data["delay_bound"] = {"value": data["scenario"]["delays"]["bound"], "kind": kind,
+                           "quantile": quantile, "realised_max": None}
+    if trace:
+        data["traces"] = list(written)
+        data["delay_bound"]["realised_max"] = _trace_max_delay(written)
+    return data
 
 
 def _fmt(value: Any) -> str:
@@ -365,13 +421,60 @@ def _fmt(value: Any) -> str:
     return f"{value:.3e}"
 
 
+def delay_bound_kind(scenario: Any) -> tuple[str, float | None]:
+    """What the scenario's delay bound ``summary()['delays']['bound']`` is: ``("bound",
+    None)`` a hard bound no delay exceeds, ``("links.bound", None)`` the bound the
+    ``[links]`` table states, or ``("quantile", q)`` the q-quantile of an unbounded
+    delay distribution of the ``[links]`` table (delays beyond it do occur)."""
+    import math as _math
+
+    from netsim.models.linkmodels import NOMINAL_QUANTILE
+
+    spec = scenario.link_spec
+    if spec is None:
+        return "bound", None
+    if spec.bound is not None:
+        return "links.bound", None
+    for link in scenario.links:
+        cfg = spec.config(link).delay
+        upper = getattr(getattr(cfg, "distribution", None), "upper", None)
+        if upper is not None and not _math.isfinite(upper):
+            return "quantile", NOMINAL_QUANTILE
+    return "bound", None
+
+
+def _trace_max_delay(paths: Sequence[str]) -> int | None:
+    """The largest delivered step delay recorded in the traces' ``run_status``."""
+    from netsim.traces.reader import read_status
+
+    worst = None
+    for path in paths:
+        value = (read_status(path) or {}).get("max_delay_steps", "")
+        if value.lstrip("-").isdigit() and int(value) >= 0:
+            worst = int(value) if worst is None else max(worst, int(value))
+    return worst
+
+
+def _format_delays(s: dict[str, Any], bound: dict[str, Any] | None) -> str:
+    d = s["delays"]
+    text = f"delays: {d['model']}, tau = {d['tau']}; bound {d['bound']}"
+    kind = (bound or {}).get("kind", "bound")
+    if kind == "quantile":
+        text += (f" (the {bound['quantile']:.1%} quantile of the links' unbounded delay "
+                 "distributions; delays beyond it occur)")
+    elif kind == "links.bound":
+        text += " (links.bound)"
+    if (bound or {}).get("realised_max") is not None:
+        text += f"; realised max step delay {bound['realised_max']} (traces)"
+    return text
+
+
 def _format_run(data: dict[str, Any]) -> str:
     s = data["scenario"]
     lines = [
         f"scenario {s['name']} ({s['source']}): n = {s['n_states']} states, "
         f"N = {s['n_agents']} agents, {len(s['links'])} links",
-        f"delays: {s['delays']['model']}, tau = {s['delays']['tau']} "
-        f"(max step delay {s['delays']['max_delay']})",
+        _format_delays(s, data.get("delay_bound")),
         f"run: {data['steps']} steps x {data['trials']} trials, seed {data['seed']}, "
         f"{data.get('engine', 'events')} engine",
     ]
@@ -417,6 +520,14 @@ def _format_run(data: dict[str, Any]) -> str:
         lines.append(row)
     for e in data["estimators"].values():
         lines += (e.get("report") or {}).get("summary_lines", [])
+    for name, e in data["estimators"].items():
+        if e.get("trials_finished") is not None:
+            lines.append(f"{name}: only {e['trials_finished']} of {data['trials']} trials "
+                         "finished (a trace could not be written)")
+    missing = [f for f in data.get("families", []) if f not in data["estimators"]]
+    if data.get("error"):
+        lines.append(f"INCOMPLETE: {data['error']}"
+                     + (f"; not run: {', '.join(missing)}" if missing else ""))
     lines.append("")
     lines.append("MSE: (1/N) sum_i ||x_k - xhat^i_k||^2 averaged over non-diverged trials; "
                  "growth/step: exp(slope of log MSE) over the second half.")

@@ -55,6 +55,8 @@ __all__ = [
     "run_trials",
     "run_monte_carlo",
     "delay_analytics",
+    "TraceWriteError",
+    "trace_files",
 ]
 
 #: Simulation engines: ``events`` (the SimPy kernel, the reference), ``vectorised``
@@ -355,6 +357,9 @@ class EstimatorSummary:
     messages_discarded: int = 0
     #: The family's own numbers (``EstimatorFamily.report``), or None.
     report: dict[str, Any] | None = None
+    #: Trials summarised when the run stopped early (a trace could not be written),
+    #: else None (all of them).
+    trials_finished: int | None = None
 
     def to_dict(self) -> dict[str, Any]:
         k = len(self.mse) - 1
@@ -372,6 +377,8 @@ class EstimatorSummary:
                 "discarded_stale": self.messages_discarded,
             },
             **({"report": _json_tree(self.report)} if self.report is not None else {}),
+            **({"trials_finished": self.trials_finished}
+               if self.trials_finished is not None else {}),
         }
 
 
@@ -455,6 +462,32 @@ def _summarise(
     )
 
 
+class TraceWriteError(OSError):
+    """A trace file could not be written (e.g. the disk is full).
+
+    ``path`` is the file; ``partial`` the :class:`MonteCarloResult` of what finished
+    before (every finished family, and the finished trials of the one that failed,
+    with ``EstimatorSummary.trials_finished`` set), filled in by
+    :func:`run_monte_carlo`.
+    """
+
+    def __init__(self, path: str | Path, cause: OSError) -> None:
+        super().__init__(cause.errno, cause.strerror or str(cause), str(path))
+        self.path = str(path)
+        self.cause = cause
+        self.partial: MonteCarloResult | None = None
+
+
+def trace_files(trace: str | Path, families: Sequence[str], trials: int) -> list[Path]:
+    """The files ``run_monte_carlo(trace=...)`` writes: ``trace`` itself for a single
+    run, else one per family and trial (:func:`netsim.traces.recorder.trace_path`)."""
+    from netsim.traces.recorder import trace_path
+
+    if trials == 1 and len(families) == 1:
+        return [trace_path(trace)]
+    return [trace_path(trace, family_of(f).name, t) for f in families for t in range(trials)]
+
+
 def _replayable_lockstep(family: EstimatorFamily) -> bool:
     """Whether the family's batched form is the vectorised engine's own lockstep, whose
     batches :mod:`netsim.vectrace` replays into a trace."""
@@ -469,8 +502,12 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
     declared = family_of(family)
     family = declared.name
     path = trace_path(trace) if single else trace_path(trace, family, t)
-    recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed, steps=steps,
-                                     family_traits=declared.traits())
+    try:
+        recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed,
+                                         steps=steps, family_traits=declared.traits())
+    except OSError as exc:
+        raise TraceWriteError(path, exc) from exc
+    written = False
     try:
         with recorder:
             if batch is None:
@@ -486,9 +523,14 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
                 result = batch.results[index]
             if result.diverged_at is not None:
                 recorder.set_status("diverged", diverged_at=result.diverged_at)
+        written = True
+    except OSError as exc:  # the file could not be written: it is not finished
+        raise TraceWriteError(path, exc) from exc
+    except BaseException:
+        written = True  # finished, with run_status "interrupted" or "failed"
+        raise
     finally:
-        # the file is finished (run_status "interrupted" or "failed" if it stopped early)
-        if on_trace is not None:
+        if on_trace is not None and written:
             on_trace(str(path))
     return result
 
@@ -564,36 +606,19 @@ def run_monte_carlo(
     seeds = [child_sequence(seed, "trial", t) for t in range(trials)]
     for fam in declared:
         family = fam.name
-        if trace is None:
-            runs = run_trials(scenario, fam, gains, seeds, steps, engine=engines[family],
-                              record_estimates=keep_trials, record_delays=keep_trials,
-                              progress=progress)
-        else:
-            single = trials == 1 and len(families) == 1
-            runs = []
-            if engines[family] == "vectorised" and _replayable_lockstep(fam):
-                from netsim.vectorised import run_batch
-
-                # the trials' estimates are kept for the trace: batches of at most
-                # 2^24 values (steps x trials x agents x states)
-                width = 1 if fam.centralised else scenario.n_agents
-                size = max(1, (1 << 24) // ((steps + 1) * width * scenario.plant.n_states))
-                for first in range(0, trials, size):
-                    batch = run_batch(scenario, family, gains, seeds[first:first + size],
-                                      steps, record_estimates=True)
-                    for index in range(len(batch.results)):
-                        runs.append(_traced_trial(scenario, fam, gains, seed, first + index,
-                                                  steps, trace, single, on_trace, batch=batch,
-                                                  batch_trial=index))
-                        if progress is not None:
-                            progress(1)
-                    del batch
-            else:
-                for t in range(trials):
-                    runs.append(_traced_trial(scenario, fam, gains, seed, t, steps, trace,
-                                              single, on_trace))
-                    if progress is not None:
-                        progress(1)
+        runs: list[TrialResult] = []
+        try:
+            runs = _family_runs(scenario, fam, gains, seeds, steps, seed, trials, engines,
+                                trace, families, keep_trials, progress, on_trace, runs)
+        except TraceWriteError as exc:
+            if runs:  # the trials that finished before the trace failed
+                reported = None if fam.reported is None else list(fam.reported(scenario))
+                summary = _summarise(family, runs, scenario.steady_state_fraction, steps,
+                                     reported)
+                summary.trials_finished = len(runs)
+                result.estimators[family] = summary
+            exc.partial = result
+            raise
         reported = None if fam.reported is None else list(fam.reported(scenario))
         summary = _summarise(family, runs, scenario.steady_state_fraction, steps, reported)
         if fam.report is not None:
@@ -604,3 +629,39 @@ def run_monte_carlo(
         if keep_trials:
             result.runs[family] = runs
     return result
+
+
+def _family_runs(scenario, fam, gains, seeds, steps, seed, trials, engines, trace, families,
+                 keep_trials, progress, on_trace, runs):
+    """One family's trials (appended to ``runs`` as they finish, traced or not)."""
+    family = fam.name
+    if trace is None:
+        runs.extend(run_trials(scenario, fam, gains, seeds, steps,
+                               engine=engines[family], record_estimates=keep_trials,
+                               record_delays=keep_trials, progress=progress))
+    else:
+        single = trials == 1 and len(families) == 1
+        if engines[family] == "vectorised" and _replayable_lockstep(fam):
+            from netsim.vectorised import run_batch
+
+            # the trials' estimates are kept for the trace: batches of at most
+            # 2^24 values (steps x trials x agents x states)
+            width = 1 if fam.centralised else scenario.n_agents
+            size = max(1, (1 << 24) // ((steps + 1) * width * scenario.plant.n_states))
+            for first in range(0, trials, size):
+                batch = run_batch(scenario, family, gains, seeds[first:first + size],
+                                  steps, record_estimates=True)
+                for index in range(len(batch.results)):
+                    runs.append(_traced_trial(scenario, fam, gains, seed, first + index,
+                                              steps, trace, single, on_trace, batch=batch,
+                                              batch_trial=index))
+                    if progress is not None:
+                        progress(1)
+                del batch
+        else:
+            for t in range(trials):
+                runs.append(_traced_trial(scenario, fam, gains, seed, t, steps, trace,
+                                          single, on_trace))
+                if progress is not None:
+                    progress(1)
+    return runs

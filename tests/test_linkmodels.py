@@ -455,7 +455,7 @@ def test_links_table_builds_per_link_models(tmp_path):
     assert isinstance(model.link(1, 2).loss, GilbertElliottLoss)
     assert model.link(2, 3).buffer_capacity == 3
     assert not model.time_invariant
-    summary = scenario.summary()["links"]
+    summary = scenario.summary()["link_models"]
     assert summary["per_link"]["0->1"]["delay"]["distribution"] == "empirical"
     with pytest.raises(ScenarioError, match="delays.tau"):
         scenario.with_tau(3)

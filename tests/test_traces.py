@@ -422,34 +422,94 @@ def test_file_with_missing_schema(tmp_path):
         read_trace(path)
 
 
+def _chunk_spans(path):
+    """(start, end, message signatures) of each chunk of an intact finished file, read
+    with the mcap library chunk by chunk (independent of netsim's reader)."""
+    full = read_trace(path)
+    spans, first = [], 0
+    with open(path, "rb") as f:
+        for index in make_reader(f).get_summary().chunk_indexes:
+            f.seek(index.chunk_start_offset + 9)
+            chunk = Chunk.read(ReadDataStream(f))
+            n = sum(isinstance(r, Message) for r in breakup_chunk(chunk))
+            spans.append((index.chunk_start_offset, index.chunk_start_offset
+                          + index.chunk_length, _signature(full.messages[first:first + n])))
+            first += n
+    return spans
+
+
+def _damage(data, at):
+    data = bytearray(data)
+    data[at] ^= 0xFF
+    data[at - 1] ^= 0x5A
+    return bytes(data)
+
+
 @pytest.mark.parametrize("compression", ["none", "zstd"])
-def test_corrupted_chunk(setup, tmp_path, compression):
+def test_corrupted_chunk_is_skipped_and_every_other_chunk_read(setup, tmp_path, compression):
     scenario, gains = setup
     path = tmp_path / f"crc-{compression}.mcap"
     _record(path, scenario, gains, compression=compression, flush_every=10)
-    chunks = _chunk_message_counts(path)
-    data = bytearray(path.read_bytes())
-    end = chunks[2][0]
-    data[end - 40] ^= 0xFF  # inside the third chunk's records
-    data[end - 41] ^= 0x5A
-    path.write_bytes(bytes(data))
-    with pytest.raises(TraceError, match="corrupted") as info:
-        read_trace(path)
-    assert str(path) in str(info.value)
+    spans = _chunk_spans(path)
+    assert len(spans) >= 4
+    bad = tmp_path / "bad.mcap"
+    bad.write_bytes(_damage(path.read_bytes(), spans[2][1] - 40))  # inside the third chunk
+    trace = read_trace(bad)
+    kept = [m for i, (_, _, sig) in enumerate(spans) if i != 2 for m in sig]
+    assert _signature(trace.messages) == kept
+    assert not trace.truncated and trace.damaged
+    [lost] = trace.lost_chunks
+    assert (lost.index, lost.offset, lost.length) == (2, spans[2][0],
+                                                      spans[2][1] - spans[2][0])
+    assert lost.messages == len(spans[2][2]) == trace.lost_messages
     if compression == "none":
-        assert "crc" in str(info.value).lower()
+        assert "crc" in lost.reason.lower()
+    report = inspect_trace(trace)
+    assert report.to_dict()["lost_chunks"][0]["chunk"] == 2
+    assert report.to_dict()["lost_messages"] == len(spans[2][2])
+    text = report.format_text()
+    assert "DAMAGED" in text and f"lost chunk 2 at byte {spans[2][0]}" in text
 
 
-def test_corrupted_chunk_in_unfinished_file(recorded, tmp_path):
-    """Corruption before the truncation point is an error, not a truncation."""
+def test_corrupted_chunk_in_unfinished_file_is_skipped(recorded, tmp_path):
+    """Corruption before the truncation point loses that chunk only."""
     path, _, _ = recorded
-    chunks = _chunk_message_counts(path)
-    data = bytearray(path.read_bytes()[: chunks[-1][0] - 10])
-    data[chunks[1][0] - 30] ^= 0xFF
+    spans = _chunk_spans(path)
+    cut = spans[-1][1] - 10  # the last chunk cut off: truncated
     bad = tmp_path / "bad-unfinished.mcap"
+    bad.write_bytes(_damage(path.read_bytes()[:cut], spans[1][1] - 30))
+    trace = read_trace(bad)
+    assert trace.truncated and trace.status is None
+    kept = [m for i, (_, _, sig) in enumerate(spans[:-1]) if i != 1 for m in sig]
+    assert _signature(trace.messages) == kept
+    [lost] = trace.lost_chunks
+    assert lost.index == 1 and lost.messages == len(spans[1][2])
+
+
+def test_destroyed_chunk_header_resynchronises_on_the_next_chunk(recorded, tmp_path):
+    path, _, _ = recorded
+    spans = _chunk_spans(path)
+    data = bytearray(path.read_bytes()[: spans[-1][1] - 10])
+    start = spans[2][0]
+    data[start:start + 9] = b"\xee" * 9  # opcode and length of the third chunk
+    bad = tmp_path / "no-header.mcap"
     bad.write_bytes(bytes(data))
-    with pytest.raises(TraceError, match="corrupted"):
-        read_trace(bad)
+    trace = read_trace(bad)
+    kept = [m for i, (_, _, sig) in enumerate(spans[:-1]) if i != 2 for m in sig]
+    assert _signature(trace.messages) == kept
+    assert trace.lost_chunks[0].offset == start and trace.lost_chunks[0].index is None
+
+
+def test_corrupted_summary_is_read_by_scanning(recorded, tmp_path):
+    path, _, _ = recorded
+    data = bytearray(path.read_bytes())
+    data[-8 - 29 - 20] ^= 0xFF  # inside the summary section, before the footer
+    bad = tmp_path / "bad-summary.mcap"
+    bad.write_bytes(bytes(data))
+    trace = read_trace(bad)
+    assert "summary" in trace.note and not trace.truncated
+    assert _signature(trace.messages) == _signature(read_trace(path).messages)
+    assert trace.status == read_trace(path).status
 
 
 def test_not_an_mcap_file(tmp_path):

@@ -124,6 +124,14 @@ class InspectReport:
     matrices: list[str]
     #: AoI traces: per agent, [first step all indices triggered, largest index after]
     freshness: dict[int, list[int | None]] | None = None
+    #: Damaged chunks the reader skipped (``LostChunk.to_dict``), [] for an intact file.
+    lost_chunks: list[dict[str, Any]] = field(default_factory=list)
+    #: Messages lost with them (None if some count is unknown).
+    lost_messages: int | None = 0
+    #: Messages of intact chunks on channels defined only in a lost chunk.
+    orphaned_messages: int = 0
+    #: How the file was read, when its summary was unusable.
+    read_note: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -140,6 +148,11 @@ class InspectReport:
             "status_detail": dict(self.status_detail),
             "truncated": self.truncated,
             "recovered_messages": self.recovered_messages,
+            "damaged": bool(self.lost_chunks) or self.orphaned_messages > 0,
+            "lost_chunks": [dict(c) for c in self.lost_chunks],
+            "lost_messages": self.lost_messages,
+            "orphaned_messages": self.orphaned_messages,
+            "read_note": self.read_note,
             "topics": dict(self.topics),
             "steps": {
                 "first": self.first_step,
@@ -170,6 +183,24 @@ class InspectReport:
             if extra:
                 state += " (" + ", ".join(f"{k} {v}" for k, v in extra.items()) + ")"
         lines.append(f"  status {state}")
+        if self.lost_chunks or self.orphaned_messages:
+            lost = "?" if self.lost_messages is None else str(self.lost_messages)
+            lines.append(f"  DAMAGED: {len(self.lost_chunks)} unreadable part(s) skipped, "
+                         f"{lost} messages lost; every intact chunk around them was read "
+                         f"({self.recovered_messages} messages)")
+            for c in self.lost_chunks:
+                what = (f"chunk {c['chunk']}" if c["chunk"] is not None
+                        else "bytes")
+                steps = ("" if c["steps"] is None
+                         else f", steps {c['steps'][0]}..{c['steps'][1]}")
+                count = "" if c["messages"] is None else f", {c['messages']} messages"
+                lines.append(f"    lost {what} at byte {c['offset']} ({c['length']} bytes"
+                             f"{steps}{count}): {c['reason']}")
+            if self.orphaned_messages:
+                lines.append(f"    {self.orphaned_messages} messages on channels defined "
+                             "only in a lost chunk (not decoded)")
+        if self.read_note:
+            lines.append(f"  note: {self.read_note}")
         steps = ("none" if self.first_step is None
                  else f"{self.first_step}..{self.last_step} ({self.steps_recorded} recorded)")
         lines.append(f"  steps {steps}   agents {self.n_agents}   states {self.n_states}")
@@ -201,6 +232,13 @@ class InspectReport:
                     f"{s.in_flight:>5}{_fmt(d.get('min')):>5}{_fmt(d.get('mean'), 2):>7}"
                     f"{_fmt(d.get('max')):>5}  {hist}   | {rtxt}"
                 )
+        dropping = {name: s for name, s in self.links.items() if s.drop_reasons}
+        if dropping:
+            lines.append("drop reasons (messages lost per link and cause)")
+            for name, s in dropping.items():
+                causes = ", ".join(f"{reason} {count}" for reason, count
+                                   in sorted(s.drop_reasons.items()))
+                lines.append(f"  {name:<8}{causes}")
         if self.agents:
             lines.append("agents (squared error ||x-hat - x||^2)")
             lines.append(f"  {'agent':<6}{'updates':>8}{'mse':>12}{'tail mse':>12}"
@@ -338,6 +376,10 @@ def inspect_trace(trace: Trace) -> InspectReport:
         network_mse=float(np.mean(mses)) if mses else math.nan,
         matrices=sorted(trace.matrices, key=_topic_key),
         freshness=_freshness_summary(trace),
+        lost_chunks=[c.to_dict(trace.sample_period) for c in trace.lost_chunks],
+        lost_messages=trace.lost_messages,
+        orphaned_messages=trace.orphaned_messages,
+        read_note=trace.note,
     )
 
 

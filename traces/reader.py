@@ -1,41 +1,59 @@
 """Read a netsim MCAP trace back: metadata, matrices and decoded messages.
 
-:func:`read_trace` reads a finished file through ``mcap.reader.make_reader`` (chunk
-CRCs and the summary CRC are checked) and decodes the protobuf messages with
-``mcap_protobuf.decoder.DecoderFactory`` from the schemas stored in the file.
+:func:`read_trace` reads a finished file through its summary (schemas, channels,
+metadata and attachment indexes, chunk index; the summary CRC is checked) and then every
+chunk of the chunk index one by one, checking its CRC, and decodes the protobuf messages
+with ``mcap_protobuf.decoder.DecoderFactory`` from the schemas stored in the file.
 
-A file whose writer never finished (no footer, summary or index: the process was
-killed) is read sequentially with ``mcap.stream_reader.StreamReader`` up to the first
-record that extends past the end of the file; every complete chunk is recovered, and
-the :class:`Trace` says ``truncated=True`` and how many messages it recovered.
+Damage is recovered chunk by chunk: a chunk that fails its CRC or does not decompress
+is skipped and reported in ``Trace.lost_chunks`` (:class:`LostChunk`: where, which
+steps, how many messages its message index lists, why), and every intact chunk around
+it is read. A file whose writer never finished (no footer, summary or index: the
+process was killed), or whose summary is unusable, is scanned record by record: the
+scan skips a damaged chunk the same way, resynchronises on the next chunk after bytes
+whose record structure is destroyed, and stops at the first record that extends past
+the end of the file (``truncated=True``).
 
 Anything else raises :class:`TraceError` with a one-line message naming the file:
-not an MCAP file, a corrupted file (bad CRC, undecodable record or message), an
-MCAP file not written by netsim (no ``scenario`` metadata or no ``netsim.trace``
-schemas), or a channel without its schema.
+not an MCAP file, an MCAP file not written by netsim (no ``scenario`` metadata or no
+``netsim.trace`` schemas), a channel without its schema, an undecodable message, or
+a damaged summary record.
 """
 
 from __future__ import annotations
 
 import io
+import mmap
 import os
 import re
 import struct
 import zlib
-from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+from mcap.data_stream import ReadDataStream
+from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Attachment, Channel, Chunk, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader, breakup_chunk
+from mcap.records import (
+    Attachment,
+    Channel,
+    Chunk,
+    Footer,
+    Header,
+    Message,
+    MessageIndex,
+    Metadata,
+    Schema,
+)
+from mcap.stream_reader import breakup_chunk
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
 from netsim.traces.schemas import PACKAGE
 
-__all__ = ["NOT_USED", "TraceError", "TraceRecord", "Trace", "read_trace"]
+__all__ = ["NOT_USED", "TraceError", "TraceRecord", "LostChunk", "Trace", "read_trace",
+           "read_status"]
 
 #: Entry of :meth:`Trace.effective_delays` where agent i did not use j's estimate
 #: (equal to ``netsim.kernel.NOT_USED``).
@@ -47,6 +65,7 @@ _FOOTER_OPCODE = 0x02
 _TOPIC_AGENT = re.compile(r"^/agent/(\d+)/(estimate|update)$")
 _TOPIC_LINK = re.compile(r"^/link/(\d+)/(\d+)$")
 _TOPIC_SENSOR = re.compile(r"^/sensor/(\d+)/measurement$")
+_OPCODES = frozenset(int(op) for op in Opcode)
 
 
 class TraceError(ValueError):
@@ -61,6 +80,48 @@ class TraceRecord(NamedTuple):
     publish_time: int
     sequence: int
     message: Any
+
+
+@dataclass
+class LostChunk:
+    """A damaged part of a trace that the reader skipped.
+
+    Attributes
+    ----------
+    index : int or None
+        The chunk's ordinal among the file's chunks (0 = first); None for bytes that
+        were not a readable record (their structure destroyed) or another record.
+    offset, length : int
+        Where in the file (bytes).
+    start_time, end_time : int or None
+        log_time range (ns) of the chunk's messages, from its header or the index.
+    messages : int or None
+        Messages it held, from its message index (None if unknown).
+    reason : str
+        Why it was skipped (CRC mismatch, decompression failure, ...).
+    """
+
+    index: int | None
+    offset: int
+    length: int
+    start_time: int | None
+    end_time: int | None
+    messages: int | None
+    reason: str
+
+    def steps(self, sample_period: float = 1.0) -> tuple[int, int] | None:
+        """The plant steps its log_time range covers (None if unknown)."""
+        if self.start_time is None or self.end_time is None:
+            return None
+        ts = sample_period * 1e9
+        return int(self.start_time // ts), int(self.end_time // ts)
+
+    def to_dict(self, sample_period: float = 1.0) -> dict[str, Any]:
+        steps = self.steps(sample_period)
+        return {"chunk": self.index, "offset": self.offset, "length": self.length,
+                "start_time_ns": self.start_time, "end_time_ns": self.end_time,
+                "steps": None if steps is None else list(steps),
+                "messages": self.messages, "reason": self.reason}
 
 
 @dataclass
@@ -92,6 +153,14 @@ class Trace:
         Topics with schemas not from this project (counted, not decoded).
     library : str
         The MCAP header's library string.
+    lost_chunks : list of LostChunk
+        Damaged chunks (and unreadable bytes) skipped; every intact chunk around them
+        was read. Empty for an undamaged file.
+    orphaned_messages : int
+        Messages read from intact chunks whose channel was defined only in a lost
+        chunk (counted, not decoded).
+    note : str
+        How the file was read when its summary was unusable, else "".
     """
 
     path: str
@@ -106,6 +175,22 @@ class Trace:
     recovered_messages: int
     foreign_topics: list[str] = field(default_factory=list)
     library: str = ""
+    lost_chunks: list[LostChunk] = field(default_factory=list)
+    orphaned_messages: int = 0
+    note: str = ""
+
+    @property
+    def damaged(self) -> bool:
+        """Some chunk or record could not be read (see :attr:`lost_chunks`)."""
+        return bool(self.lost_chunks) or self.orphaned_messages > 0
+
+    @property
+    def lost_messages(self) -> int | None:
+        """Messages in the lost chunks (None if a count is unknown)."""
+        counts = [c.messages for c in self.lost_chunks]
+        if any(n is None for n in counts):
+            return None
+        return sum(counts) + self.orphaned_messages
 
     # -- metadata ------------------------------------------------------------------
 
@@ -321,18 +406,35 @@ def read_trace(path: str | os.PathLike[str]) -> Trace:
                 finished = f.read(8) == _MAGIC
             if finished:
                 return _read_finished(f, where, size)
-            return _read_unfinished(f, where, size)
+            return _scan(f, where, size)
     except TraceError:
         raise
     except OSError as exc:
         raise TraceError(f"{where}: cannot read file ({exc.strerror or exc})") from None
 
 
+def read_status(path: str | os.PathLike[str]) -> dict[str, str] | None:
+    """The ``run_status`` metadata of a finished trace, read from its index alone (None
+    for a file that is unreadable, unfinished or has none)."""
+    try:
+        with open(path, "rb") as f:
+            for record in make_reader(f).iter_metadata():
+                if record.name == "run_status":
+                    return dict(record.metadata)
+    except Exception:  # noqa: BLE001 - any failure: no status to report
+        return None
+    return None
+
+
 class _Collector:
     """Accumulates records of either reading path and builds the Trace."""
 
-    def __init__(self, where: str) -> None:
+    def __init__(self, where: str, lenient: bool = False) -> None:
         self.where = where
+        #: Count (do not refuse) messages on channels never defined: their definition
+        #: may have been in a lost chunk.
+        self.lenient = lenient
+        self.orphaned = 0
         self.metadata: dict[str, dict[str, str]] = {}
         self.matrices: dict[str, np.ndarray] = {}
         self.attachments: dict[str, bytes] = {}
@@ -378,6 +480,9 @@ class _Collector:
 
     def message(self, message: Message) -> None:
         channel = self.channels.get(message.channel_id)
+        if channel is None and self.lenient:
+            self.orphaned += 1
+            return
         if channel is None:
             raise TraceError(
                 f"{self.where}: message on unknown channel id {message.channel_id}"
@@ -411,8 +516,18 @@ class _Collector:
         self.records.setdefault(topic, []).append(record)
         self.messages.append(record)
 
-    def build(self, truncated: bool) -> Trace:
+    def sort_messages(self) -> None:
+        """log_time order, file order on ties (the recorder writes in that order)."""
+        self.messages.sort(key=lambda r: r.log_time)
+        for records in self.records.values():
+            records.sort(key=lambda r: r.log_time)
+
+    def build(self, truncated: bool, lost: list[LostChunk] | None = None,
+              note: str | None = None) -> Trace:
         where = self.where
+        lost = list(lost or [])
+        if self.orphaned and not lost:
+            raise TraceError(f"{where}: {self.orphaned} messages on unknown channels")
         netsim_topics = [t for t in self.topics if t not in self.foreign]
         if "scenario" not in self.metadata:
             if truncated and not self.metadata:
@@ -448,6 +563,9 @@ class _Collector:
             recovered_messages=sum(self.counts.values()),
             foreign_topics=sorted(self.foreign),
             library=self.library,
+            lost_chunks=lost,
+            orphaned_messages=self.orphaned,
+            note=note or "",
         )
 
 
@@ -465,17 +583,27 @@ def _describe(exc: BaseException) -> str:
 
 
 def _read_finished(f: Any, where: str, size: int) -> Trace:
-    """A file with a footer: indexed reading with CRC checks."""
-    collect = _Collector(where)
+    """A file with a footer: the summary's schemas, channels, metadata and attachment
+    indexes, then every chunk of its chunk index, CRC checked one by one: a damaged
+    chunk is skipped and reported (with the message count its message index lists)."""
     try:
         _check_summary_crc(f, where, size)
+    except TraceError as exc:
+        f.seek(0)
+        return _scan(f, where, size, finished=True,
+                     note=f"summary unusable ({str(exc).split(': ', 1)[-1]}); read by scanning")
+    collect = _Collector(where)
+    lost: list[LostChunk] = []
+    try:
         f.seek(0)
         reader = make_reader(f, validate_crcs=True)
         collect.library = reader.get_header().library
         summary = reader.get_summary()
-        if summary is None:  # finished without a summary: read it sequentially
-            f.seek(0)
-            return _read_unfinished(f, where, size, finished=True)
+        stats = summary.statistics if summary is not None else None
+        if summary is None or (not summary.chunk_indexes and stats is not None
+                               and stats.message_count):
+            f.seek(0)  # finished without a summary or chunk index: read it sequentially
+            return _scan(f, where, size, finished=True)
         for record in reader.iter_metadata():
             collect.metadata_record(record)
         for record in reader.iter_attachments():
@@ -483,21 +611,61 @@ def _read_finished(f: Any, where: str, size: int) -> Trace:
         collect.schemas.update(summary.schemas)
         for channel in summary.channels.values():
             collect.channel(channel)
-        # Decoding is done here (DecoderFactory from the stored FileDescriptorSet) so a
-        # decoding failure names its topic; iteration order is log_time, file order on ties.
-        for _schema, _channel, message in reader.iter_messages(log_time_order=True):
-            collect.message(message)
-        stats = summary.statistics
-        read = sum(collect.counts.values())
-        if stats is not None and stats.message_count != read:
-            raise TraceError(
-                f"{where}: summary lists {stats.message_count} messages, {read} were read"
-            )
     except TraceError:
         raise
-    except Exception as exc:  # noqa: BLE001 - mcap, zstd, struct, CRC errors
+    except Exception as exc:  # noqa: BLE001 - mcap, struct errors in the summary
         raise TraceError(f"{where}: corrupted MCAP file ({_describe(exc)})") from None
-    return collect.build(truncated=False)
+    # Decoding is done here (DecoderFactory from the stored FileDescriptorSet) so a
+    # decoding failure names its topic; messages in log_time order, file order on ties.
+    for ordinal, index in enumerate(sorted(summary.chunk_indexes,
+                                           key=lambda c: c.chunk_start_offset)):
+        try:
+            f.seek(index.chunk_start_offset)
+            opcode, length = struct.unpack("<BQ", f.read(9))
+            if opcode != Opcode.CHUNK or 9 + length != index.chunk_length:
+                raise ValueError("the chunk index points at no chunk record")
+            chunk = Chunk.read(ReadDataStream(f))
+            records = list(breakup_chunk(chunk, validate_crc=True))
+        except Exception as exc:  # noqa: BLE001 - CRC, decompression, parse errors
+            lost.append(LostChunk(ordinal, index.chunk_start_offset, index.chunk_length,
+                                  index.message_start_time, index.message_end_time,
+                                  _indexed_count(f, index), _describe(exc)))
+            continue
+        for item in records:
+            if isinstance(item, Message):
+                collect.message(item)
+    collect.sort_messages()
+    read = sum(collect.counts.values())
+    if stats is not None and not lost and stats.message_count != read:
+        raise TraceError(
+            f"{where}: summary lists {stats.message_count} messages, {read} were read"
+        )
+    if stats is not None and lost and stats.message_count >= read:
+        _share_out(lost, stats.message_count - read)
+    return collect.build(truncated=False, lost=lost)
+
+
+def _indexed_count(f: Any, index: Any) -> int | None:
+    """Messages of a chunk according to its message index records (None if unreadable)."""
+    total = 0
+    try:
+        for offset in index.message_index_offsets.values():
+            f.seek(offset)
+            opcode, _length = struct.unpack("<BQ", f.read(9))
+            if opcode != Opcode.MESSAGE_INDEX:
+                return None
+            total += len(MessageIndex.read(ReadDataStream(f)).records)
+    except Exception:  # noqa: BLE001 - the count stays unknown
+        return None
+    return total
+
+
+def _share_out(lost: list[LostChunk], missing: int) -> None:
+    """With the summary's message count: a single lost chunk whose message index is
+    unreadable lost exactly the messages not read."""
+    unknown = [c for c in lost if c.messages is None]
+    if len(unknown) == 1:
+        unknown[0].messages = missing - sum(c.messages or 0 for c in lost)
 
 
 def _check_summary_crc(f: Any, where: str, size: int) -> None:
@@ -522,46 +690,6 @@ def _check_summary_crc(f: Any, where: str, size: int) -> None:
         )
 
 
-def _read_unfinished(f: Any, where: str, size: int, finished: bool = False) -> Trace:
-    """Sequential reading up to the first incomplete record (truncation point)."""
-    collect = _Collector(where)
-    f.seek(0)
-    records = StreamReader(f, emit_chunks=True).records
-    truncated = False
-    saw_footer = False
-    while True:
-        position = f.tell()
-        try:
-            record = next(records)
-        except StopIteration:
-            break
-        except Exception as exc:  # noqa: BLE001 - decide: truncation or corruption
-            if not finished and _incomplete_record_at(f, position, size):
-                truncated = True
-                break
-            raise TraceError(f"{where}: corrupted MCAP file at byte {position} "
-                             f"({_describe(exc)})") from None
-        try:
-            for item in _expand(record):
-                _take(collect, item)
-        except TraceError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - CRC, decompression, parse errors
-            raise TraceError(f"{where}: corrupted MCAP file at byte {position} "
-                             f"({_describe(exc)})") from None
-        if isinstance(record, Footer):
-            saw_footer = True
-    if not saw_footer and not truncated:
-        truncated = True  # ended exactly on a record boundary without a footer
-    return collect.build(truncated=truncated)
-
-
-def _expand(record: Any) -> Iterable[Any]:
-    if isinstance(record, Chunk):
-        return breakup_chunk(record, validate_crc=True)
-    return (record,)
-
-
 def _take(collect: _Collector, record: Any) -> None:
     if isinstance(record, Schema):
         collect.schemas[record.id] = record
@@ -577,12 +705,142 @@ def _take(collect: _Collector, record: Any) -> None:
         collect.library = record.library
 
 
-def _incomplete_record_at(f: Any, position: int, size: int) -> bool:
-    """True if the record starting at ``position`` does not fit in the file."""
-    if position == 0:
-        position = 8  # the magic was read by the first call
-    if size - position < 9:
-        return True
-    f.seek(position)
-    _opcode, length = struct.unpack("<BQ", f.read(9))
-    return position + 9 + length > size
+# -- chunk-by-chunk recovery ---------------------------------------------------------
+
+_CHUNK_FIXED = 8 + 8 + 8 + 4 + 4  # start, end, uncompressed size, crc, compression length
+_COMPRESSIONS = (b"", b"zstd", b"lz4")
+_RECORD_TYPES = {
+    Opcode.ATTACHMENT: Attachment, Opcode.CHANNEL: Channel, Opcode.SCHEMA: Schema,
+    Opcode.METADATA: Metadata, Opcode.HEADER: Header, Opcode.FOOTER: Footer,
+    Opcode.MESSAGE_INDEX: MessageIndex,
+}
+
+
+def _chunk_header_plausible(data: Any, position: int, size: int) -> bool:
+    """Whether a chunk record could start at ``position`` (used to find the next chunk
+    after bytes whose record structure is destroyed)."""
+    if position + 9 + _CHUNK_FIXED + 8 > size or data[position] != Opcode.CHUNK:
+        return False
+    (length,) = struct.unpack_from("<Q", data, position + 1)
+    if position + 9 + length > size or length < _CHUNK_FIXED + 8:
+        return False
+    start, end, _usize, _crc, clen = struct.unpack_from("<QQQII", data, position + 9)
+    if clen > 4 or start > end:
+        return False
+    at = position + 9 + _CHUNK_FIXED
+    if bytes(data[at:at + clen]) not in _COMPRESSIONS:
+        return False
+    (records,) = struct.unpack_from("<Q", data, at + clen)
+    return records == length - _CHUNK_FIXED - clen - 8
+
+
+def _next_chunk(data: Any, position: int, size: int) -> int | None:
+    """The first position >= ``position`` where a plausible chunk record starts."""
+    while True:
+        position = data.find(bytes([Opcode.CHUNK]), position, size)
+        if position < 0:
+            return None
+        if _chunk_header_plausible(data, position, size):
+            return position
+        position += 1
+
+
+def _chunk_records(data: Any, position: int, length: int) -> list[Any]:
+    """The records of the chunk at ``position`` (CRC checked; raises if damaged)."""
+    content = bytes(data[position + 9:position + 9 + length])
+    chunk = Chunk.read(ReadDataStream(io.BytesIO(content)))
+    return list(breakup_chunk(chunk, validate_crc=True))
+
+
+def _chunk_times(data: Any, position: int, size: int) -> tuple[int | None, int | None]:
+    if position + 9 + 16 > size:
+        return None, None
+    return struct.unpack_from("<QQ", data, position + 9)
+
+
+def _scan(f: Any, where: str, size: int, finished: bool = False,
+          note: str | None = None) -> Trace:
+    """Read record by record: every intact chunk is kept, a damaged one is skipped and
+    reported (:class:`LostChunk`, with the messages its message index lists), and the
+    scan resynchronises on the next chunk after bytes whose structure is destroyed; a
+    last record that does not fit in the file is the truncation point."""
+    collect = _Collector(where, lenient=True)
+    data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+    lost: list[LostChunk] = []
+    chunks = 0
+    truncated = False
+    saw_footer = False
+    counting: LostChunk | None = None  # the lost chunk whose message indexes follow
+    position = 8
+    try:
+        while position < size:
+            if size - position < 9:
+                truncated = True
+                break
+            opcode, length = struct.unpack_from("<BQ", data, position)
+            end = position + 9 + length
+            known = opcode in _OPCODES
+            if not known or end > size:
+                resume = _next_chunk(data, position + 1, size)
+                if resume is None and known and not finished:
+                    truncated = True  # the last record was cut off
+                    break
+                stop = size if resume is None else resume
+                lost.append(LostChunk(None, position, stop - position, None, None, None,
+                                      "unreadable bytes (record structure destroyed)"))
+                counting = None
+                if resume is None:
+                    truncated = not finished
+                    break
+                position = resume
+                continue
+            if opcode == Opcode.CHUNK:
+                start, stop_time = _chunk_times(data, position, size)
+                try:
+                    records = _chunk_records(data, position, length)
+                except Exception as exc:  # noqa: BLE001 - CRC, decompression, parse
+                    counting = LostChunk(chunks, position, 9 + length, start, stop_time, None,
+                                         _describe(exc))
+                    lost.append(counting)
+                else:
+                    counting = None
+                    for item in records:
+                        _take(collect, item)
+                chunks += 1
+            elif opcode == Opcode.MESSAGE_INDEX and counting is not None:
+                try:
+                    index = MessageIndex.read(ReadDataStream(io.BytesIO(
+                        bytes(data[position + 9:end]))))
+                    counting.messages = (counting.messages or 0) + len(index.records)
+                except Exception:  # noqa: BLE001 - the count stays unknown
+                    pass
+            elif opcode in _RECORD_TYPES:
+                counting = None
+                content = bytes(data[position + 9:end])
+                try:
+                    record = _RECORD_TYPES[opcode].read(ReadDataStream(io.BytesIO(content)))
+                except Exception as exc:  # noqa: BLE001 - a damaged top-level record
+                    lost.append(LostChunk(None, position, 9 + length, None, None, None,
+                                          f"unreadable {Opcode(opcode).name.lower()} "
+                                          f"record ({_describe(exc)})"))
+                else:
+                    if isinstance(record, Footer):
+                        saw_footer = True
+                        break
+                    _take(collect, record)
+            elif opcode == Opcode.MESSAGE:
+                counting = None
+                try:
+                    _take(collect, Message.read(ReadDataStream(io.BytesIO(
+                        bytes(data[position + 9:end]))), length))
+                except TraceError:
+                    raise
+                except Exception as exc:  # noqa: BLE001
+                    lost.append(LostChunk(None, position, 9 + length, None, None, 1,
+                                          f"unreadable message record ({_describe(exc)})"))
+            position = end
+    finally:
+        data.close()
+    if not saw_footer and not truncated and not finished:
+        truncated = True  # ended exactly on a record boundary without a footer
+    return collect.build(truncated=truncated, lost=lost, note=note)

@@ -24,6 +24,7 @@ Metadata records (written first, so even a file whose writer was killed has them
   ``complete`` | ``interrupted`` (KeyboardInterrupt) | ``failed`` (other exception)
   | anything given to :meth:`TraceRecorder.set_status` (e.g. ``diverged``),
   ``last_step`` (last plant step recorded, -1 if none), ``messages`` (count written),
+  ``max_delay_steps`` (largest step delay of a delivered message, -1 if none),
   ``expected_steps`` and a ``note`` if the run ended before them, and after an
   exception ``interrupted_at`` (the last plant step recorded) and ``reason``.
   Missing in a file whose writer never finished.
@@ -72,6 +73,7 @@ import json
 import math
 import os
 import re
+import stat
 import time
 from collections.abc import Mapping, Sequence
 from functools import partial
@@ -90,6 +92,7 @@ __all__ = [
     "TraceRecorder",
     "TraceOrderError",
     "trace_path",
+    "check_trace_target",
     "scenario_metadata",
     "run_matrices",
     "to_ns",
@@ -160,6 +163,31 @@ def trace_path(base: str | os.PathLike[str], family: str | None = None,
     if len(parts) == 1:
         return base
     return base.with_name(".".join(parts) + ".mcap")
+
+
+def check_trace_target(path: str | os.PathLike[str], *, force: bool = False) -> None:
+    """Refuse a file a trace must not be written to (ValueError naming it): a
+    directory or special file (device, pipe, socket), a file in a directory that does
+    not exist or is not writable, or an existing trace unless ``force``."""
+    path = Path(path)
+    if str(path).endswith(os.sep) or path.is_dir():
+        raise ValueError(f"{path}: is a directory; give a file name, e.g. {path}/run.mcap")
+    if path.exists() or path.is_symlink():
+        mode = path.stat().st_mode if path.exists() else 0
+        if path.exists() and not stat.S_ISREG(mode):
+            kind = ("a character device" if stat.S_ISCHR(mode) else
+                    "a block device" if stat.S_ISBLK(mode) else
+                    "a named pipe" if stat.S_ISFIFO(mode) else
+                    "a socket" if stat.S_ISSOCK(mode) else "not a regular file")
+            raise ValueError(f"{path}: is {kind}, not a regular file; traces are written "
+                             "to regular files")
+        if not force:
+            raise ValueError(f"{path}: exists; pass --force to overwrite it")
+    folder = path.parent
+    if not folder.is_dir():
+        raise ValueError(f"{path}: directory {folder} does not exist")
+    if not os.access(folder, os.W_OK | os.X_OK):
+        raise ValueError(f"{path}: directory {folder} is not writable")
 
 
 def _meta_value(value: Any) -> str:
@@ -295,6 +323,8 @@ class TraceRecorder:
         #: Messages written per topic.
         self.counts: dict[str, int] = {}
         self.messages_written = 0
+        #: Largest ``delay_steps`` of a delivered message so far (-1 before the first).
+        self.max_delay_steps = -1
         self.closed = False
         self._status: str | None = None
         self._status_info: dict[str, str] = {}
@@ -477,6 +507,7 @@ class TraceRecorder:
         """Record a delivery (log_time = arrival time); ``accepted``: the receiver kept
         it (False: stale under the freshest-message rule)."""
         self._check_open()
+        self.max_delay_steps = max(self.max_delay_steps, int(message.delay_steps))
         self._link_event(message, "delivered", message.arrival_time, accepted=bool(accepted))
 
     def on_dropped(self, message: Any, reason: str = "", drop_time: float | None = None) -> None:
@@ -520,6 +551,7 @@ class TraceRecorder:
                 "status": status,
                 "last_step": str(self.last_step),
                 "messages": str(self.messages_written),
+                "max_delay_steps": str(self.max_delay_steps),
             }
             if self.interrupted_at is not None:
                 record["interrupted_at"] = str(self.interrupted_at)

@@ -136,7 +136,9 @@ def run_delay_tolerance(
     data: dict[str, Any] = {
         "bench": "delay-tolerance",
         "preset": None if preset is None else {
-            "name": preset.name, "description": preset.description, "focus": preset.focus},
+            "name": preset.name, "description": preset.description, "focus": preset.focus,
+            "trials": preset.trials, "steps": preset.steps, "taus": list(preset.taus),
+            "delays": list(preset.delays)},
         "scenario": scenario.summary(),
         "fingerprint": fingerprint,
         "gains": None if gains is None else {

@@ -58,7 +58,7 @@ PRESETS: dict[str, Preset] = {
         trials=100,
         steps=500,
         focus="compensated",
-        description="LCSYS2022 Fig. 1: Monte Carlo (100 trials) MSE of the compensating "
+        description="LCSYS2022 Fig. 1: Monte Carlo MSE of the compensating "
                     "estimator for tau = 0, 3, 8, 19, homogeneous and heterogeneous fixed "
                     "delays; rho(A-hat) = 0.64, tau* = 10, eq. (26) bounds 0.74, 0.94, 1.45",
         claims=("L-rho", "L-tau-star", "L-eq26", "L-stable-0-3-8", "L-hom-19",

@@ -17,7 +17,16 @@ def format_report(data: dict[str, Any]) -> str:
     s = data["scenario"]
     lines = []
     if data["preset"]:
-        lines.append(f"preset {data['preset']['name']}: {data['preset']['description']}")
+        p = data["preset"]
+        lines.append(f"preset {p['name']}: {p['description']}")
+        ran = {"trials": data["trials"], "steps": data["steps"],
+               "taus": ",".join(map(str, data["taus"])), "delays": ",".join(data["settings"])}
+        preset = {k: (",".join(map(str, p[k])) if isinstance(p.get(k), list) else p.get(k))
+                  for k in ran}
+        departs = [f"{k} {ran[k]} (preset {preset[k]})" for k in ran
+                   if preset[k] is not None and ran[k] != preset[k]]
+        lines.append("  this run departs from the preset: " + "; ".join(departs) if departs
+                     else f"  as the preset: {ran['trials']} trials x {ran['steps']} steps")
     lines.append(f"scenario {s['name']} ({s['source']}): n = {s['n_states']}, "
                  f"N = {s['n_agents']}, {len(s['links'])} links")
     g = data["gains"]

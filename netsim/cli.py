@@ -23,6 +23,7 @@ from netsim.cliutil import (
     CommandError,
     gains_if_needed,
     note_kernel_fallbacks,
+    scenario_warnings,
 )
 from netsim.models.jsonsafe import json_number as _num
 
@@ -720,7 +721,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "scenarios": _cmd_scenarios,
     }
     try:
-        return handlers[args.command](args)
+        with scenario_warnings(args.command):
+            return handlers[args.command](args)
     except CommandError as exc:
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return exc.code

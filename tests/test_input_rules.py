@@ -151,3 +151,40 @@ def test_builtin_scenarios_and_examples_warn_nothing() -> None:
         for path in [*builtin_scenarios().values(), *examples]:
             load_scenario(path)
             tomllib.loads(path.read_text(encoding="utf-8"))
+
+
+# -- a singular innovation covariance names plant.R ----------------------------------
+
+DKFE = builtin_scenarios()["dkfe-example2"].read_text(encoding="utf-8")
+
+
+def _dkfe_with_R(R: str) -> str:
+    start, stop = DKFE.index("R = ["), DKFE.index("x0_cov")
+    return DKFE[:start] + f"R = {R}\n" + DKFE[stop:]
+
+
+@pytest.mark.parametrize("R", ["0", "[0.0, 0.0, 0.0]"])
+def test_singular_R_of_a_kalman_filter_names_plant_R(tmp_path, capsys, R) -> None:
+    """Sink 0 of dkfe-example2 measures x0 + x2 twice: with R_0 = 0 its innovation
+    covariance is singular (was: "Singular matrix")."""
+    path = write(tmp_path, _dkfe_with_R(R))
+    code, out, err = run_main(capsys, str(path), *SMALL)
+    assert_bad_input(code, out, err, "plant.R[0]", "innovation covariance", "singular",
+                     "step 0")
+
+
+@pytest.mark.parametrize("engine", ["vectorised", "events"])
+def test_singular_R_of_the_centralised_filter(tmp_path, capsys, engine) -> None:
+    text = edit("R = 0.004", "R = 0")
+    text = edit("[[0.0, 0.0, 1.0, 0.0, 0.0, 0.0]],", "[[1.0, 0.0, 0.0, 0.0, 0.0, 0.0]],", text)
+    path = write(tmp_path, text)
+    code, out, err = run_main(capsys, str(path), *SMALL, "--estimators", "centralized-kf",
+                              "--engine", engine)
+    assert_bad_input(code, out, err, "plant.R:", "innovation covariance", "singular")
+
+
+def test_R_zero_with_independent_outputs_still_runs(tmp_path, capsys) -> None:
+    path = write(tmp_path, edit("R = 0.004", "R = 0"))
+    code, out, err = run_main(capsys, str(path), *SMALL, "--estimators",
+                              "local-kf,centralized-kf")
+    assert code == 0, err

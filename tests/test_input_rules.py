@@ -188,3 +188,39 @@ def test_R_zero_with_independent_outputs_still_runs(tmp_path, capsys) -> None:
     code, out, err = run_main(capsys, str(path), *SMALL, "--estimators",
                               "local-kf,centralized-kf")
     assert code == 0, err
+
+
+# -- bench: the results file and the Dask scheduler ------------------------------------
+
+
+def assert_bench_error(code: int, err: str, *fragments: str) -> None:
+    assert "Traceback" not in err, err
+    assert code == 2, err
+    last = err.strip().splitlines()[-1]
+    assert last.startswith("netsim bench: error: "), err
+    for fragment in fragments:
+        assert fragment in last, f"{fragment!r} not in {last!r}"
+
+
+def _bench(capsys, *args: str) -> tuple[int, str, str]:
+    code = main(["bench", "delay-tolerance", "lcsys2022-heterogeneous", "--taus", "0",
+                 "--delays", "homogeneous", "--trials", "1", "--steps", "5",
+                 "--estimators", "compensated", "--no-progress", *args])
+    captured = capsys.readouterr()
+    return code, captured.out, captured.err
+
+
+def test_garbage_resume_file_is_named(tmp_path, capsys) -> None:
+    import os
+
+    bad = tmp_path / "bad.jsonl"
+    bad.write_bytes(os.urandom(64).replace(b"\n", b"") + b"\xff\n")
+    code, _, err = _bench(capsys, "--resume", str(bad), "--workers", "1")
+    assert_bench_error(code, err, f"results file {bad}", "line 1", "not UTF-8")
+
+
+def test_unreachable_dask_scheduler(capsys) -> None:
+    code, _, err = _bench(capsys, "--dask", "tcp://127.0.0.1:9")
+    assert_bench_error(code, err, "could not connect to the Dask scheduler at "
+                       "tcp://127.0.0.1:9")
+    assert "cannot write results" not in err

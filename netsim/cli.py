@@ -297,6 +297,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"{where}: {exc}") from None
     declared = _families(scenario, args.estimators)
     families = tuple(f.name for f in declared)
+    from netsim.aoi import check_aoi_arguments
+
+    try:
+        check_aoi_arguments(args, declared)
+    except ScenarioError as exc:
+        raise CommandError(f"scenario {args.scenario}: {exc}") from None
     gains = gains_if_needed(scenario, declared, args.scenario)
     from netsim.runner import check_agents, choose_engine, kernel_fallbacks
 

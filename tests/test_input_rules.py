@@ -224,3 +224,20 @@ def test_unreachable_dask_scheduler(capsys) -> None:
     assert_bench_error(code, err, "could not connect to the Dask scheduler at "
                        "tcp://127.0.0.1:9")
     assert "cannot write results" not in err
+
+
+# -- AoI options without an AoI family -----------------------------------------------
+
+
+@pytest.mark.parametrize("option", [["--rho", "0.3"], ["--gains", "rate"],
+                                    ["--ties", "random"], ["--delayed", "age"]])
+def test_aoi_option_without_an_aoi_family(capsys, option) -> None:
+    code, out, err = run_main(capsys, "lcsys2022-heterogeneous", *SMALL, *option)
+    assert_bad_input(code, out, err, option[0], "[options.aoi]",
+                     "compensated, uncompensated, block, centralized-kf", "aoi")
+
+
+def test_aoi_option_with_an_aoi_family_runs(capsys) -> None:
+    code, out, err = run_main(capsys, "lcsys2022-heterogeneous", *SMALL, "--gains", "rate",
+                              "--rho", "0.3", "--estimators", "aoi,compensated")
+    assert code == 0, err

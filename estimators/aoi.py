@@ -809,6 +809,12 @@ def aoi_options(scenario: Any) -> dict[str, Any]:
     return out
 
 
+def reads_aoi_options(family: Any) -> bool:
+    """Whether an estimator family reads ``[options.aoi]``: the families this module
+    declares, which share the analysis ``analytics_key = "aoi"``."""
+    return getattr(family, "analytics_key", "") == "aoi"
+
+
 def aoi_topology(scenario: Any) -> GraphSequence | LinkSchedule:
     """The scenario's time-varying topology, or its static graph as a one-graph sequence."""
     if scenario.topology is not None:

@@ -35,6 +35,7 @@ from typing import Any
 
 import numpy as np
 import scipy.linalg as sla
+from netsim.estimators.kalman import kalman_gain
 from netsim.models.dkfe import DkfeSetup, SelectionScheme
 
 __all__ = [
@@ -68,8 +69,9 @@ class LocalGains:
     """
 
     def __init__(self, A: np.ndarray, C: np.ndarray, Q: np.ndarray, R: np.ndarray,
-                 P0: np.ndarray) -> None:
+                 P0: np.ndarray, key: str = "plant.R") -> None:
         self.A, self.C, self.Q, self.R = A, C, Q, R
+        self.key = key  # what a singular innovation covariance names
         self._P0 = np.asarray(P0, dtype=float)
         self._K: list[np.ndarray] = []
         self._G: list[np.ndarray] = []
@@ -80,7 +82,7 @@ class LocalGains:
         t = len(self._K)
         P_pred = self._P0 if t == 0 else A @ self._P[-1] @ A.T + Q
         S = C @ P_pred @ C.T + R
-        K = np.linalg.solve(S, C @ P_pred).T
+        K = kalman_gain(S, C @ P_pred, self.key, t)
         G = np.eye(A.shape[0]) - K @ C
         P = G @ P_pred @ G.T + K @ R @ K.T  # Joseph form of P = G P* (eq. 7)
         self._K.append(K)
@@ -666,8 +668,8 @@ class FusionCovariance:
         self.delays = setup.delays
         self.n, self.L = setup.n, setup.n_sinks
         self.gains = list(gains) if gains is not None else [
-            LocalGains(setup.A, C, setup.Q, R, setup.x0_cov)
-            for C, R in zip(setup.C, setup.R, strict=True)]
+            LocalGains(setup.A, C, setup.Q, R, setup.x0_cov, f"plant.R[{i}]")
+            for i, (C, R) in enumerate(zip(setup.C, setup.R, strict=True))]
         self._rec = self._recursion()
         self._snaps: list[CovarianceSnapshot] = []
 
@@ -776,8 +778,8 @@ def paper_xi_ii_steady_state(A: np.ndarray, Q: np.ndarray, Phi: np.ndarray, G: n
 def covariances_for(setup: DkfeSetup) -> tuple[FusionCovariance, FusionCovariance,
                                                list[LocalGains]]:
     """Covariances of the DKFE (the setup's delays) and of the ODKFE (all delays 0)."""
-    gains = [LocalGains(setup.A, C, setup.Q, R, setup.x0_cov)
-             for C, R in zip(setup.C, setup.R, strict=True)]
+    gains = [LocalGains(setup.A, C, setup.Q, R, setup.x0_cov, f"plant.R[{i}]")
+             for i, (C, R) in enumerate(zip(setup.C, setup.R, strict=True))]
     dkfe = FusionCovariance(setup, gains)
     odkfe = FusionCovariance(setup.with_delays([0] * setup.n_sinks), gains)
     return dkfe, odkfe, gains

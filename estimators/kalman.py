@@ -4,7 +4,20 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["CentralizedKalmanFilter", "LocalKalmanFilter"]
+__all__ = ["CentralizedKalmanFilter", "LocalKalmanFilter", "kalman_gain"]
+
+
+def kalman_gain(S: np.ndarray, CP: np.ndarray, key: str, step: int) -> np.ndarray:
+    """The Kalman gain P C^T S^-1 from the innovation covariance S = C P C^T + R and
+    C P; a singular S is a ValueError naming ``key`` (the scenario's ``plant.R`` entry)."""
+    try:
+        return np.linalg.solve(S, CP).T
+    except np.linalg.LinAlgError:
+        raise ValueError(
+            f"{key}: the Kalman filter's innovation covariance C P C^T + R is singular at "
+            f"step {step} (R is singular where C P C^T is: noise-free dependent rows of C, "
+            "or a singular P); give R positive definite"
+        ) from None
 
 
 class CentralizedKalmanFilter:
@@ -36,8 +49,10 @@ class CentralizedKalmanFilter:
         R: np.ndarray,
         prior_mean: np.ndarray,
         prior_cov: np.ndarray,
+        key: str = "plant.R",
     ) -> None:
         self._A, self._C, self._Q, self._R = A, C, Q, R
+        self._key = key
         self._estimate = np.asarray(prior_mean, dtype=float).copy()
         self._cov = np.asarray(prior_cov, dtype=float).copy()
         self._started = False
@@ -67,7 +82,7 @@ class CentralizedKalmanFilter:
             x, P = self._estimate, self._cov
             self._started = True
         S = C @ P @ C.T + R
-        G = np.linalg.solve(S, C @ P).T  # Kalman gain P C^T S^-1 (S symmetric)
+        G = kalman_gain(S, C @ P, self._key, k)  # P C^T S^-1 (S symmetric)
         x = x + G @ (y - C @ x)
         I_GC = np.eye(len(x)) - G @ C
         P = I_GC @ P @ I_GC.T + G @ R @ G.T
@@ -118,8 +133,8 @@ def _centralised(context: FamilyContext) -> list[AgentPlan]:
 
 def _local(context: FamilyContext) -> list[AgentPlan]:
     p = context.scenario.plant
-    return [AgentPlan(LocalKalmanFilter(p.A, p.C[i], p.Q, p.R[i], p.x0_mean, p.x0_cov),
-                      (i,), ())
+    return [AgentPlan(LocalKalmanFilter(p.A, p.C[i], p.Q, p.R[i], p.x0_mean, p.x0_cov,
+                                        f"plant.R[{i}]"), (i,), ())
             for i in range(p.n_sensors)]
 
 

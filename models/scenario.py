@@ -25,6 +25,7 @@ from __future__ import annotations
 import difflib
 import math
 import tomllib
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
@@ -79,6 +80,7 @@ from netsim.models.topology import GraphSequence, LinkSchedule, TopologyError, a
 
 __all__ = [
     "ScenarioError",
+    "ScenarioWarning",
     "DelaySpec",
     "GainSpec",
     "Scenario",
@@ -89,6 +91,7 @@ __all__ = [
     "DEFAULT_ESTIMATORS",
     "load_scenario",
     "parse_scenario",
+    "read_scenario_data",
     "builtin_scenarios",
     "resolve_scenario",
 ]
@@ -176,6 +179,20 @@ class ScenarioError(ValueError):
     def __init__(self, key: str, message: str) -> None:
         super().__init__(f"{key}: {message}" if key else message)
         self.key = key
+
+
+class ScenarioWarning(UserWarning):
+    """A scenario input accepted by a documented rule that the user should hear about
+    (the ``netsim`` command prints it as one ``warning:`` line on stderr); ``key``
+    names the entry."""
+
+    def __init__(self, key: str, message: str) -> None:
+        super().__init__(f"{key}: {message}" if key else message)
+        self.key = key
+
+
+def _warn(key: str, message: str) -> None:
+    warnings.warn(ScenarioWarning(key, message), stacklevel=3)
 
 
 @dataclass(frozen=True)
@@ -568,6 +585,14 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     seed = _int(table.get("seed", DEFAULTS["network.seed"]), "network.seed", 0)
     weights_spec = table.get("weights", DEFAULTS["network.weights"])
     if "P" in table:
+        for other in ("weights", "topology", "edges", "edge_probability", "radius"):
+            if other in table:
+                raise ScenarioError(f"network.{other}", "give either the matrix network.P "
+                                    f"or network.{other}, not both (P fixes the graph "
+                                    "and the weights)")
+        if "agents" in table and table["agents"] != n_sensors:
+            raise ScenarioError("network.agents", f"is {table['agents']!r} but plant.C has "
+                                f"{n_sensors} sensors (one per agent)")
         P = _matrix(table["P"], "network.P", (n_sensors, n_sensors))
         _check_weights(P, "network.P")
         return P
@@ -586,6 +611,9 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
                        "network.edge_probability")
         if not 0 <= prob <= 1:
             raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
+        if prob == 0:
+            _warn("network.edge_probability", "is 0: the random graph is only its random "
+                  "Hamiltonian cycle (every 'random' graph has one, for strong connectivity)")
         graph = random_strongly_connected(agents, prob, seed)
     elif topology == "geometric":
         radius = table.get("radius")
@@ -600,6 +628,7 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
         graph.add_nodes_from(range(agents))
         if not isinstance(edges, list):
             raise ScenarioError("network.edges", "expected a list of [sender, receiver] pairs")
+        first: dict[tuple[int, int], int] = {}
         for e, edge in enumerate(edges):
             key = f"network.edges[{e}]"
             if not (isinstance(edge, list) and len(edge) == 2):
@@ -607,8 +636,14 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
             j, i = (_int(v, key, 0) for v in edge)
             if j >= agents or i >= agents:
                 raise ScenarioError(key, f"agent index out of range 0..{agents - 1}")
-            if i != j:
-                graph.add_edge(j, i)
+            if i == j:
+                raise ScenarioError(key, f"[{j}, {i}] is a self-loop, not a link (every "
+                                    "agent always weighs its own estimate: p_ii > 0)")
+            if (j, i) in first:
+                raise ScenarioError(key, f"edge {j} -> {i} is listed twice (also "
+                                    f"network.edges[{first[(j, i)]}])")
+            first[(j, i)] = e
+            graph.add_edge(j, i)
     else:
         raise ScenarioError(
             "network.topology",
@@ -648,6 +683,10 @@ def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelayS
     tau = _int(table.get("tau", DEFAULTS["delays.tau"]), "delays.tau")
     if tau < 0:
         raise ScenarioError("delays.tau", f"delay bound must be >= 0, got {tau}")
+    if model == "none" and tau != 0:
+        raise ScenarioError("delays.tau", f"is {tau} but delays.model = 'none' has no "
+                            "delays (use model = 'homogeneous' for tau on every link, or "
+                            "drop tau)")
     seed = _int(table.get("seed", DEFAULTS["delays.seed"]), "delays.seed", 0)
     default = _number(table.get("default", DEFAULTS["delays.default"]), "delays.default")
     if default < 0:
@@ -669,6 +708,11 @@ def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelayS
             raise ScenarioError(f"{key}.delay", f"delay must be >= 0, got {delay:g}")
         if model == "fixed" and delay != int(delay):
             raise ScenarioError(f"{key}.delay", f"fixed delays are integer steps, got {delay}")
+        if link in per_link:
+            earlier = next(k for k, entry in enumerate(raw_links)
+                           if (entry.get("from"), entry.get("to")) == link)
+            raise ScenarioError(key, f"link {link[0]} -> {link[1]} is listed twice (also "
+                                f"delays.links[{earlier}])")
         per_link[link] = delay
     if per_link and model not in ("fixed", "latency"):
         raise ScenarioError("delays.links", f"per-link delays need model 'fixed' or 'latency', "
@@ -953,7 +997,8 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
             raise ScenarioError("topology.graphs", f"link {list(extra)} is not an edge of "
                                 "[network] (leave [network] out to use the union graph)")
     options = _parse_options(data.get("options", {}))
-    delays = _parse_delays(_section(data, "delays", required=False), links)
+    delays_table = _section(data, "delays", required=False)
+    delays = _parse_delays(delays_table, links)
     link_spec = None
     if "links" in data:
         link_spec = _parse_links(_section(data, "links"), links, delays,
@@ -981,7 +1026,7 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
                         "run.divergence_threshold")
     if threshold <= 0:
         raise ScenarioError("run.divergence_threshold", f"must be > 0, got {threshold}")
-    return Scenario(
+    scenario = Scenario(
         name=name,
         description=str(description),
         plant=plant,
@@ -1000,6 +1045,52 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         topology=topology,
         options=options,
     )
+    if link_spec is not None:
+        _check_links_bound(scenario, "tau" in delays_table)
+    return scenario
+
+
+_TAU_MODELS = ("homogeneous", "heterogeneous", "synchronous", "asynchronous")
+
+
+def _check_links_bound(scenario: Scenario, tau_given: bool) -> None:
+    """``links.bound`` below a step delay that a bounded link delay (constant, uniform,
+    empirical, the ``[delays]`` model, serialisation included) reaches is an error: the
+    agents and the analytics would assume a tau-bar that messages exceed. (Unbounded
+    distributions, geometric, gamma and Pareto, have only a nominal bound: any
+    ``links.bound`` is a choice there.) A bound that replaces an explicit
+    ``delays.tau`` is a warning."""
+    spec = scenario.link_spec
+    assert spec is not None
+    base = scenario._base_delay_model(0)
+    args = (int(base.max_delay), scenario.sample_period, scenario.plant.n_states)
+    if spec.bound is not None:
+        worst, where = -1, None
+        for link in scenario.links:
+            cfg = spec.config(link)
+            if cfg.delay is not None and not math.isfinite(
+                    getattr(cfg.delay.distribution, "upper", math.inf)):
+                continue
+            d = spec.max_delay([link], *args)
+            if d > worst:
+                worst, where = d, link
+        if where is not None and spec.bound < worst:
+            cfg = spec.config(where)
+            source = ("[delays]" if cfg.delay is None else
+                      "links.per_link" if where in spec.per_link
+                      and spec.per_link[where].delay is not spec.default.delay
+                      else "links.delay")
+            raise ScenarioError("links.bound", f"is {spec.bound} but link {where[0]} -> "
+                                f"{where[1]} has step delays up to {worst} ({source}): "
+                                "agents and the analytics would assume a bound its messages "
+                                f"exceed; give links.bound >= {worst} or leave it out")
+    tau = scenario.delays.tau
+    if tau_given and scenario.delays.model in _TAU_MODELS and scenario.delay_bound != tau:
+        what = (f"{spec.bound} replaces" if spec.bound is not None else
+                "the [links] delay distributions replace")
+        _warn("links.bound" if spec.bound is not None else "links.delay",
+              f"{what} delays.tau = {tau}: agents and the analytics assume the delay "
+              f"bound tau-bar = {scenario.delay_bound}")
 
 
 def _parse_edge_list(value: Any, key: str, n_agents: int) -> list[tuple[int, int]]:
@@ -1090,19 +1181,34 @@ def load_scenario(path: str | Path) -> Scenario:
         If the file cannot be read, is not valid TOML, or fails validation.
     """
     path = Path(path)
+    return parse_scenario(read_scenario_data(path), str(path))
+
+
+def read_scenario_data(path: str | Path) -> dict[str, Any]:
+    """The parsed TOML document of a scenario file (ScenarioError naming the file if it
+    cannot be read or parsed). A UTF-8 byte-order mark at the start is skipped, with a
+    warning (TOML has none; some editors write one)."""
+    path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        raw = path.read_bytes()
     except OSError as exc:
         raise ScenarioError("", f"cannot read scenario file {path}: {exc.strerror}") from None
+    bom = raw.startswith(b"\xef\xbb\xbf")
+    try:
+        text = raw[3 if bom else 0:].decode("utf-8")
     except UnicodeDecodeError as exc:
         raise ScenarioError(
-            "", f"scenario file {path} is not UTF-8 text (byte {exc.start}: {exc.reason})"
+            "", f"scenario file {path} is not UTF-8 text (byte {exc.start + (3 if bom else 0)}"
+            f": {exc.reason})"
         ) from None
+    text = text.replace("\r\n", "\n").replace("\r", "\n")  # as text mode reads it
+    if bom:
+        _warn("", f"scenario file {path} starts with a UTF-8 BOM (byte-order mark); "
+              "ignored it")
     try:
-        data = tomllib.loads(text)
+        return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError("", f"{path} is not valid TOML: {exc}") from None
-    return parse_scenario(data, str(path))
 
 
 def builtin_scenarios() -> dict[str, Path]:

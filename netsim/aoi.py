@@ -35,7 +35,7 @@ from typing import Any
 
 import numpy as np
 
-from netsim.estimators.aoi import AOI_OPTIONS, corollary_bound
+from netsim.estimators.aoi import AOI_OPTIONS, corollary_bound, reads_aoi_options
 from netsim.models.network import uniform_weights
 from netsim.models.plant import LinearPlant
 from netsim.models.scenario import DEFAULTS, DelaySpec, GainSpec, Scenario, ScenarioError
@@ -58,6 +58,7 @@ __all__ = [
     "corollary_bound",
     "add_aoi_arguments",
     "apply_aoi_arguments",
+    "check_aoi_arguments",
 ]
 
 #: The estimators an AoI scenario built here runs.
@@ -238,3 +239,24 @@ def apply_aoi_arguments(args: argparse.Namespace, scenario: Scenario) -> Scenari
     if getattr(args, "delayed", None):
         settings["delayed"] = args.delayed
     return scenario.with_options("aoi", **settings) if settings else scenario
+
+
+#: The options given on the command line by :func:`add_aoi_arguments`.
+_AOI_FLAGS = (("--gains", "gains"), ("--rho", "rho"), ("--ties", "ties"),
+              ("--delayed", "delayed"))
+
+
+def check_aoi_arguments(args: argparse.Namespace, families: Sequence[Any]) -> None:
+    """Refuse ``--gains``, ``--rho``, ``--ties`` or ``--delayed`` when none of the run's
+    ``families`` reads ``[options.aoi]`` (they would change nothing): ScenarioError
+    naming the first such option."""
+    given = [flag for flag, attr in _AOI_FLAGS if getattr(args, attr, None) is not None]
+    if not given or any(reads_aoi_options(f) for f in families):
+        return
+    from netsim.estimators.registry import families as registered
+
+    aoi = [f.name for f in registered() if reads_aoi_options(f)]
+    run = ", ".join(f.name for f in families)
+    raise ScenarioError(given[0], f"sets [options.aoi], which none of this run's estimators "
+                        f"({run}) reads; it is for {', '.join(aoi)} (add one with "
+                        "--estimators)")

@@ -24,6 +24,7 @@ from netsim.cliutil import (
     OneLineParser,
     gains_if_needed,
     note_kernel_fallbacks,
+    scenario_warnings,
 )
 from netsim.models.jsonsafe import json_number as _num
 
@@ -299,6 +300,12 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"{where}: {exc}") from None
     declared = _families(scenario, args.estimators)
     families = tuple(f.name for f in declared)
+    from netsim.aoi import check_aoi_arguments
+
+    try:
+        check_aoi_arguments(args, declared)
+    except ScenarioError as exc:
+        raise CommandError(f"scenario {args.scenario}: {exc}") from None
     gains = gains_if_needed(scenario, declared, args.scenario)
     from netsim.runner import check_agents, choose_engine, kernel_fallbacks
 
@@ -832,7 +839,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         "scenarios": _cmd_scenarios,
     }
     try:
-        return handlers[args.command](args)
+        with scenario_warnings(args.command):
+            return handlers[args.command](args)
     except CommandError as exc:
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return exc.code

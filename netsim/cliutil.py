@@ -11,12 +11,14 @@ Exit codes: 0 success (an estimator that diverged is a result, not an error);
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
-from collections.abc import Sequence
+import warnings
+from collections.abc import Iterator, Sequence
 from typing import Any, NoReturn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
-           "OneLineParser", "gains_if_needed", "note_kernel_fallbacks"]
+           "OneLineParser", "gains_if_needed", "note_kernel_fallbacks", "scenario_warnings"]
 
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
@@ -68,3 +70,29 @@ class OneLineParser(argparse.ArgumentParser):
     def error(self, message: str) -> NoReturn:
         self.exit(EXIT_BAD_INPUT, f"{self.prog}: error: {message} (see {self.prog} "
                   "--help)\n")
+
+
+@contextlib.contextmanager
+def scenario_warnings(command: str) -> Iterator[None]:
+    """Print each distinct :class:`netsim.models.scenario.ScenarioWarning` raised inside
+    as one line ``netsim <command>: warning: <key>: <message>`` on stderr (a scenario
+    loaded several times, as a sweep's variants are, warns once); other warnings go to
+    Python's usual display."""
+    seen: set[str] = set()
+    shown = warnings.showwarning
+
+    def show(message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+        from netsim.models.scenario import ScenarioWarning
+
+        if issubclass(category, ScenarioWarning):
+            text = str(message)
+            if text not in seen:
+                seen.add(text)
+                sys.stderr.write(f"netsim {command}: warning: {text}\n")
+            return
+        shown(message, category, *args, **kwargs)
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("always", UserWarning)
+        warnings.showwarning = show
+        yield

@@ -176,7 +176,14 @@ def read_results(path: str | os.PathLike[str], *, repair: bool = False
         with open(path, "r+b") as f:
             f.truncate(complete)
     rows: dict[str, dict[str, Any]] = {}
-    for number, line in enumerate(data[:complete].decode("utf-8").splitlines(), start=1):
+    try:
+        text = data[:complete].decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = data[:exc.start].count(b"\n") + 1
+        raise ValueError(f"results file {path}, line {line}: not UTF-8 text (byte "
+                         f"{exc.start}: {exc.reason}); not a JSON-lines results file"
+                         ) from None
+    for number, line in enumerate(text.splitlines(), start=1):
         if not line.strip():
             continue
         try:
@@ -301,6 +308,14 @@ class _Local:
         self.pool.shutdown(wait=not cancel, cancel_futures=cancel)
 
 
+#: How long the Dask executor waits for its scheduler before giving up.
+DASK_CONNECT_TIMEOUT_S = 5
+
+
+class SchedulerUnreachable(ValueError):
+    """The Dask scheduler at the given address did not answer (bad input: exit 2)."""
+
+
 class _Dask:
     def __init__(self, address: Any) -> None:
         try:
@@ -311,7 +326,15 @@ class _Dask:
         if isinstance(address, Client):
             self.client, self.own = address, False
         else:
-            self.client, self.own = Client(address, timeout="30s"), True
+            try:
+                client = Client(address, timeout=f"{DASK_CONNECT_TIMEOUT_S}s")
+            except (OSError, ValueError, TypeError) as exc:  # TimeoutError is an OSError
+                reason = (f"no answer within {DASK_CONNECT_TIMEOUT_S} s"
+                          if isinstance(exc, TimeoutError) else
+                          str(exc).split("\n")[0] or type(exc).__name__)
+                raise SchedulerUnreachable(f"--dask {address}: could not connect to the Dask "
+                                           f"scheduler at {address} ({reason})") from None
+            self.client, self.own = client, True
         self.futures: list[Any] = []
 
     def run(self, todo, fn, seeds, context):
@@ -416,14 +439,23 @@ def run_sweep(
     reused = len(ordered) - len(todo)
     seeds = {k: cell_seed(root_seed, k) for k, _ in todo}
     computed = 0
+    runner: Any = None
+    if todo and executor == "dask":  # connect first: an unreachable scheduler is one line
+        runner = _Dask(dask_address)
     bar = None
     if progress:
         from tqdm import tqdm
 
         bar = tqdm(total=len(ordered), initial=reused, desc=description, unit="cell",
                    file=sys.stderr, leave=False, dynamic_ncols=True)
-    sink = _Sink(path, Path(csv_path) if csv_path is not None else None)
-    runner: Any = None
+    try:
+        sink = _Sink(path, Path(csv_path) if csv_path is not None else None)
+    except BaseException:
+        if runner is not None:
+            runner.close(cancel=True)
+        if bar is not None:
+            bar.close()
+        raise
     cancelled = False
     try:
         if todo:
@@ -433,7 +465,6 @@ def run_sweep(
                 runner = _Local(min(int(workers), len(todo)))
                 stream_ = runner.run(todo, fn, seeds, context)
             else:
-                runner = _Dask(dask_address)
                 stream_ = runner.run(todo, fn, seeds, context)
             params_of = dict(todo)
             for key, (result, elapsed, worker) in stream_:

@@ -377,6 +377,8 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
 def _kalman_run(scenario: Scenario, batch: PlantBatch, steps: int,
                 record_estimates: bool) -> _Outputs:
     """The centralised Kalman filter on all trials (gains are the same for every trial)."""
+    from netsim.estimators.kalman import kalman_gain
+
     plant = scenario.plant
     A, C, Q, R = plant.A, plant.C_stacked, plant.Q, plant.R_stacked
     K = int(steps)
@@ -393,7 +395,7 @@ def _kalman_run(scenario: Scenario, batch: PlantBatch, steps: int,
                 x = x @ A.T
                 cov = A @ cov @ A.T + Q
             S = C @ cov @ C.T + R
-            G = np.linalg.solve(S, C @ cov).T
+            G = kalman_gain(S, C @ cov, "plant.R", k)
             x = x + (batch.measurements[k] - x @ C.T) @ G.T
             I_GC = identity - G @ C
             cov = I_GC @ cov @ I_GC.T + G @ R @ G.T

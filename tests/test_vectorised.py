@@ -147,6 +147,8 @@ def random_case(draw):
     model = draw(st.sampled_from(["none", "homogeneous", "heterogeneous", "synchronous",
                                   "asynchronous", "latency"]))
     delays: dict = {"model": model, "tau": draw(st.integers(0, 4)), "seed": seed % 997}
+    if model == "none":
+        del delays["tau"]  # no delays: a tau would be refused (drawn all the same)
     if model == "latency":
         delays = {"model": "latency", "default": draw(st.floats(0.0, 3.5))}
     data = {

@@ -313,14 +313,15 @@ def main(argv: Sequence[str] | None = None) -> int:
     codes as ``netsim``; ``netsim bench`` once registered in :mod:`netsim.cli`)."""
     import argparse
 
-    from netsim.cliutil import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CommandError
+    from netsim.cliutil import EXIT_BAD_INPUT, EXIT_INTERRUPTED, CommandError, scenario_warnings
 
     parser = argparse.ArgumentParser(prog="netsim")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     add_bench_parser(sub)
     args = parser.parse_args(["bench", *(sys.argv[1:] if argv is None else argv)])
     try:
-        return cmd_bench(args)
+        with scenario_warnings("bench"):
+            return cmd_bench(args)
     except CommandError as exc:
         sys.stderr.write(f"netsim bench: error: {exc}\n")
         return exc.code

@@ -5,7 +5,6 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
-import tomllib
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -54,7 +53,7 @@ def scenario_data(name_or_path: str) -> tuple[dict[str, Any], str]:
     netsim.models.scenario.ScenarioError
         If the file cannot be read or parsed as TOML.
     """
-    from netsim.models.scenario import ScenarioError, builtin_scenarios
+    from netsim.models.scenario import builtin_scenarios, read_scenario_data
 
     builtins = builtin_scenarios()
     if name_or_path in builtins:
@@ -63,10 +62,7 @@ def scenario_data(name_or_path: str) -> tuple[dict[str, Any], str]:
     else:
         path = Path(name_or_path)
         source = str(path)
-    try:
-        return tomllib.loads(Path(path).read_text(encoding="utf-8")), source
-    except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
-        raise ScenarioError("", f"cannot read scenario {name_or_path}: {exc}") from None
+    return read_scenario_data(path), source
 
 
 def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> Scenario:

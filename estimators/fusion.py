@@ -1163,12 +1163,22 @@ def fusion_analytics(scenario: Any, gains: Any = None) -> dict[str, Any]:
     """The example's stability conditions per sink and the steady state (Theorem 3)."""
     setup = fusion_setup(scenario)
     for i in range(setup.n_sinks):  # each sink's local filter needs a steady state (58)
+        C, R = setup.C[i], setup.R[i]
+        S = C @ setup.x0_cov @ C.T + R
+        if np.linalg.matrix_rank(S) < S.shape[0]:
+            raise FamilyError(f"plant.R[{i}]", f"sink {i}'s Kalman filter: the innovation "
+                              "covariance C P C^T + R is singular at step 0; give R "
+                              "positive definite")
         try:
             with np.errstate(all="ignore"):
                 steady_state_local_filter(setup.A, setup.C[i], setup.Q, setup.R[i])
         except (ValueError, np.linalg.LinAlgError) as exc:
-            raise FamilyError(f"plant.C[{i}]", f"sink {i}'s local Kalman filter has no "
-                              f"steady state (discrete Riccati equation: {exc})") from None
+            R = setup.R[i]
+            key = (f"plant.R[{i}]" if np.linalg.matrix_rank(R) < R.shape[0]
+                   else f"plant.C[{i}]")
+            raise FamilyError(key, f"sink {i}'s local Kalman filter has no steady state "
+                              f"(discrete Riccati equation: {exc}); it needs R_{i} "
+                              "positive definite and (A, C_i) detectable") from None
     steady, osteady = _steady(setup)
     conds = sink_conditions(setup)
     lines = [f"fusion: L = {setup.n_sinks} sinks, delays d = {list(setup.delays)}, "

@@ -275,8 +275,13 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
-    depth = max(selection.max_lag, period) + 1
-    powers = _powers(A, max(selection.max_lag, period))
+    # the delay horizon that can matter: a power A^r with r > K is never applied (a
+    # message delayed past the last step never arrives; a block period beyond K only
+    # propagates the step-0 estimate, with A^(k - 0), k <= K), so the ring of past
+    # estimates and the powers stop there however large the delays are
+    horizon = min(max(selection.max_lag, period), K)
+    depth = horizon + 1
+    powers = _powers(A, horizon)
     powers_T = np.ascontiguousarray(powers.transpose(0, 2, 1))
     A_T = A.T
     history = np.zeros((depth, N, T, n))

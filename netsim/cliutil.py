@@ -15,7 +15,7 @@ from collections.abc import Sequence
 from typing import Any
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
-           "gains_if_needed", "note_kernel_fallbacks"]
+           "analyze_with_progress", "gains_if_needed", "note_kernel_fallbacks"]
 
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
@@ -55,3 +55,21 @@ def note_kernel_fallbacks(command: str, names: Sequence[str], what: str = "them"
     sys.stderr.write(f"netsim {command}: note: {', '.join(names)} "
                      f"{'has' if one else 'have'} no batched form; --engine auto runs "
                      f"{'it' if one and what == 'them' else what} in the event kernel\n")
+
+
+def analyze_with_progress(scenario: Any, gains: Any, tau_max: int, analyze: Any,
+                          disable: bool | None = None) -> Any:
+    """``analyze(scenario, gains, tau_max)`` with a tqdm bar on stderr (one tick per tau).
+
+    The bar shows only on a terminal (``disable=None``); Ctrl-C raises
+    KeyboardInterrupt as soon as the running eigenvalue computation returns (the
+    command line turns it into exit 130).
+    """
+    from tqdm import tqdm
+
+    bar = tqdm(total=tau_max + 1, desc=f"netsim analyze {scenario.name}", unit="tau",
+               disable=disable, file=sys.stderr, leave=False)
+    try:  # no graceful handler: nothing is written, Ctrl-C may stop at once
+        return analyze(scenario, gains, tau_max, progress=bar.update)
+    finally:
+        bar.close()

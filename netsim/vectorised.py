@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from netsim import interrupt
+from netsim import budget, interrupt
 from netsim.estimators.gains import GainDesign
 from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult, squared_threshold
 from netsim.linkschedule import (
@@ -472,6 +472,9 @@ def run_batch(
     rule = lockstep_rule(family)
     K = scenario.steps if steps is None else int(steps)
     T = len(trial_seeds)
+    budget.check_memory(
+        budget.vectorised_batch_bytes(scenario, K, T, record_estimates=record_estimates),
+        "steps", f"a lockstep batch of {T} trial(s)", K)
     plant = scenario.plant
     batch = simulate_plant(scenario, trial_seeds, K)
     schedule = selection = None

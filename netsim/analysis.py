@@ -17,6 +17,7 @@ Verdicts: ``respected`` (exact <= bound), ``conservative`` (respected, but the b
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -121,7 +122,8 @@ class AnalysisReport:
 
 
 def analyze(
-    scenario: Scenario, gains: GainDesign, tau_max: int = DEFAULT_TAU_RANGE
+    scenario: Scenario, gains: GainDesign, tau_max: int = DEFAULT_TAU_RANGE, *,
+    progress: Callable[[int], None] | None = None,
 ) -> AnalysisReport:
     """Compute the bounds and exact spectral radii of a scenario's closed loop.
 
@@ -132,16 +134,37 @@ def analyze(
         Gains L_i (n x m_i each).
     tau_max : int
         Homogeneous delays 0..tau_max are analysed.
+    progress : callable(int), optional
+        Called with 1 after each tau (and once more for the scenario's own delays).
+
+    Raises
+    ------
+    netsim.budget.ResourceError
+        Before any eigenvalue is computed, if the estimated memory or time of the
+        augmented closed loops (dimension N n (tau+1)) exceeds this machine's limits
+        (:func:`netsim.budget.check_analysis`).
 
     Returns
     -------
     AnalysisReport
     """
+    from netsim import budget, interrupt
     from netsim.runner import fixed_delay_matrix
 
     plant = scenario.plant
     P, A, C, L = scenario.weights, plant.A, plant.C, gains.L
     N = scenario.n_agents
+    n = plant.n_states
+    budget.check_analysis(n, N, range(tau_max + 1), "--tau-max",
+                          f"the exact spectral radii for tau = 0..{tau_max} "
+                          f"(dimension N n (tau+1) up to {N * n * (tau_max + 1)})", tau_max)
+    fixed = fixed_delay_matrix(scenario)
+    if fixed is not None:
+        top = int(fixed.max())
+        budget.check_analysis(n, N, [top], "the scenario's delays",
+                              f"the exact spectral radius of its augmented closed loop "
+                              f"(dimension N n (max + 1) = {N * n * (top + 1)})",
+                              f"max {top} steps")
     rho0 = float(gains.rho)
     star = tau_star_report(P, A, C, L, tau_max=max(tau_max, 1))
     passing = set(range(0, (star.contiguous if star.contiguous is not None else -1) + 1))
@@ -156,6 +179,7 @@ def analyze(
     )
     edge_mask = (P > 0) & ~np.eye(N, dtype=bool)
     for tau in range(tau_max + 1):
+        interrupt.check()
         delays = np.where(edge_mask, tau, 0)
         exact_c = augmented_spectral_radius(P, A, C, L, delays, tau, compensated=True)
         exact_u = augmented_spectral_radius(P, A, C, L, delays, tau, compensated=False)
@@ -187,7 +211,9 @@ def analyze(
             report.violations.append(
                 f"tau = {tau}: Theorem 1 predicts stability but the exact rho is {exact_c:.6f}"
             )
-    delays = fixed_delay_matrix(scenario)
+        if progress is not None:
+            progress(1)
+    delays = fixed
     if delays is not None:
         depth = int(delays.max())
         exact_c = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=True)
@@ -209,4 +235,6 @@ def analyze(
                 f"scenario delays (max {depth}): eq. (26) bound {b26:.6f} violated by the "
                 f"exact rho {exact_c:.6f}"
             )
+        if progress is not None:
+            progress(1)
     return report

@@ -16,12 +16,14 @@ from typing import Any
 
 import numpy as np
 
+from netsim.budget import ResourceError
 from netsim.cliutil import (
     EXIT_BAD_INPUT,
     EXIT_DESIGN_FAILED,
     EXIT_INTERRUPTED,
     CommandError,
     OneLineParser,
+    analyze_with_progress,
     gains_if_needed,
     note_kernel_fallbacks,
     scenario_warnings,
@@ -306,8 +308,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         check_aoi_arguments(args, declared)
     except ScenarioError as exc:
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
-    gains = gains_if_needed(scenario, declared, args.scenario)
+    from netsim.budget import guard_run
     from netsim.runner import check_agents, choose_engine, kernel_fallbacks
+
+    for note in guard_run(scenario, args.steps, args.trials, args.engine, declared,
+                          args.trace):  # before designing gains
+        sys.stderr.write(f"netsim run: note: {note}\n")
+    gains = gains_if_needed(scenario, declared, args.scenario)
 
     try:
         check_agents(scenario, declared, gains)
@@ -591,6 +598,9 @@ def _cmd_design(args: argparse.Namespace) -> int:
         request = design_request(scenario, **overrides)
     except ValueError as exc:
         raise CommandError(f"scenario {args.scenario}: --tau1: {exc}") from None
+    from netsim.budget import check_gain_design
+
+    check_gain_design(scenario)
     try:
         design = design_for_scenario(scenario, **overrides)
     except (GainDesignError, ValueError) as exc:
@@ -664,7 +674,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     except (GainDesignError, ValueError) as exc:
         raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                            EXIT_DESIGN_FAILED) from None
-    report = analyze(scenario, gains, args.tau_max)
+    report = analyze_with_progress(scenario, gains, args.tau_max, analyze)
     data = {"gains": _design_dict(gains), **report.to_dict()}
     if args.json:
         json.dump(data, sys.stdout, indent=2, allow_nan=False)
@@ -844,6 +854,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     except CommandError as exc:
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return exc.code
+    except ResourceError as exc:  # refused before allocating (netsim.budget)
+        sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
+        return EXIT_BAD_INPUT
     except KeyboardInterrupt:
         sys.stderr.write(f"netsim {args.command}: interrupted\n")
         return EXIT_INTERRUPTED

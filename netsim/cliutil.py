@@ -18,7 +18,8 @@ from collections.abc import Iterator, Sequence
 from typing import Any, NoReturn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
-           "OneLineParser", "gains_if_needed", "note_kernel_fallbacks", "scenario_warnings"]
+           "OneLineParser", "analyze_with_progress", "gains_if_needed",
+           "note_kernel_fallbacks", "scenario_warnings"]
 
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
@@ -96,3 +97,21 @@ def scenario_warnings(command: str) -> Iterator[None]:
         warnings.simplefilter("always", UserWarning)
         warnings.showwarning = show
         yield
+
+
+def analyze_with_progress(scenario: Any, gains: Any, tau_max: int, analyze: Any,
+                          disable: bool | None = None) -> Any:
+    """``analyze(scenario, gains, tau_max)`` with a tqdm bar on stderr (one tick per tau).
+
+    The bar shows only on a terminal (``disable=None``); Ctrl-C raises
+    KeyboardInterrupt as soon as the running eigenvalue computation returns (the
+    command line turns it into exit 130).
+    """
+    from tqdm import tqdm
+
+    bar = tqdm(total=tau_max + 1, desc=f"netsim analyze {scenario.name}", unit="tau",
+               disable=disable, file=sys.stderr, leave=False)
+    try:  # no graceful handler: nothing is written, Ctrl-C may stop at once
+        return analyze(scenario, gains, tau_max, progress=bar.update)
+    finally:
+        bar.close()

@@ -370,7 +370,9 @@ def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
     send = schedule.send_steps
     T, L, S = schedule.fate.shape
     discarded = np.broadcast_to(np.zeros((1, 1, 1), dtype=bool), (T, L, S))
-    delay = schedule.constant_delay.T  # (L, T)
+    # a delay beyond K + 1 behaves as K + 1 (the message never arrives by step K);
+    # capping keeps the int32 step arithmetic below exact for any delay
+    delay = np.minimum(schedule.constant_delay.T, K + 1)  # (L, T)
     steps = np.arange(K + 1, dtype=np.int32)[:, None, None]
     every_step = len(send) == K + 1 and bool(np.array_equal(send, np.arange(K + 1)))
     if every_step and delay.size and bool(np.all(delay == delay.flat[0])):

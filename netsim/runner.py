@@ -18,6 +18,7 @@ from typing import Any
 
 import numpy as np
 
+from netsim import budget
 from netsim.estimators.gains import GainDesign, design_for_scenario
 from netsim.estimators.registry import (
     EstimatorFamily,
@@ -70,7 +71,12 @@ GROWTH_TOLERANCE = 2.0
 
 
 def scenario_gains(scenario: Scenario) -> GainDesign:
-    """Return the gains of the scenario's ``[gains]`` table (:func:`design_for_scenario`)."""
+    """Return the gains of the scenario's ``[gains]`` table (:func:`design_for_scenario`).
+
+    Raises :class:`netsim.budget.ResourceError` first if the design (its PBH test and
+    SDP) cannot run on this machine (:func:`netsim.budget.check_gain_design`).
+    """
+    budget.check_gain_design(scenario)
     return design_for_scenario(scenario)
 
 
@@ -154,6 +160,8 @@ def run_trial(
     collects is ``TrialResult.extras``.
     """
     steps = scenario.steps if steps is None else int(steps)
+    budget.check_memory(budget.kernel_trial_bytes(scenario, steps, record_delays=record_delays),
+                        "steps", "one event-kernel trial", steps)
     declared = family_of(family, scenario)
     context = FamilyContext(scenario, gains, trial_seed, declared.name)
     plans = declared.agents(context)
@@ -588,11 +596,12 @@ def run_monte_carlo(
     else:
         declared = [family_of(f, scenario, "estimators") for f in families]
     families = tuple(f.name for f in declared)
+    engines = engines_for(engine, declared, scenario)
+    engine = choose_engine(engine, declared, traced=trace is not None, scenario=scenario)
+    budget.check_run(scenario, steps, trials, list(engines.values()), keep_trials=keep_trials)
     needs_gains = any(f.needs_gains for f in declared)
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)
-    engines = engines_for(engine, declared, scenario)
-    engine = choose_engine(engine, declared, traced=trace is not None, scenario=scenario)
     result = MonteCarloResult(scenario, gains, steps, trials, seed, engine=engine,
                               engines=engines)
     if gains is not None:

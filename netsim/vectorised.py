@@ -36,7 +36,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from netsim import interrupt
+from netsim import budget, interrupt
 from netsim.estimators.gains import GainDesign
 from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult, squared_threshold
 from netsim.linkschedule import (
@@ -275,8 +275,13 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
-    depth = max(selection.max_lag, period) + 1
-    powers = _powers(A, max(selection.max_lag, period))
+    # the delay horizon that can matter: a power A^r with r > K is never applied (a
+    # message delayed past the last step never arrives; a block period beyond K only
+    # propagates the step-0 estimate, with A^(k - 0), k <= K), so the ring of past
+    # estimates and the powers stop there however large the delays are
+    horizon = min(max(selection.max_lag, period), K)
+    depth = horizon + 1
+    powers = _powers(A, horizon)
     powers_T = np.ascontiguousarray(powers.transpose(0, 2, 1))
     A_T = A.T
     history = np.zeros((depth, N, T, n))
@@ -469,6 +474,9 @@ def run_batch(
     rule = lockstep_rule(family)
     K = scenario.steps if steps is None else int(steps)
     T = len(trial_seeds)
+    budget.check_memory(
+        budget.vectorised_batch_bytes(scenario, K, T, record_estimates=record_estimates),
+        "steps", f"a lockstep batch of {T} trial(s)", K)
     plant = scenario.plant
     batch = simulate_plant(scenario, trial_seeds, K)
     schedule = selection = None

@@ -1,0 +1,512 @@
+"""Resource guards: estimate a request's memory and time before allocating it.
+
+Every engine and analysis asks this module, from the request alone (steps, trials,
+agents, links, states, the delay horizon that can matter within the steps), how much
+memory and time it will take, and refuses what this machine cannot hold with a
+:class:`ResourceError`: one line naming the parameter, the estimate and the limit.
+The command line maps it to exit code 2.
+
+Limits
+------
+- memory: ``min(MemAvailable, RLIMIT_AS - address space in use, RLIMIT_DATA - data in
+  use, cgroup memory.max - memory.current)`` times :data:`SAFETY`; the environment
+  variable ``NETSIM_MEMORY_LIMIT`` (bytes, or with a K/M/G/T suffix) replaces it.
+- time: :data:`DEFAULT_TIME_LIMIT` seconds of estimated dense linear algebra at the
+  nominal :data:`FLOPS` rate; ``NETSIM_TIME_LIMIT`` (seconds) replaces it. Only the
+  dense-algebra estimates (eigenvalues, LMIs) are held to it; simulations are held
+  to memory and show progress instead.
+
+The estimates are upper-bound sketches of the arrays the code allocates (documented
+next to each function), not measurements; they are meant to separate "fits easily"
+from "cannot possibly fit", a factor of a few either way does not matter.
+
+Delay horizon: a message sent at step s with delay d is usable at s + 1 + d, so within
+steps 0..K no delay above K can ever matter (:func:`delay_horizon`).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+import resource
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+__all__ = [
+    "ResourceError",
+    "SAFETY",
+    "FLOPS",
+    "DEFAULT_TIME_LIMIT",
+    "memory_limit",
+    "time_limit",
+    "format_bytes",
+    "format_seconds",
+    "delay_horizon",
+    "check_memory",
+    "check_time",
+    "run_bytes",
+    "vectorised_batch_bytes",
+    "kernel_trial_bytes",
+    "trace_bytes",
+    "eig_cost",
+    "check_run",
+    "guard_run",
+    "check_gain_design",
+    "analysis_cost",
+    "check_analysis",
+    "exact_observability_cost",
+]
+
+#: Fraction of the free memory a request may plan to use.
+SAFETY = 0.75
+
+#: Nominal rate (floating-point operations per second) of LAPACK's dense
+#: non-symmetric eigenvalue routines on one machine of the kind netsim runs on.
+FLOPS = 2e9
+
+#: Seconds of estimated dense linear algebra a request may take.
+DEFAULT_TIME_LIMIT = 7200.0
+
+_SUFFIX = {"": 1, "K": 1 << 10, "M": 1 << 20, "G": 1 << 30, "T": 1 << 40}
+
+
+class ResourceError(Exception):
+    """A request this machine cannot hold (or finish in time); one line, exit 2.
+
+    Attributes
+    ----------
+    parameter : str
+        The request's parameter to lower (e.g. ``steps``, ``trials``, ``--tau-max``).
+    estimate, limit : float
+        Bytes (or seconds, for a time refusal).
+    """
+
+    def __init__(self, message: str, parameter: str, estimate: float, limit: float) -> None:
+        super().__init__(message)
+        self.parameter = parameter
+        self.estimate = estimate
+        self.limit = limit
+
+
+def format_bytes(value: float) -> str:
+    """``value`` bytes in binary units, e.g. ``72.8 TiB``."""
+    value = float(value)
+    for unit in ("B", "KiB", "MiB", "GiB", "TiB", "PiB"):
+        if abs(value) < 1024 or unit == "PiB":
+            return f"{value:.0f} {unit}" if unit == "B" else f"{value:.1f} {unit}"
+        value /= 1024
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def format_seconds(value: float) -> str:
+    """``value`` seconds as s, min, h or days."""
+    if value < 120:
+        return f"{value:.0f} s"
+    if value < 7200:
+        return f"{value / 60:.0f} min"
+    if value < 172800:
+        return f"{value / 3600:.1f} h"
+    return f"{value / 86400:.3g} days"
+
+
+def _parse_size(text: str) -> int:
+    text = text.strip().upper().removesuffix("B").removesuffix("I")
+    suffix = text[-1:] if text[-1:] in _SUFFIX else ""
+    number = float(text[: len(text) - len(suffix)])
+    if not (number > 0 and math.isfinite(number)):
+        raise ValueError(text)
+    return int(number * _SUFFIX[suffix])
+
+
+def _proc_status(field: str) -> int | None:
+    try:
+        with open("/proc/self/status", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith(field + ":"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        return None
+    return None
+
+
+def _available_ram() -> int | None:
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):  # pragma: no cover - not POSIX
+        return None
+
+
+def _cgroup_free() -> int | None:
+    try:
+        with open("/sys/fs/cgroup/memory.max", encoding="ascii") as fh:
+            raw = fh.read().strip()
+        if raw == "max":
+            return None
+        with open("/sys/fs/cgroup/memory.current", encoding="ascii") as fh:
+            return int(raw) - int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
+
+
+def memory_limit() -> tuple[int, str]:
+    """Bytes a request may plan to allocate, and where the limit comes from.
+
+    Returns
+    -------
+    (int, str)
+        ``SAFETY`` times the smallest of the free RAM, the room left under
+        RLIMIT_AS / RLIMIT_DATA and the cgroup's room; or ``NETSIM_MEMORY_LIMIT``.
+    """
+    env = os.environ.get("NETSIM_MEMORY_LIMIT")
+    if env:
+        try:
+            return _parse_size(env), "NETSIM_MEMORY_LIMIT"
+        except (ValueError, IndexError):
+            pass  # an unreadable override is ignored, the machine's limit applies
+    candidates: list[tuple[int, str]] = []
+    ram = _available_ram()
+    if ram is not None:
+        candidates.append((ram, "available RAM"))
+    for name, used_field in (("RLIMIT_AS", "VmSize"), ("RLIMIT_DATA", "VmData")):
+        soft = resource.getrlimit(getattr(resource, name))[0]
+        if soft != resource.RLIM_INFINITY:
+            candidates.append((soft - (_proc_status(used_field) or 0), f"{name} room"))
+    cgroup = _cgroup_free()
+    if cgroup is not None:
+        candidates.append((cgroup, "cgroup memory.max room"))
+    if not candidates:  # pragma: no cover - no way to tell
+        return 1 << 34, "default 16 GiB"
+    free, source = min(candidates)
+    return max(0, int(free * SAFETY)), f"{SAFETY:g} x {source}"
+
+
+def time_limit() -> float:
+    """Seconds of estimated dense linear algebra a request may take."""
+    env = os.environ.get("NETSIM_TIME_LIMIT")
+    if env:
+        try:
+            value = float(env)
+            if value > 0:
+                return value
+        except ValueError:
+            pass
+    return DEFAULT_TIME_LIMIT
+
+
+def _named(parameter: str, value: Any) -> str:
+    return parameter if value is None else f"{parameter} = {value}"
+
+
+def check_memory(estimate: float, parameter: str, what: str, value: Any = None,
+                 hint: str | None = None) -> None:
+    """Raise :class:`ResourceError` if ``estimate`` bytes exceed :func:`memory_limit`.
+
+    The message: ``{parameter} = {value}: {what} needs about X, more than the Y this
+    machine can give (...); lower {parameter}``.
+    """
+    limit, source = memory_limit()
+    if estimate > limit:
+        raise ResourceError(
+            f"{_named(parameter, value)}: {what} needs about {format_bytes(estimate)}, more "
+            f"than the {format_bytes(limit)} this machine can give ({source}); "
+            f"{hint or 'lower ' + parameter}", parameter, estimate, limit)
+
+
+def check_time(seconds: float, parameter: str, what: str, value: Any = None,
+               hint: str | None = None) -> None:
+    """Raise :class:`ResourceError` if ``seconds`` exceed :func:`time_limit`."""
+    limit = time_limit()
+    if seconds > limit:
+        raise ResourceError(
+            f"{_named(parameter, value)}: {what} would take about "
+            f"{format_seconds(seconds)} (at a nominal {FLOPS:.0e} flop/s), more than the "
+            f"limit of {format_seconds(limit)} (NETSIM_TIME_LIMIT); "
+            f"{hint or 'lower ' + parameter}", parameter, seconds, limit)
+
+
+def delay_horizon(max_delay: float, steps: int) -> int:
+    """Largest delay that can matter within steps 0..``steps``: ``min(max_delay, steps)``.
+
+    A message sent at s with delay d is usable at s + 1 + d; for d >= steps that is
+    after the last step, so it never arrives and no power A^r with r > steps + 1 is
+    ever applied.
+    """
+    if not math.isfinite(max_delay):
+        return int(steps)
+    return int(max(0, min(int(max_delay), int(steps))))
+
+
+# -- simulations ----------------------------------------------------------------------
+
+
+def _sizes(scenario: Any) -> tuple[int, int, int, int, int, int]:
+    """(n, N, L, m_total, m_max, noise width) of a scenario."""
+    plant = scenario.plant
+    n = int(plant.n_states)
+    N = int(scenario.n_agents)
+    L = len(scenario.links)
+    ms = [int(c.shape[0]) for c in plant.C] or [0]
+    width = int(getattr(plant, "noise_width", n + sum(ms)))
+    return n, N, L, sum(ms), max(ms), width
+
+
+def _constant_links(scenario: Any) -> bool:
+    try:
+        model = scenario.delay_model(0)
+    except Exception:  # noqa: BLE001 - only an estimate: assume the general path
+        return False
+    return (scenario.link_spec is None and scenario.topology is None
+            and bool(getattr(model, "time_invariant", False))
+            and getattr(model, "unit", "steps") == "steps")
+
+
+def kernel_trial_bytes(scenario: Any, steps: int, *, record_delays: bool = False) -> int:
+    """Peak bytes of one event-kernel trial: noise, states, measurements, estimates
+    (K+1, N, n), squared errors and, if recorded, effective delays (K+1, N, N)."""
+    n, N, _, m, _, width = _sizes(scenario)
+    K1 = int(steps) + 1
+    per_step = 8 * (width + n + m + N * n + N) + (4 * N * N if record_delays else 0)
+    return K1 * per_step
+
+
+def vectorised_batch_bytes(scenario: Any, steps: int, trials: int, *,
+                           record_estimates: bool = False, horizon: int | None = None) -> int:
+    """Peak bytes of one lockstep batch of ``trials`` trials (netsim.vectorised).
+
+    Plant noise, states and measurements, the agents' measurements (K+1, N, T, m),
+    squared errors, recorded estimates, the message selection (K+1, L, T) with its
+    link schedule (about 75 bytes per message for random delays, losses or buffers,
+    16 for constant delays), the ring of past estimates and the powers A^0..A^H,
+    H = the delay horizon (:func:`delay_horizon`).
+    """
+    n, N, L, m, m_max, width = _sizes(scenario)
+    K1 = int(steps) + 1
+    T = int(trials)
+    if horizon is None:
+        horizon = delay_horizon(max(scenario.max_delay, scenario.delay_bound + 1), steps)
+    per_message = 16 if _constant_links(scenario) else 75
+    per_step_trial = (8 * (width + n + m + N * m_max + N + (N * n if record_estimates else 0))
+                      + L * per_message)
+    ring = (horizon + 2) * N * T * n * 8
+    powers = 2 * (horizon + 2) * n * n * 8
+    return K1 * T * per_step_trial + ring + powers
+
+
+def trace_bytes(scenario: Any, steps: int) -> int:
+    """Bytes of one MCAP trace file: per step the truth, every agent's estimate and
+    every link's message (n doubles each, about 64 bytes of framing)."""
+    n, N, L, m, _, _ = _sizes(scenario)
+    return (int(steps) + 1) * ((1 + N + L) * (8 * n + 64) + 8 * m)
+
+
+def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,
+              keep_estimates: bool = False) -> tuple[int, int]:
+    """(peak bytes, bytes of one trial) of a Monte Carlo run of one family.
+
+    The runner keeps every trial's result until the family is summarised (states,
+    measurements, squared errors; estimates too in the kernel or with
+    ``keep_estimates``), on top of the engine's working set: one kernel trial, or one
+    lockstep batch as :func:`netsim.vectorised.run_vectorised` splits the trials.
+    """
+    n, N, L, m, _, _ = _sizes(scenario)
+    K1 = int(steps) + 1
+    kept = 8 * K1 * (n + m + N + (N * n if keep_estimates or engine != "vectorised" else 0))
+    if engine == "vectorised":
+        from netsim.vectorised import BATCH_ELEMENTS
+
+        per = max(1, BATCH_ELEMENTS // (max(1, L) * (K1 + 1)))
+        batch = min(int(trials), per)
+        work = vectorised_batch_bytes(scenario, steps, batch, record_estimates=keep_estimates)
+        one = vectorised_batch_bytes(scenario, steps, 1, record_estimates=keep_estimates)
+    else:
+        work = one = kernel_trial_bytes(scenario, steps, record_delays=keep_estimates)
+    return int(trials) * kept + work + 8 * K1 * int(trials), kept + one
+
+
+def check_run(scenario: Any, steps: int, trials: int, engines: Sequence[str], *,
+              steps_name: str = "steps", trials_name: str = "trials",
+              keep_trials: bool = False) -> None:
+    """Refuse a Monte Carlo run (:class:`ResourceError`) that cannot fit in memory.
+
+    ``engines``: the engine of each family (they run one after another, so the
+    largest counts). The parameter named is ``steps_name`` when one trial alone does
+    not fit, else ``trials_name``.
+    """
+    worst = (0, 0, "events")
+    for engine in set(engines) or {"events"}:
+        total, one = run_bytes(scenario, steps, trials, engine, keep_estimates=keep_trials)
+        worst = max(worst, (total, one, engine))
+    total, one, engine = worst
+    limit, _ = memory_limit()
+    n, N, L, _, _, _ = _sizes(scenario)
+    shape = f"{steps} steps x {trials} trials, N = {N} agents, n = {n} states, {L} links"
+    if one > limit:
+        check_memory(one, steps_name, f"one trial ({engine} engine, N = {N} agents, "
+                     f"n = {n} states, {L} links)", steps)
+    check_memory(total, trials_name, f"the run ({engine} engine, {shape})", trials)
+
+
+def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
+              families: Sequence[Any], trace: str | None = None) -> list[str]:
+    """The command line's check of ``netsim run``: refuse what cannot fit, say what is capped.
+
+    Parameters
+    ----------
+    scenario : Scenario
+    steps, trials : int or None
+        ``--steps`` / ``--trials`` (None: the scenario's ``run.steps`` / ``run.trials``,
+        named so in the message).
+    engine : str
+        The ``--engine`` option.
+    families : sequence
+        The families to run (names or declared families).
+    trace : str, optional
+        The ``--trace`` path: the trace files must fit on its file system.
+
+    Returns
+    -------
+    list of str
+        Notes for stderr (e.g. delays beyond the last step, which never arrive).
+    """
+    from netsim.runner import engines_for
+
+    K = scenario.steps if steps is None else int(steps)
+    M = scenario.trials if trials is None else int(trials)
+    try:
+        engines = list(engines_for(engine, families, scenario).values())
+    except ValueError:
+        engines = ["events", "vectorised"]  # the run itself reports the bad choice
+    check_run(scenario, K, M, engines, steps_name="--steps" if steps is not None
+              else "run.steps", trials_name="--trials" if trials is not None
+              else "run.trials")
+    if trace is not None:
+        folder = Path(trace).resolve().parent
+        if folder.is_dir():
+            need = trace_bytes(scenario, K) * M * max(1, len(engines))
+            free = shutil.disk_usage(folder).free
+            if need > free:
+                raise ResourceError(
+                    f"--trace {trace}: the trace files need about {format_bytes(need)}, more "
+                    f"than the {format_bytes(free)} free on {folder}; lower --trials or "
+                    f"--steps", "--trace", need, free)
+    notes = []
+    longest = max(int(scenario.max_delay), int(scenario.delay_bound))
+    if longest > K:
+        notes.append(
+            f"delays up to {longest} steps exceed the {K} steps of the run: a message "
+            f"delayed past step {K} never arrives (and a block period beyond it never "
+            f"ends), so the vectorised engine builds A^r only up to r = {K}")
+    return notes
+
+
+# -- dense linear algebra ---------------------------------------------------------------
+
+
+def eig_cost(dim: int, *, vectors: bool = False) -> tuple[float, float]:
+    """(bytes, seconds) of dense eigenvalues of a real ``dim x dim`` matrix.
+
+    About 10 dim^3 flops for the values (Hessenberg + QR), 25 dim^3 with vectors;
+    memory: the matrix, LAPACK's copy and workspace, complex vectors.
+    """
+    d = float(dim)
+    flops = (25.0 if vectors else 10.0) * d ** 3
+    memory = d * d * 8 * (2 + (2 if vectors else 0)) + 64 * d * 8
+    return memory, flops / FLOPS
+
+
+def exact_observability_cost(n: int, n_agents: int) -> tuple[float, float]:
+    """(bytes, seconds) of the exact observability checks of an (n, N) scenario:
+    the PBH screening eigendecomposition of the (N n)-dimensional pair (P kron A,
+    D_C-bar) and of A."""
+    mem_big, t_big = eig_cost(n * n_agents, vectors=True)
+    mem_a, t_a = eig_cost(n, vectors=True)
+    return max(mem_big, mem_a), t_big + t_a
+
+
+def check_gain_design(scenario: Any, method: str | None = None,
+                      parameter: str = "plant.A") -> None:
+    """Refuse a gain design (:class:`ResourceError`) that cannot run here.
+
+    Costs: the PBH observability test of (P kron A, D_C-bar) (an (N n)-dimensional
+    eigendecomposition) and an SDP whose largest semidefinite block is 2 N n
+    (LCSYS2022 eq. 13; the CCL design has two N n x N n matrix variables): the
+    first-order solver projects on that cone every iteration (a symmetric
+    eigendecomposition of size 2 N n, about 100 iterations) and stores the
+    constraint matrix.
+    Explicit gains (``[gains] K``) need only the certificate (the same SDP).
+    """
+    n = int(scenario.plant.n_states)
+    N = int(scenario.n_agents)
+    Nn = n * N
+    what = f"gain design for n = {n} states x N = {N} agents (N n = {Nn})"
+    mem_obs, t_obs = exact_observability_cost(n, N)
+    from netsim.estimators.gains import LARGE_LMI_STATES
+
+    # up to LARGE_LMI_STATES an interior-point solve of the 2 N n cone; above it the
+    # split form (one N n cone) with SCS
+    cone = 2 * Nn if Nn <= LARGE_LMI_STATES else Nn
+    mem_sdp = 8.0 * cone * cone * 6
+    # about 2000 first-order iterations over the bisection's solves, each a symmetric
+    # eigendecomposition (9 d^3 flops, at about four times the non-symmetric rate)
+    t_sdp = 2000 * 9.0 * float(cone) ** 3 / (4 * FLOPS)
+    hint = "use fewer states n or agents N"
+    check_memory(max(mem_obs, mem_sdp), parameter, what, f"{n} x {n}", hint)
+    check_time(t_obs + t_sdp, parameter, what, f"{n} x {n}", hint)
+
+
+def analysis_cost(n: int, n_agents: int, taus: Sequence[int]) -> tuple[float, float]:
+    """(bytes, seconds) of the exact spectral radii of the augmented closed loops
+    (compensated and uncompensated, dimension N n (tau + 1)) for every tau in ``taus``.
+
+    Dense eigenvalues up to :data:`netsim.models.augmented.DENSE_SIZE_THRESHOLD`;
+    above it ARPACK on the structured operator (Krylov basis of 2k + 1 vectors, about
+    ARPACK_MAXITER / 3 restarts of that many block-companion products of
+    N n^2 (tau + 1) flops each) with the dense fallback up to DENSE_FALLBACK_MAX.
+    """
+    from netsim.models.augmented import (
+        ARPACK_K,
+        ARPACK_MAXITER,
+        DENSE_FALLBACK_MAX,
+        DENSE_SIZE_THRESHOLD,
+    )
+
+    Nn = n * n_agents
+    memory = 0.0
+    seconds = 0.0
+    stop = 10 * time_limit()  # past this the sum only confirms a refusal
+    for tau in sorted(taus, reverse=True):  # the largest first: the memory peak
+        if seconds > stop:
+            break
+        dim = Nn * (int(tau) + 1)
+        if dim <= DENSE_SIZE_THRESHOLD:
+            mem, sec = eig_cost(dim)
+        else:
+            ncv = 2 * ARPACK_K + 1
+            mem = 16.0 * dim * (ncv + 4) + 8.0 * (int(tau) + 2) * n * n
+            matvecs = ncv * ARPACK_MAXITER / 3
+            sec = matvecs * 2.0 * (n * Nn + Nn) * (int(tau) + 1) / FLOPS
+            if dim <= DENSE_FALLBACK_MAX:  # ARPACK often fails here: dense fallback
+                fallback = eig_cost(dim)
+                mem, sec = max(mem, fallback[0]), sec + fallback[1]
+        memory = max(memory, mem)
+        seconds += 2 * sec
+    return memory, seconds
+
+
+def check_analysis(n: int, n_agents: int, taus: Sequence[int], parameter: str,
+                   what: str, value: Any = None) -> float:
+    """Refuse an analysis (:class:`ResourceError`) whose estimate exceeds the limits;
+    returns the estimated seconds."""
+    memory, seconds = analysis_cost(n, n_agents, taus)
+    check_memory(memory, parameter, what, value)
+    check_time(seconds, parameter, what, value)
+    return seconds

@@ -196,6 +196,7 @@ def check(reply: dict[str, Any], argv: list[str], raw: bytes) -> None:
     assert reply["escaped"] is None, f"{reply['escaped']}\n{where}"
     err = reply["stderr"]
     assert "Traceback" not in err, f"{err}\n{where}"
+    assert "Warning:" not in err, f"a raw warning reached stderr: {err}\n{where}"
     assert reply["seconds"] < TIME_LIMIT_S, f"{reply['seconds']:.1f} s\n{where}"
     if reply["code"] == 0:
         assert reply["stdout_bytes"] > 0, f"exit 0 without a result\n{where}"

@@ -12,6 +12,7 @@ import json
 import math
 import sys
 from collections.abc import Sequence
+from contextlib import nullcontext
 from typing import Any
 
 import numpy as np
@@ -227,7 +228,22 @@ def build_parser() -> argparse.ArgumentParser:
     from netsim.bench import add_bench_parser
 
     add_bench_parser(sub)
+    for name, command in sub.choices.items():
+        _add_no_cache(name, command)
     return parser
+
+
+def _add_no_cache(name: str, parser: argparse.ArgumentParser) -> None:
+    """``--no-cache`` on every command that designs gains (and on bench's subcommands)."""
+    if name in ("run", "design", "analyze"):
+        parser.add_argument("--no-cache", action="store_true",
+                            help="design the gains afresh instead of reading them from the "
+                            "gain cache (netsim.gaincache; NETSIM_CACHE_DIR=off disables it)")
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction) and name == "bench":
+            for sub_name, sub_parser in action.choices.items():
+                _add_no_cache("run" if sub_name in ("delay-tolerance", "sweep") else sub_name,
+                              sub_parser)
 
 
 def _families(scenario: Any, option: str | None) -> list[Any]:
@@ -601,8 +617,11 @@ def _cmd_design(args: argparse.Namespace) -> int:
     from netsim.budget import check_gain_design
 
     check_gain_design(scenario)
+    from netsim.gaincache import cached_design
+
     try:
-        design = design_for_scenario(scenario, **overrides)
+        design = cached_design(scenario, request,
+                               lambda: design_for_scenario(scenario, **overrides))
     except (GainDesignError, ValueError) as exc:
         raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                            EXIT_DESIGN_FAILED) from None
@@ -848,8 +867,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "bench": _cmd_bench,
         "scenarios": _cmd_scenarios,
     }
+    from netsim import gaincache
+
+    fresh = gaincache.disabled() if getattr(args, "no_cache", False) else nullcontext()
     try:
-        with scenario_warnings(args.command):
+        with scenario_warnings(args.command), fresh:
             return handlers[args.command](args)
     except CommandError as exc:
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")

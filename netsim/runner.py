@@ -71,13 +71,18 @@ GROWTH_TOLERANCE = 2.0
 
 
 def scenario_gains(scenario: Scenario) -> GainDesign:
-    """Return the gains of the scenario's ``[gains]`` table (:func:`design_for_scenario`).
+    """Return the gains of the scenario's ``[gains]`` table (:func:`design_for_scenario`),
+    from the disk cache when it holds them (:mod:`netsim.gaincache`).
 
     Raises :class:`netsim.budget.ResourceError` first if the design (its PBH test and
     SDP) cannot run on this machine (:func:`netsim.budget.check_gain_design`).
     """
+    from netsim.estimators.gains import design_request
+    from netsim.gaincache import cached_design
+
     budget.check_gain_design(scenario)
-    return design_for_scenario(scenario)
+    return cached_design(scenario, design_request(scenario),
+                         lambda: design_for_scenario(scenario))
 
 
 def _measure(sensors: Sequence[int], n_sensors: int) -> Callable[[Sequence[np.ndarray]], Any]:

@@ -158,8 +158,13 @@ class LinearPlant:
             States (K+1, T, n) and stacked measurements (K+1, T, M). The same
             numbers as :meth:`sample_initial`, :meth:`step` and
             :meth:`measure_stacked` step by step, up to the order of
-            floating-point additions.
+            floating-point additions. A state that overflows becomes inf/NaN without a
+            warning: the hosts report it as a divergence.
         """
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._simulate(noise)
+
+    def _simulate(self, noise: np.ndarray) -> PlantTrajectory:
         import scipy.sparse as sp
 
         n = self.n_states

@@ -233,8 +233,9 @@ def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
 def _powers(A: np.ndarray, count: int) -> np.ndarray:
     """A^0 .. A^count, shape (count+1, n, n), by the estimators' recursion A @ A^(r-1)."""
     out = [np.eye(A.shape[0]), A]
-    while len(out) <= count:
-        out.append(A @ out[-1])
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a divergence
+        while len(out) <= count:
+            out.append(A @ out[-1])
     return np.stack(out[: count + 1])
 
 

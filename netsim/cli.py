@@ -181,6 +181,24 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("--json", action="store_true",
                       help="print {\"output\": FILE.png, ...} as JSON on stdout")
 
+    claims = sub.add_parser(
+        "claims", help="the papers' statements as executable checks (holds / fails / not "
+        "checkable), with a counterexample search",
+        description="Run the claim registry's checks (netsim.claims): one line per claim "
+        "with its verdict and the deciding numbers; a seeded random search for "
+        "counterexamples to LCSYS2022 Theorem 1; a Markdown report and the counterexample "
+        "scenarios (netsim analyze FILE / netsim run FILE reproduce them) in --out.")
+    claims.add_argument("names", nargs="*", metavar="PAPER|CLAIM",
+                        help="papers (LCSYS2022, delay-tolerant, aoi, dkfe) or claim ids; "
+                        "default all")
+    claims.add_argument("--budget", type=float, default=15.0,
+                        help="seconds for the counterexample search (default 15)")
+    claims.add_argument("--seed", type=int, default=0, help="seed of the search (default 0)")
+    claims.add_argument("--out", default="claims-out",
+                        help="folder of the report and scenarios (default ./claims-out)")
+    claims.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    claims.add_argument("--no-progress", action="store_true", help="no progress bar")
+
     scen = sub.add_parser("scenarios", help="list the built-in scenarios",
                           description="List the built-in scenarios with their descriptions.")
     scen.add_argument("--json", action="store_true", help="print one JSON object on stdout")
@@ -843,6 +861,31 @@ def _cmd_fusion(args: argparse.Namespace) -> int:
     return _emit(args, result.to_dict(), result.format_text())
 
 
+def _cmd_claims(args: argparse.Namespace) -> int:
+    from tqdm import tqdm
+
+    from netsim.claims import run_claims, select
+
+    if not (math.isfinite(args.budget) and args.budget > 0):
+        raise CommandError(f"--budget must be a positive number of seconds, got {args.budget}")
+    if args.seed < 0:
+        raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
+    try:
+        chosen = select(args.names)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    bar = tqdm(total=len(chosen), desc="netsim claims", unit="claim", file=sys.stderr,
+               leave=False, disable=True if args.no_progress else None)
+    try:
+        report = run_claims(chosen, seed=args.seed, budget=args.budget, out=args.out,
+                            progress=lambda _: bar.update(1))
+    except OSError as exc:
+        raise CommandError(f"--out {args.out}: {exc.strerror or exc}") from None
+    finally:
+        bar.close()
+    return _emit(args, report.to_dict(), report.format_text())
+
+
 def _cmd_bench(args: argparse.Namespace) -> int:
     from netsim.bench import cmd_bench
 
@@ -865,6 +908,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "plot": _cmd_plot,
         "fusion": _cmd_fusion,
         "bench": _cmd_bench,
+        "claims": _cmd_claims,
         "scenarios": _cmd_scenarios,
     }
     from netsim import gaincache

@@ -1,0 +1,21 @@
+"""Paper claims as executable checks.
+
+:data:`REGISTRY` holds every checkable statement of the four papers (LCSYS2022, the
+delay-tolerant paper, the aoi paper, the dkfe paper) as a :class:`Claim`: its id, paper,
+equation or section, the statement, its hypotheses and a check returning an
+:class:`Outcome` (``holds``, ``fails`` with numbers and a counterexample, or ``not
+checkable`` with the reason). :func:`run_claims` runs a selection (``netsim claims``);
+:mod:`netsim.claims.search` is the seeded counterexample search for LCSYS2022 Theorem 1;
+:mod:`netsim.claims.bench_checks` holds the same claims' checks on a ``netsim bench
+delay-tolerance`` report.
+"""
+
+from __future__ import annotations
+
+from netsim.claims.core import FAILS, HOLDS, NOT_CHECKABLE, VERDICTS, Claim, Context, Outcome
+from netsim.claims.registry import CLAIM_IDS, REGISTRY, get_claim, select
+from netsim.claims.report import ClaimResult, ClaimsReport, run_claims
+
+__all__ = ["FAILS", "HOLDS", "NOT_CHECKABLE", "VERDICTS", "Claim", "Context", "Outcome",
+           "CLAIM_IDS", "REGISTRY", "get_claim", "select", "ClaimResult", "ClaimsReport",
+           "run_claims"]

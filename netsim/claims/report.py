@@ -1,0 +1,162 @@
+"""Running a selection of claims: results, the Markdown report, the JSON form."""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from netsim.claims.core import FAILS, HOLDS, NOT_CHECKABLE, Claim, Context, Outcome
+
+__all__ = ["ClaimResult", "ClaimsReport", "run_claims"]
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, float) and not math.isfinite(v):
+        return None
+    if hasattr(v, "item") and not isinstance(v, (str, bytes)):
+        return _jsonable(v.item())
+    return v
+
+
+@dataclass
+class ClaimResult:
+    """One claim with its outcome and the seconds its check took."""
+
+    claim: Claim
+    outcome: Outcome
+    seconds: float
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form."""
+        return _jsonable({**self.claim.describe(), **self.outcome.to_dict(),
+                          "seconds": round(self.seconds, 3)})
+
+    def line(self) -> str:
+        """One line: id, verdict, the deciding numbers."""
+        o = self.outcome
+        why = f" [{o.reason}]" if o.reason else ""
+        return f"{self.claim.id:<16} {o.verdict.upper():<14} {o.summary}{why}"
+
+
+@dataclass
+class ClaimsReport:
+    """Everything one ``netsim claims`` run checked.
+
+    Attributes
+    ----------
+    results : list of ClaimResult
+    seed : int
+    budget : float
+    elapsed : float
+    out : str or None
+        The folder of the report and the counterexample scenarios.
+    files : list of str
+        Files written there.
+    """
+
+    results: list[ClaimResult]
+    seed: int
+    budget: float
+    elapsed: float = 0.0
+    out: str | None = None
+    files: list[str] = field(default_factory=list)
+
+    def counts(self) -> dict[str, int]:
+        """How many claims got each verdict."""
+        return {v: sum(r.outcome.verdict == v for r in self.results)
+                for v in (HOLDS, FAILS, NOT_CHECKABLE)}
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form (what ``--json`` prints)."""
+        return {"claims": [r.to_dict() for r in self.results], "counts": self.counts(),
+                "seed": self.seed, "budget_s": self.budget,
+                "elapsed_s": round(self.elapsed, 3), "out": self.out, "files": self.files}
+
+    def format_text(self) -> str:
+        """One line per claim and a count."""
+        c = self.counts()
+        lines = [r.line() for r in self.results]
+        lines.append(f"{len(self.results)} claims: {c[HOLDS]} hold, {c[FAILS]} fail, "
+                     f"{c[NOT_CHECKABLE]} not checkable here ({self.elapsed:.1f} s, seed "
+                     f"{self.seed})" + (f"; report and scenarios in {self.out}"
+                                        if self.out else ""))
+        return "\n".join(lines) + "\n"
+
+    def markdown(self) -> str:
+        """The report file: a table, then each claim with its hypotheses and numbers."""
+        out = ["# Paper claims checked by `netsim claims`", "",
+               f"seed {self.seed}, search budget {self.budget:g} s, {self.elapsed:.1f} s", "",
+               "| id | paper | where | verdict | deciding numbers |", "|---|---|---|---|---|"]
+        for r in self.results:
+            s = r.outcome.summary.replace("|", "/")
+            out.append(f"| {r.claim.id} | {r.claim.paper} | {r.claim.where} | "
+                       f"{r.outcome.verdict} | {s} |")
+        for r in self.results:
+            o = r.outcome
+            out += ["", f"## {r.claim.id}: {r.claim.paper}, {r.claim.where}", "",
+                    f"Statement: {r.claim.statement}.", ""]
+            if r.claim.hypotheses:
+                out += ["Hypotheses:", *[f"- {h}" for h in r.claim.hypotheses], ""]
+            out.append(f"Verdict: **{o.verdict}**. {o.summary}")
+            if o.reason:
+                out.append(f"Reason: {o.reason}.")
+            if o.counterexample:
+                out += ["", "Counterexample:", "```json",
+                        json.dumps(_jsonable(o.counterexample), indent=1), "```"]
+        return "\n".join(out) + "\n"
+
+
+def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
+               out: str | Path | None = None,
+               progress: Callable[[str], None] | None = None) -> ClaimsReport:
+    """Run the checks of ``claims``; write ``claims.md`` and counterexamples into ``out``.
+
+    Parameters
+    ----------
+    claims : sequence of Claim
+    seed : int
+        Seed of the random searches.
+    budget : float
+        Seconds for the counterexample search.
+    out : str or path, optional
+        Folder for the report and the scenario files (None: nothing is written).
+    progress : callable(str), optional
+        Called with each claim's id after its check.
+
+    Returns
+    -------
+    ClaimsReport
+    """
+    folder = None if out is None else Path(out)
+    context = Context(seed=seed, budget=budget, out=folder)
+    start = time.monotonic()
+    results = []
+    for claim in claims:
+        t0 = time.monotonic()
+        outcome = claim.run(context)
+        results.append(ClaimResult(claim, outcome, time.monotonic() - t0))
+        if progress is not None:
+            progress(claim.id)
+    report = ClaimsReport(results, seed, budget, time.monotonic() - start,
+                          None if folder is None else str(folder))
+    if folder is not None:
+        folder.mkdir(parents=True, exist_ok=True)
+        for r in results:
+            cx = r.outcome.counterexample or {}
+            if cx.get("scenario"):
+                report.files.append(cx["scenario"])
+        md = folder / "claims.md"
+        report.files.insert(0, str(md))
+        md.write_text(report.markdown(), encoding="utf-8")
+    return report
+
+

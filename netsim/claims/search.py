@@ -1,0 +1,338 @@
+"""Seeded counterexample search for LCSYS2022 Theorem 1 over scalar plants.
+
+Theorem 1's hypotheses, in the papers' own setting: a row-stochastic ``P`` on a
+strongly connected, self-looped graph (Lemma 1; self-loops undelayed), a plant
+``x_k = a x_{k-1}`` observed by the sensors with ``c_i != 0`` (``(P kron A, D_C)``
+observable), gains ``K_i`` with ``rho(A-hat) < 1`` and one common delay ``tau`` on every
+link (self-loops excluded). The theorem says the compensating estimator is stable for
+every ``tau <= tau*``; the judge is the exact spectral radius of the augmented closed
+loop (LCSYS2022 eq. 9-10). A hit is shrunk greedily (fewer links, coarser numbers,
+smaller ``tau``) while it stays a counterexample, then written as a scenario file that
+``netsim analyze FILE`` and ``netsim run FILE`` reproduce.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from netsim.models.augmented import augmented_spectral_radius, spectral_radius, tau_star
+
+__all__ = ["ScalarInstance", "SearchResult", "search_theorem1", "scenario_toml",
+           "write_scenario", "MARGIN", "TAU_MAX"]
+
+#: A counterexample must have exact rho >= 1 + MARGIN (so that a run visibly diverges
+#: and round-off cannot flip the verdict).
+MARGIN = 0.01
+#: Largest tau* scanned.
+TAU_MAX = 20
+
+
+@dataclass(frozen=True)
+class ScalarInstance:
+    """A scalar plant ``x_k = a x_{k-1}`` on ``N`` agents with given gains.
+
+    Attributes
+    ----------
+    a : float
+        The plant.
+    P : tuple of tuple of float
+        Row-stochastic consensus weights (self-loops on the diagonal).
+    c : tuple of float
+        Output of each agent (``y_i = c_i x``; 0: measures nothing).
+    k : tuple of float
+        Gains ``K_i`` (1 x 1 each); ``L_i = K_i c_i``.
+    """
+
+    a: float
+    P: tuple[tuple[float, ...], ...]
+    c: tuple[float, ...]
+    k: tuple[float, ...]
+
+    @property
+    def N(self) -> int:
+        """Number of agents."""
+        return len(self.c)
+
+    def matrices(self) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray]]:
+        """``(P, A, C, L)`` in the form of :mod:`netsim.models.augmented`."""
+        P = np.array(self.P, dtype=float)
+        A = np.array([[self.a]])
+        C = [np.array([[ci]]) for ci in self.c]
+        L = [np.array([[ki * ci]]) for ki, ci in zip(self.k, self.c, strict=True)]
+        return P, A, C, L
+
+    def delays(self, tau: int) -> np.ndarray:
+        """Delay ``tau`` on every link, 0 on the self-loops."""
+        P = np.array(self.P)
+        return np.where((P != 0) & ~np.eye(self.N, dtype=bool), tau, 0)
+
+    def rho_delay_free(self) -> float:
+        """``rho(A-hat) = rho(diag(1 - k_i c_i^2) P a)``."""
+        P, A, C, L = self.matrices()
+        G = np.diag([1.0 - ki * ci * ci for ki, ci in zip(self.k, self.c, strict=True)])
+        return spectral_radius(G @ P * self.a)
+
+    def tau_star(self) -> int | None:
+        """Theorem 1's tau* (scanned to :data:`TAU_MAX`)."""
+        return tau_star(*self.matrices(), tau_max=TAU_MAX)
+
+    def exact_rho(self, tau: int) -> float:
+        """Exact spectral radius of the compensated augmented closed loop at ``tau``."""
+        return augmented_spectral_radius(*self.matrices(), self.delays(tau), tau,
+                                         compensated=True)
+
+    def hypotheses(self) -> str | None:
+        """None if Theorem 1's hypotheses hold, else the first one that does not."""
+        P = np.array(self.P)
+        if np.any(P < 0) or not np.allclose(P.sum(axis=1), 1.0, atol=1e-12):
+            return "P is not row-stochastic"
+        if np.any(np.diag(P) <= 0):
+            return "a self-loop is missing"
+        reach = (P > 0).astype(int)
+        closure = np.linalg.matrix_power(reach + np.eye(self.N, dtype=int), self.N)
+        if not np.all(closure > 0):
+            return "the graph is not strongly connected"
+        obs = np.vstack([np.diag(self.c) @ np.linalg.matrix_power(P * self.a, i)
+                       for i in range(self.N)])
+        if np.linalg.matrix_rank(obs) < self.N:
+            return "(P kron A, D_C) is not observable"
+        if not self.rho_delay_free() < 1.0:
+            return "rho(A-hat) >= 1"
+        return None
+
+    def violation(self) -> tuple[int, int, float] | None:
+        """``(tau*, tau, exact rho)`` of the smallest ``1 <= tau <= tau*`` with exact rho
+        ``>= 1 + MARGIN``, or None (hypotheses violated or no such tau)."""
+        if self.hypotheses() is not None:
+            return None
+        star = self.tau_star()
+        if star is None or star < 1:
+            return None
+        for tau in range(1, star + 1):
+            r = self.exact_rho(tau)
+            if r >= 1.0 + MARGIN:
+                return star, tau, r
+        return None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form."""
+        return {"a": self.a, "P": [list(r) for r in self.P], "c": list(self.c),
+                "k": list(self.k)}
+
+
+@dataclass
+class SearchResult:
+    """What :func:`search_theorem1` found.
+
+    Attributes
+    ----------
+    tried : int
+        Instances satisfying the hypotheses with ``tau* >= 1``.
+    hits : int
+        Among them, those with a ``tau <= tau*`` of exact rho ``>= 1 + MARGIN``.
+    elapsed : float
+        Seconds spent (search and shrinking).
+    instance : ScalarInstance or None
+        The shrunk counterexample.
+    tau, tau_star : int or None
+        Its delay and Theorem 1's tau*.
+    exact_rho, rho_delay_free, bound_eq26 : float or None
+        Its exact augmented rho at ``tau``, ``rho(A-hat)`` and the eq. (26) value at tau.
+    first : dict or None
+        The first hit before shrinking.
+    """
+
+    tried: int
+    hits: int
+    elapsed: float
+    instance: ScalarInstance | None = None
+    tau: int | None = None
+    tau_star: int | None = None
+    exact_rho: float | None = None
+    rho_delay_free: float | None = None
+    bound_eq26: float | None = None
+    first: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form."""
+        return {"tried": self.tried, "hits": self.hits, "elapsed_s": round(self.elapsed, 3),
+                "instance": None if self.instance is None else self.instance.to_dict(),
+                "tau": self.tau, "tau_star": self.tau_star, "exact_rho": self.exact_rho,
+                "rho_delay_free": self.rho_delay_free, "bound_eq26": self.bound_eq26,
+                "first": self.first}
+
+
+def _random_instance(rng: np.random.Generator) -> ScalarInstance:
+    N = int(rng.choice([2, 3, 4], p=[0.5, 0.3, 0.2]))
+    adj = np.eye(N, dtype=bool)
+    for i in range(N):
+        adj[(i + 1) % N, i] = True  # a directed cycle: strongly connected
+    adj |= rng.random((N, N)) < 0.3
+    W = np.where(adj, rng.random((N, N)) + 0.05, 0.0)
+    P = W / W.sum(axis=1, keepdims=True)
+    c = rng.integers(0, 2, N).astype(float)
+    if c.sum() == 0:
+        c[int(rng.integers(N))] = 1.0
+    k = np.where(c != 0, rng.uniform(-1.0, 2.0, N), 0.0)
+    a = float(rng.uniform(-2.0, 2.0))
+    return ScalarInstance(a, tuple(map(tuple, P.tolist())), tuple(c.tolist()),
+                          tuple(k.tolist()))
+
+
+def _with_P(inst: ScalarInstance, P: np.ndarray) -> ScalarInstance:
+    P = P.copy()
+    np.fill_diagonal(P, 0.0)
+    P[np.diag_indices_from(P)] = np.round(1.0 - P.sum(axis=1), 12)
+    return replace(inst, P=tuple(map(tuple, P.tolist())))
+
+
+def _simpler(inst: ScalarInstance) -> list[ScalarInstance]:
+    """Candidate simplifications of ``inst``, simplest first."""
+    out = []
+    P = np.array(inst.P)
+    N = inst.N
+    for i in range(N):  # drop a link that is not on the cycle
+        for j in range(N):
+            if i != j and P[i, j] != 0 and i != (j + 1) % N:
+                Q = P.copy()
+                Q[i, j] = 0.0
+                out.append(_with_P(inst, Q))
+    for digits in (0, 1, 2):
+        def r(x: float, d: int = digits) -> float:
+            return float(round(x, d))
+        if r(inst.a) != inst.a:
+            out.append(replace(inst, a=r(inst.a)))
+        for i in range(N):
+            if r(inst.k[i]) != inst.k[i]:
+                k = list(inst.k)
+                k[i] = r(k[i])
+                out.append(replace(inst, k=tuple(k)))
+            for j in range(N):
+                if i != j and P[i, j] != 0 and r(P[i, j]) != P[i, j] and r(P[i, j]) > 0:
+                    Q = P.copy()
+                    Q[i, j] = r(P[i, j])
+                    out.append(_with_P(inst, Q))
+    return out
+
+
+def _shrink(inst: ScalarInstance, deadline: float) -> ScalarInstance:
+    improved = True
+    while improved and time.monotonic() < deadline:
+        improved = False
+        for cand in _simpler(inst):
+            if time.monotonic() >= deadline:
+                break
+            if cand.violation() is not None:
+                inst = cand
+                improved = True
+                break
+    return inst
+
+
+def search_theorem1(seed: int = 0, budget: float = 10.0, max_instances: int = 400,
+                    progress: Callable[[float], None] | None = None) -> SearchResult:
+    """Random search (seeded) for a counterexample to LCSYS2022 Theorem 1.
+
+    Parameters
+    ----------
+    seed : int
+        Seed of the instance generator.
+    budget : float
+        Seconds for the whole search; a quarter of it (at least 1 s) is kept for
+        shrinking the first hit.
+    max_instances : int
+        Stop after this many instances satisfying the hypotheses (with ``tau* >= 1``).
+    progress : callable(float), optional
+        Called with the fraction of the budget used.
+
+    Returns
+    -------
+    SearchResult
+    """
+    start = time.monotonic()
+    end = start + budget
+    rng = np.random.default_rng(seed)
+    tried = hits = 0
+    first: ScalarInstance | None = None
+    while tried < max_instances and time.monotonic() < end - (0 if first else
+                                                              max(1.0, budget / 4)):
+        inst = _random_instance(rng)
+        if inst.hypotheses() is not None:
+            continue
+        star = inst.tau_star()
+        if star is None or star < 1:
+            continue
+        tried += 1
+        if inst.violation() is not None:
+            hits += 1
+            first = first or inst
+        if progress is not None:
+            progress(min(1.0, (time.monotonic() - start) / budget))
+    result = SearchResult(tried=tried, hits=hits, elapsed=0.0)
+    if first is not None:
+        star0, tau0, rho0 = first.violation()  # type: ignore[misc]
+        result.first = {**first.to_dict(), "tau": tau0, "tau_star": star0, "exact_rho": rho0}
+        shrunk = _shrink(first, max(end, time.monotonic() + 1.0))
+        star, tau, rho = shrunk.violation()  # type: ignore[misc]
+        from netsim.models.augmented import delay_bound_lcsys
+
+        result.instance, result.tau, result.tau_star, result.exact_rho = shrunk, tau, star, rho
+        result.rho_delay_free = shrunk.rho_delay_free()
+        result.bound_eq26 = float(delay_bound_lcsys(*shrunk.matrices(), tau))
+    result.elapsed = time.monotonic() - start
+    if progress is not None:
+        progress(1.0)
+    return result
+
+
+def _toml_list(v: Any) -> str:
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_list(x) for x in v) + "]"
+    return repr(float(v)) if not math.isnan(v) else "nan"
+
+
+def scenario_toml(inst: ScalarInstance, tau: int, name: str, note: str) -> str:
+    """A scenario file (TOML text) of ``inst`` with homogeneous delay ``tau`` and given K."""
+    return "\n".join([
+        f'name = "{name}"',
+        f'description = """{note}"""',
+        "",
+        "[run]",
+        "steps = 300",
+        "trials = 4",
+        "seed = 0",
+        'estimators = ["compensated"]',
+        "",
+        "[plant]",
+        f"A = [[{inst.a!r}]]",
+        "C = " + _toml_list([[[c]] for c in inst.c]),
+        "Q = 0.0001",
+        "R = 0.0001",
+        "",
+        "[network]",
+        "P = " + _toml_list([list(r) for r in inst.P]),
+        "",
+        "[delays]",
+        'model = "homogeneous"',
+        f"tau = {int(tau)}",
+        "",
+        "[gains]",
+        'method = "given"',
+        "K = " + _toml_list([[[k]] for k in inst.k]),
+        "",
+    ])
+
+
+def write_scenario(inst: ScalarInstance, tau: int, folder: Path, name: str, note: str) -> Path:
+    """Write :func:`scenario_toml` to ``folder/name.toml``; return the path."""
+    folder.mkdir(parents=True, exist_ok=True)
+    path = folder / f"{name}.toml"
+    path.write_text(scenario_toml(inst, tau, name, note), encoding="utf-8")
+    return path

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from netsim.models.augmented import augmented_closed_loop
 from netsim.models.jsonsafe import json_number as _num
+from netsim.models.precision import precision_horizon
 from netsim.traces.reader import NOT_USED, Trace
 
 __all__ = [
@@ -278,6 +279,10 @@ class ReplayReport:
     state_term : float or None
         Uncompensated only: max |(I - L_i C_i) sum_j p_ij (A^(r+1) - A) x_{k-1-r}|,
         the state-proportional part of the exact eta.
+    precision_horizon : int or None
+        First step whose recorded error is below the float64 resolution of the state
+        (:func:`netsim.models.precision.precision_horizon`); the replay compares only
+        the steps before it. None: every step is trusted.
     exact, paper : EtaReplay or None
     notes : list of str
     verdict : str
@@ -306,6 +311,7 @@ class ReplayReport:
     state_term: float | None = None
     exact: EtaReplay | None = None
     paper: EtaReplay | None = None
+    precision_horizon: int | None = None
     recorded: np.ndarray | None = field(default=None, repr=False)
     notes: list[str] = field(default_factory=list)
     verdict: str = ""
@@ -335,6 +341,7 @@ class ReplayReport:
             "state_term": _num(self.state_term),
             "exact": None if self.exact is None else self.exact.to_dict(),
             "paper": None if self.paper is None else self.paper.to_dict(),
+            "precision_horizon": self.precision_horizon,
             "notes": list(self.notes),
             "verdict": self.verdict,
         }
@@ -367,6 +374,11 @@ class ReplayReport:
             + ("" if self.state_term is None
                else f"; state-proportional part of eta {self.state_term:.3e}")
         )
+        if self.precision_horizon is not None:
+            lines.append(
+                f"  beyond the float64 precision horizon at step {self.precision_horizon}: "
+                f"compared steps 0..{self.precision_horizon - 1} only"
+            )
         for rep in (self.exact, self.paper):
             if rep is None:
                 continue
@@ -732,6 +744,14 @@ def replay_trace(trace: Trace, *, method: str = "auto",
     if run is None:
         report.reason = why
         return report
+    horizon = precision_horizon(
+        [run.X], [np.mean(np.sum(run.errors ** 2, axis=2), axis=1)])
+    if horizon is not None:
+        # errors from the horizon on are rounding of the state: replay the steps before
+        report.precision_horizon = horizon
+        keep = max(1, horizon)
+        run = _Recorded(system, run.X[:keep], [Y[:keep] for Y in run.Ys], run.Xhat[:keep],
+                        run.D[:keep], run.edge, run.errors[:keep])
     report.defined = True
     report.steps_replayed = run.K
     report.notes.extend(_status_notes(trace))
@@ -848,11 +868,16 @@ def _verdict(report: ReplayReport, compensated: bool, delays_seen: bool) -> str:
     exact, paper = report.exact, report.paper
     assert exact is not None and paper is not None
     if not exact.reproduces:
-        return (f"the exact recursion does NOT reproduce the run (relative deviation "
+        where = ("" if report.precision_horizon is None else
+                 f" before the float64 precision horizon at step {report.precision_horizon}")
+        return (f"the exact recursion does NOT reproduce the run{where} (relative deviation "
                 f"{exact.max_rel:.2e} > {report.effective_tolerance:.1e}); see the exact "
                 "eta's cause")
     head = (f"the augmented recursion with the estimator's exact eta reproduces the recorded "
             f"errors to round-off (relative {exact.max_rel:.1e})")
+    if report.precision_horizon is not None:
+        head += (f" before the float64 precision horizon at step {report.precision_horizon}"
+                 " (later errors are rounding of the state and are not compared)")
     if paper.reproduces:
         why = "no effective delay > 0" if not delays_seen else f"relative {paper.max_rel:.1e}"
         return head + f"; so does the paper's eta ({why})"

@@ -200,8 +200,9 @@ class EtaReplay:
     first_step_above : int or None
         First step whose relative deviation exceeds the tolerance.
     reproduces : bool
-        ``max_rel <= effective tolerance`` (see :class:`ReplayReport`): the recursion
-        reproduces the run to round-off.
+        Every step's relative deviation is within its round-off allowance: the larger
+        of ``tolerance`` and ROUNDOFF_STATE_FACTOR eps max_{j<=k} |x_j| / error_scale
+        (the state's rounding so far); the recursion reproduces the run to round-off.
     tail_mse_replayed, tail_mse_recorded : float
         Mean over agents and the second half of the steps of ||e^i_k||^2, replayed and
         recorded (how far off the replay is in MSE terms).
@@ -383,7 +384,7 @@ class ReplayReport:
             if rep is None:
                 continue
             state = ("reproduces the recorded errors to round-off" if rep.reproduces
-                     else f"DEVIATES (first above {self.effective_tolerance:.1e} at step "
+                     else f"DEVIATES (first above its round-off allowance at step "
                           f"{rep.first_step_above})")
             lines.append(
                 f"  {rep.name:<5} eta ({rep.description}): max |dev| {rep.max_abs:.3e} "
@@ -772,7 +773,13 @@ def replay_trace(trace: Trace, *, method: str = "auto",
         run, rec, report.method, eta_exact, eta_paper)
     # 4. compare with the recorded errors
     delays_seen = report.nonzero_delay_steps > 0
+    # per step: the round-off of the state so far (ROUNDOFF_STATE_FACTOR eps max_{j<=k}
+    # |x_j|), so that a large late state does not excuse early deviations
     tol = report.effective_tolerance
+    if report.error_scale > 0:
+        running = np.maximum.accumulate(np.max(np.abs(run.X), axis=1))
+        floor = ROUNDOFF_STATE_FACTOR * float(np.finfo(float).eps) * running
+        tol = np.maximum(float(tolerance), floor / report.error_scale)
     report.exact = _compare("exact", _exact_description(compensated), exact_err, run.errors,
                             report.error_scale, tol, "")
     report.paper = _compare("paper", "LCSYS2022 eq. 11: (I - L_i C_i) nu_k - L_i zeta^i_k",
@@ -838,7 +845,8 @@ def _run_agents(terms: list[list[list[tuple[int, int, float]]]], local: list[np.
 
 
 def _compare(name: str, description: str, replayed: np.ndarray, recorded: np.ndarray,
-             scale: float, tolerance: float, cause: str) -> EtaReplay:
+             scale: float, tolerance: float | np.ndarray, cause: str) -> EtaReplay:
+    """``tolerance``: relative round-off allowance, one number or one per step."""
     dev = np.abs(replayed - recorded).reshape(replayed.shape[0], -1).max(axis=1)
     rel = dev / scale if scale > 0 else np.where(dev > 0, np.inf, 0.0)
     worst = int(np.argmax(dev)) if dev.size else 0
@@ -857,10 +865,10 @@ def _compare(name: str, description: str, replayed: np.ndarray, recorded: np.nda
         max_rel=max_rel,
         worst_step=worst,
         first_step_above=int(above[0]) if above.size else None,
-        reproduces=bool(max_rel <= tolerance),
+        reproduces=bool(above.size == 0),
         tail_mse_replayed=tail_rep,
         tail_mse_recorded=tail_rec,
-        cause=cause if max_rel > tolerance else "",
+        cause=cause if above.size else "",
     )
 
 

@@ -203,15 +203,22 @@ def homogeneous_delays(links: Iterable[Link], tau: int) -> FixedDelays:
 
 
 def heterogeneous_delays(links: Iterable[Link], tau: int, seed: SeedLike) -> FixedDelays:
-    """Return fixed delays drawn once, uniformly from {0, ..., tau}, per link.
+    """Return fixed delays drawn once, uniformly from {0, ..., tau}, per link, with the
+    bound attained: the link with the largest draw (the first, in sorted link order) is
+    set to tau.
 
     This is the heterogeneous setting of LCSYS2022 Section IV (delays uniformly
-    distributed between 0 and tau-bar for different links). The realisation uses
-    the stream ``"delays/heterogeneous"`` of ``seed``.
+    distributed between 0 and tau-bar for different links). Without the last rule a
+    realisation for a bound tau could stay far below it (with the same stream reused
+    for every tau, tau = 19 gave a largest delay of 10 on the built-in cycle), so a
+    report at "tau" would describe a smaller delay. The other links stay uniform in
+    {0, ..., tau}. The realisation uses the stream ``"delays/heterogeneous"`` of ``seed``.
     """
     rng = stream(seed, "delays/heterogeneous")
     links = sorted(links)
     draws = rng.integers(0, int(tau) + 1, size=len(links))
+    if len(links):
+        draws[int(np.argmax(draws))] = int(tau)
     delays = {link: int(d) for link, d in zip(links, draws, strict=True)}
     return FixedDelays(delays, default=int(tau) if not links else int(max(draws)))
 

@@ -11,7 +11,10 @@ for the scenario's own fixed delay realisation; and the convergence-time orders.
 
 Verdicts: ``respected`` (exact <= bound), ``conservative`` (respected, but the bound is
 >= 1 while the exact value is < 1: the bound fails to predict a stability that holds),
-``violated`` (exact > bound + BOUND_SLACK: printed as violated with both numbers).
+``violated`` (exact > bound + BOUND_SLACK: printed as violated with both numbers) --
+"bound violated" means only this, here and in ``netsim bench``. A prediction (Theorem 1:
+stable for tau <= tau*) that the exact rho contradicts is listed apart, as ``prediction
+contradicted`` (``AnalysisReport.contradictions``).
 """
 
 from __future__ import annotations
@@ -103,6 +106,8 @@ class AnalysisReport:
     rows: list[BoundRow] = field(default_factory=list)
     realised: dict[str, Any] | None = None
     violations: list[str] = field(default_factory=list)
+    #: Predictions (Theorem 1's "stable for tau <= tau*") that the exact rho contradicts.
+    contradictions: list[str] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -118,6 +123,7 @@ class AnalysisReport:
                 for k, v in self.realised.items()
             },
             "violations": self.violations,
+            "contradictions": self.contradictions,
         }
 
 
@@ -208,7 +214,7 @@ def analyze(
                 f"by the exact rho {exact_u:.6f} of its eq. (11) closed loop"
             )
         if row.theorem1_predicts_stable and exact_c >= 1:
-            report.violations.append(
+            report.contradictions.append(
                 f"tau = {tau}: Theorem 1 predicts stability but the exact rho is {exact_c:.6f}"
             )
         if progress is not None:

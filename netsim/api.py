@@ -11,7 +11,7 @@ Example
 >>> run = netsim.run(scenario, steps=50, trials=2, estimators=["compensated"])
 >>> run["compensated"].squared_errors.shape        # (trials, K+1, N)
 (2, 51, 4)
->>> run.summary["compensated"].verdict in ("stable", "diverging", "diverged")
+>>> run.summary["compensated"].verdict in ("stable", "diverging", "undecided", "diverged")
 True
 """
 

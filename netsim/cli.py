@@ -58,8 +58,9 @@ def build_parser() -> argparse.ArgumentParser:
             "Run every estimator family of SCENARIO over Monte Carlo trials (in the "
             "vectorised engine, or the SimPy event kernel with --engine events) and "
             "print, per estimator, the network MSE over time, the steady-state "
-            "MSE and a verdict (stable / diverging / diverged at step k). The same seed "
-            "gives the same numbers, bit for bit."
+            "MSE and a verdict (stable / diverging / undecided / diverged at step k, "
+            "by the statistical rule of netsim.verdicts; on an unstable plant, the float64 "
+            "precision horizon). The same seed gives the same numbers, bit for bit."
         ),
     )
     run.add_argument("scenario", help="built-in scenario name (see 'netsim scenarios') or a "
@@ -569,6 +570,10 @@ def _format_run(data: dict[str, Any]) -> str:
     for e in data["estimators"].values():
         lines += (e.get("report") or {}).get("summary_lines", [])
     for name, e in data["estimators"].items():
+        detail = e.get("verdict_detail")
+        if detail and not e["diverged_trials"]:
+            lines.append(f"{name}: {e['verdict']} ({detail['basis']}): {detail['reason']}")
+    for name, e in data["estimators"].items():
         if e.get("trials_finished") is not None:
             lines.append(f"{name}: only {e['trials_finished']} of {data['trials']} trials "
                          "finished (a trace could not be written)")
@@ -578,7 +583,8 @@ def _format_run(data: dict[str, Any]) -> str:
                      + (f"; not run: {', '.join(missing)}" if missing else ""))
     lines.append("")
     lines.append("MSE: (1/N) sum_i ||x_k - xhat^i_k||^2 averaged over non-diverged trials; "
-                 "growth/step: exp(slope of log MSE) over the second half.")
+                 "growth/step: exp(mean slope of each trial's log MSE) over the second half "
+                 "of the trusted steps; verdict rule: netsim.verdicts.")
     return "\n".join(lines) + "\n"
 
 
@@ -750,6 +756,9 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         lines += [f"  VIOLATED {v}" for v in report.violations]
     else:
         lines.append("no bound is violated by the exact values")
+    if report.contradictions:
+        lines.append(f"{len(report.contradictions)} predictions contradicted by the exact rho:")
+        lines += [f"  PREDICTION CONTRADICTED {v}" for v in report.contradictions]
     lines.append("Note: the uncompensated eq. (11) matrix is the error recursion only for a "
                  "plant whose state does not move; on a moving state its error also carries "
                  "(A^(r+1) - A) x_{k-1-r}.")

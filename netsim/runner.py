@@ -10,6 +10,7 @@ delay model is fixed or when they send on the same steps).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
@@ -18,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from netsim import budget
+from netsim import budget, verdicts
 from netsim.estimators.gains import GainDesign, design_for_scenario
 from netsim.estimators.registry import (
     EstimatorFamily,
@@ -65,9 +66,9 @@ __all__ = [
 #: family has a vectorised form; traced runs too, see :mod:`netsim.vectrace`).
 ENGINES = ("auto", "vectorised", "events")
 
-#: Factor by which the fitted MSE trend may grow over the second half of a run
-#: before a run without blow-up counts as diverging.
-GROWTH_TOLERANCE = 2.0
+#: Factor by which the fitted MSE trend may grow over the fitted window before a run
+#: without blow-up counts as diverging (re-exported from :mod:`netsim.verdicts`).
+GROWTH_TOLERANCE = verdicts.GROWTH_TOLERANCE
 
 
 def scenario_gains(scenario: Scenario) -> GainDesign:
@@ -348,15 +349,19 @@ class EstimatorSummary:
         Network MSE (1/N) sum_i ||x_k - x-hat^i_k||^2 averaged over the trials that
         did not diverge (NaN if all diverged).
     steady_state_mse : float
-        Mean of ``mse`` over the last ``steady_state_fraction`` of the steps.
+        Mean of ``mse`` over the last ``steady_state_fraction`` of the trusted steps
+        (those before the precision horizon, :mod:`netsim.verdicts`).
     growth_rate : float
-        exp(slope) of a least-squares line through log(mse) over the second half:
-        the per-step MSE growth factor (about 1 at steady state, < 1 while decaying).
+        exp of the mean over trials of the least-squares slope of log(trial MSE) over
+        the second half of the trusted steps: the per-step MSE growth factor (about 1
+        at steady state, < 1 while decaying).
     diverged : list of (trial, step)
         Trials whose error blew up, with the step it happened.
     verdict : str
-        ``diverged`` (some trial blew up), ``diverging`` (the fitted MSE trend grows
-        by more than GROWTH_TOLERANCE over the second half) or ``stable``.
+        ``diverged`` (some trial blew up), ``diverging``, ``stable`` or ``undecided``
+        by the rule of :mod:`netsim.verdicts`.
+    judgement : netsim.verdicts.Verdict or None
+        The verdict with its basis, reason, growth estimate and precision horizon.
     """
 
     family: str
@@ -373,6 +378,12 @@ class EstimatorSummary:
     #: Trials summarised when the run stopped early (a trace could not be written),
     #: else None (all of them).
     trials_finished: int | None = None
+    judgement: verdicts.Verdict | None = None
+
+    @property
+    def precision_horizon(self) -> int | None:
+        """First step whose errors are below float64 resolution of the state, or None."""
+        return None if self.judgement is None else self.judgement.precision_horizon
 
     def to_dict(self) -> dict[str, Any]:
         k = len(self.mse) - 1
@@ -384,6 +395,9 @@ class EstimatorSummary:
             "growth_rate": _json_float(self.growth_rate),
             "mse_at": {str(m): _json_float(self.mse[m]) for m in marks},
             "diverged_trials": [{"trial": t, "step": s} for t, s in self.diverged],
+            "precision_horizon": self.precision_horizon,
+            **({"verdict_detail": self.judgement.to_dict()}
+               if self.judgement is not None else {}),
             "messages": {
                 "sent": self.messages_sent,
                 "delivered": self.messages_delivered,
@@ -438,41 +452,51 @@ class MonteCarloResult:
 
 def _summarise(
     family: str, trials: list[TrialResult], fraction: float, n_steps: int,
-    reported: Sequence[int] | None = None,
+    reported: Sequence[int] | None = None, rho_exact: float | None = None,
 ) -> EstimatorSummary:
-    diverged = [(t, r.diverged_at) for t, r in enumerate(trials) if r.diverged_at is not None]
     columns = slice(None) if reported is None else list(reported)
-    good = [r.squared_errors[:, columns].mean(axis=1) for r in trials
-            if r.diverged_at is None]
+    per_trial = [r.squared_errors[:, columns].mean(axis=1) for r in trials]
+    length = len(per_trial[0]) if per_trial else n_steps + 1
+    states = [r.states for r in trials] if trials and all(
+        r.states is not None and len(r.states) == length for r in trials) else None
+    judgement = verdicts.judge(np.array(per_trial) if per_trial else np.zeros((0, length)),
+                               states=states, diverged_at=[r.diverged_at for r in trials],
+                               rho_exact=rho_exact)
+    horizon = judgement.precision_horizon
+    diverged = [(t, r.diverged_at) for t, r in enumerate(trials) if r.diverged_at is not None
+                and (horizon is None or r.diverged_at < horizon)]
+    good = [m for t, m in enumerate(per_trial) if t not in {d for d, _ in diverged}]
     if good:
-        mse = np.mean(good, axis=0)
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mse = np.nanmean(good, axis=0) if horizon is not None else np.mean(good, axis=0)
     else:
-        mse = np.full(n_steps + 1, np.nan)
-    tail = max(1, int(round(fraction * (n_steps + 1))))
-    steady = float(np.mean(mse[-tail:])) if good else math.nan
-    half = mse[(n_steps + 1) // 2 :]
-    if good and len(half) >= 2 and np.all(half > 0):
-        slope = np.polyfit(np.arange(len(half)), np.log(half), 1)[0]
-        growth = float(np.exp(slope))
-    else:
-        growth = math.nan
-    if diverged:
-        verdict = "diverged"
-    elif not math.isfinite(growth) or growth ** len(half) > GROWTH_TOLERANCE:
-        verdict = "diverging"
-    else:
-        verdict = "stable"
+        mse = np.full(length, np.nan)
+    window = verdicts.steady_slice(len(mse), fraction, horizon)
+    steady = float(np.mean(mse[window])) if good else math.nan
     return EstimatorSummary(
         family=family,
         mse=mse,
         steady_state_mse=steady,
-        growth_rate=growth,
+        growth_rate=judgement.growth.rate,
         diverged=diverged,
-        verdict=verdict,
+        verdict=judgement.verdict,
         messages_sent=sum(r.messages_sent for r in trials),
         messages_delivered=sum(r.messages_delivered for r in trials),
         messages_discarded=sum(r.messages_discarded for r in trials),
+        judgement=judgement,
     )
+
+
+def _exact_rho(family: EstimatorFamily, analytics: dict[str, Any] | None) -> float | None:
+    """The exact spectral radius of the family's error recursion, when it is exact: the
+    compensating estimator with time-invariant delays (eq. 9)."""
+    from netsim.estimators.registry import RECURSION_COMPENSATED
+
+    if analytics is None or family.error_recursion != RECURSION_COMPENSATED:
+        return None
+    rho = analytics.get("rho_exact_compensated")
+    return None if rho is None else float(rho)
 
 
 class TraceWriteError(OSError):
@@ -628,13 +652,14 @@ def run_monte_carlo(
             if runs:  # the trials that finished before the trace failed
                 reported = None if fam.reported is None else list(fam.reported(scenario))
                 summary = _summarise(family, runs, scenario.steady_state_fraction, steps,
-                                     reported)
+                                     reported, _exact_rho(fam, result.analytics))
                 summary.trials_finished = len(runs)
                 result.estimators[family] = summary
             exc.partial = result
             raise
         reported = None if fam.reported is None else list(fam.reported(scenario))
-        summary = _summarise(family, runs, scenario.steady_state_fraction, steps, reported)
+        summary = _summarise(family, runs, scenario.steady_state_fraction, steps, reported,
+                             _exact_rho(fam, result.analytics))
         if fam.report is not None:
             summary.report = dict(fam.report(FamilyContext(scenario, gains, None, family),
                                              runs))

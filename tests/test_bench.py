@@ -49,8 +49,10 @@ def test_json_holds_every_cell(tiny_json):
     assert len(data["cells"]) == len(settings) * 2 * len(FAMILIES)
     for c in data["cells"]:
         m, a = c["measured"], c["analytics"]
-        assert m["verdict"] in ("stable", "diverging", "diverged")
-        assert c["verdict"] in ("stable", "diverging", "bound violated", "bound conservative")
+        assert m["verdict"] in ("stable", "diverging", "undecided", "diverged")
+        assert c["verdict"] in ("stable", "diverging", "undecided", "diverged",
+                                "bound violated", "prediction contradicted",
+                                "bound conservative")
         assert "steady_state_mse" in m and "decay_factor" in m
         if c["family"] != "centralized-kf":
             assert a["bound_eq26"] > 0 and a["bound_tolerant"] > 0 and a["exact"] is not None
@@ -78,8 +80,8 @@ def test_text_table_and_resume(tiny_json, capsys):
     # which the delay-tolerant paper's Theorem 1 says cannot happen: reported as such
     unc = next(c for c in data["cells"] if c["setting"] == "homogeneous" and c["tau"] == 3
                and c["family"] == "uncompensated")
-    if unc["measured"]["verdict"] != "stable":
-        assert unc["verdict"] == "bound violated"
+    if unc["measured"]["verdict"] in ("diverging", "diverged"):
+        assert unc["verdict"] == "prediction contradicted"
         assert any("uncompensated, homogeneous, tau 3" in d for d in data["disagreements"])
 
 
@@ -112,7 +114,9 @@ def test_verdict_rules():
 
     assert _verdict("compensated", *cell("stable", True)) == "stable"
     assert _verdict("compensated", *cell("diverging", False)) == "diverging"
-    assert _verdict("compensated", *cell("diverged", True)) == "bound violated"
+    assert _verdict("compensated", *cell("diverged", True)) == "prediction contradicted"
+    assert _verdict("compensated", *cell("diverging", True)) == "prediction contradicted"
+    assert _verdict("compensated", *cell("undecided", True)) == "undecided"
     assert _verdict("compensated", *cell("stable", False)) == "bound conservative"
     assert _verdict("compensated", *cell("stable", True, exact=0.95)) == "bound violated"
     assert _verdict("centralized-kf", {"verdict": "stable"}, {}) == "stable"

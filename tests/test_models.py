@@ -182,6 +182,15 @@ def test_heterogeneous_delay_realisation_is_fixed_by_its_seed():
     assert a.time_invariant
 
 
+def test_heterogeneous_delays_attain_their_bound():
+    """A realisation for the bound tau has tau on some link, for every tau and seed."""
+    links = [(0, 1), (1, 2), (2, 3), (3, 0)]
+    for tau in range(0, 26):
+        for seed in (0, 1, 2022):
+            d = heterogeneous_delays(links, tau, seed).delays
+            assert max(d.values()) == tau and min(d.values()) >= 0
+
+
 @pytest.mark.parametrize(
     ("latency", "period", "d"), [(0, 1, 0), (0.2, 1, 0), (1, 1, 0), (1.2, 1, 1), (3, 0.5, 5)]
 )

@@ -49,6 +49,7 @@ from typing import Any
 import numpy as np
 from netsim.models.augmented import augmented_closed_loop
 from netsim.models.jsonsafe import json_number as _num
+from netsim.models.precision import precision_horizon
 from netsim.traces.reader import NOT_USED, Trace
 
 __all__ = [
@@ -199,8 +200,9 @@ class EtaReplay:
     first_step_above : int or None
         First step whose relative deviation exceeds the tolerance.
     reproduces : bool
-        ``max_rel <= effective tolerance`` (see :class:`ReplayReport`): the recursion
-        reproduces the run to round-off.
+        Every step's relative deviation is within its round-off allowance: the larger
+        of ``tolerance`` and ROUNDOFF_STATE_FACTOR eps max_{j<=k} |x_j| / error_scale
+        (the state's rounding so far); the recursion reproduces the run to round-off.
     tail_mse_replayed, tail_mse_recorded : float
         Mean over agents and the second half of the steps of ||e^i_k||^2, replayed and
         recorded (how far off the replay is in MSE terms).
@@ -278,6 +280,10 @@ class ReplayReport:
     state_term : float or None
         Uncompensated only: max |(I - L_i C_i) sum_j p_ij (A^(r+1) - A) x_{k-1-r}|,
         the state-proportional part of the exact eta.
+    precision_horizon : int or None
+        First step whose recorded error is below the float64 resolution of the state
+        (:func:`netsim.models.precision.precision_horizon`); the replay compares only
+        the steps before it. None: every step is trusted.
     exact, paper : EtaReplay or None
     notes : list of str
     verdict : str
@@ -306,6 +312,7 @@ class ReplayReport:
     state_term: float | None = None
     exact: EtaReplay | None = None
     paper: EtaReplay | None = None
+    precision_horizon: int | None = None
     recorded: np.ndarray | None = field(default=None, repr=False)
     notes: list[str] = field(default_factory=list)
     verdict: str = ""
@@ -335,6 +342,7 @@ class ReplayReport:
             "state_term": _num(self.state_term),
             "exact": None if self.exact is None else self.exact.to_dict(),
             "paper": None if self.paper is None else self.paper.to_dict(),
+            "precision_horizon": self.precision_horizon,
             "notes": list(self.notes),
             "verdict": self.verdict,
         }
@@ -367,11 +375,16 @@ class ReplayReport:
             + ("" if self.state_term is None
                else f"; state-proportional part of eta {self.state_term:.3e}")
         )
+        if self.precision_horizon is not None:
+            lines.append(
+                f"  beyond the float64 precision horizon at step {self.precision_horizon}: "
+                f"compared steps 0..{self.precision_horizon - 1} only"
+            )
         for rep in (self.exact, self.paper):
             if rep is None:
                 continue
             state = ("reproduces the recorded errors to round-off" if rep.reproduces
-                     else f"DEVIATES (first above {self.effective_tolerance:.1e} at step "
+                     else f"DEVIATES (first above its round-off allowance at step "
                           f"{rep.first_step_above})")
             lines.append(
                 f"  {rep.name:<5} eta ({rep.description}): max |dev| {rep.max_abs:.3e} "
@@ -732,6 +745,14 @@ def replay_trace(trace: Trace, *, method: str = "auto",
     if run is None:
         report.reason = why
         return report
+    horizon = precision_horizon(
+        [run.X], [np.mean(np.sum(run.errors ** 2, axis=2), axis=1)])
+    if horizon is not None:
+        # errors from the horizon on are rounding of the state: replay the steps before
+        report.precision_horizon = horizon
+        keep = max(1, horizon)
+        run = _Recorded(system, run.X[:keep], [Y[:keep] for Y in run.Ys], run.Xhat[:keep],
+                        run.D[:keep], run.edge, run.errors[:keep])
     report.defined = True
     report.steps_replayed = run.K
     report.notes.extend(_status_notes(trace))
@@ -752,7 +773,13 @@ def replay_trace(trace: Trace, *, method: str = "auto",
         run, rec, report.method, eta_exact, eta_paper)
     # 4. compare with the recorded errors
     delays_seen = report.nonzero_delay_steps > 0
+    # per step: the round-off of the state so far (ROUNDOFF_STATE_FACTOR eps max_{j<=k}
+    # |x_j|), so that a large late state does not excuse early deviations
     tol = report.effective_tolerance
+    if report.error_scale > 0:
+        running = np.maximum.accumulate(np.max(np.abs(run.X), axis=1))
+        floor = ROUNDOFF_STATE_FACTOR * float(np.finfo(float).eps) * running
+        tol = np.maximum(float(tolerance), floor / report.error_scale)
     report.exact = _compare("exact", _exact_description(compensated), exact_err, run.errors,
                             report.error_scale, tol, "")
     report.paper = _compare("paper", "LCSYS2022 eq. 11: (I - L_i C_i) nu_k - L_i zeta^i_k",
@@ -818,7 +845,8 @@ def _run_agents(terms: list[list[list[tuple[int, int, float]]]], local: list[np.
 
 
 def _compare(name: str, description: str, replayed: np.ndarray, recorded: np.ndarray,
-             scale: float, tolerance: float, cause: str) -> EtaReplay:
+             scale: float, tolerance: float | np.ndarray, cause: str) -> EtaReplay:
+    """``tolerance``: relative round-off allowance, one number or one per step."""
     dev = np.abs(replayed - recorded).reshape(replayed.shape[0], -1).max(axis=1)
     rel = dev / scale if scale > 0 else np.where(dev > 0, np.inf, 0.0)
     worst = int(np.argmax(dev)) if dev.size else 0
@@ -837,10 +865,10 @@ def _compare(name: str, description: str, replayed: np.ndarray, recorded: np.nda
         max_rel=max_rel,
         worst_step=worst,
         first_step_above=int(above[0]) if above.size else None,
-        reproduces=bool(max_rel <= tolerance),
+        reproduces=bool(above.size == 0),
         tail_mse_replayed=tail_rep,
         tail_mse_recorded=tail_rec,
-        cause=cause if max_rel > tolerance else "",
+        cause=cause if above.size else "",
     )
 
 
@@ -848,11 +876,16 @@ def _verdict(report: ReplayReport, compensated: bool, delays_seen: bool) -> str:
     exact, paper = report.exact, report.paper
     assert exact is not None and paper is not None
     if not exact.reproduces:
-        return (f"the exact recursion does NOT reproduce the run (relative deviation "
+        where = ("" if report.precision_horizon is None else
+                 f" before the float64 precision horizon at step {report.precision_horizon}")
+        return (f"the exact recursion does NOT reproduce the run{where} (relative deviation "
                 f"{exact.max_rel:.2e} > {report.effective_tolerance:.1e}); see the exact "
                 "eta's cause")
     head = (f"the augmented recursion with the estimator's exact eta reproduces the recorded "
             f"errors to round-off (relative {exact.max_rel:.1e})")
+    if report.precision_horizon is not None:
+        head += (f" before the float64 precision horizon at step {report.precision_horizon}"
+                 " (later errors are rounding of the state and are not compared)")
     if paper.reproduces:
         why = "no effective delay > 0" if not delays_seen else f"relative {paper.max_rel:.1e}"
         return head + f"; so does the paper's eta ({why})"

@@ -20,11 +20,13 @@ event kernel, and puts next to each other:
   trial 0's effective delays (``netsim.traces.analysis.growth_rates``; second-half rate);
 * the papers' bounds at tau: LCSYS2022 eq. (26) and Theorem 1 (tau*), the delay-
   tolerant paper's rho(A-hat)^(1/(tau+1)) (its Theorem 1 / Lemma 5);
-* a verdict per cell: ``stable`` (measured stable, as the bound predicts),
-  ``diverging`` (measured not stable, and the bound did not predict stability),
-  ``bound violated`` (the bound predicts stability but the run is not stable, or the
-  exact value exceeds the bound), ``bound conservative`` (the bound does not predict
-  stability, but the run is stable).
+* a verdict per cell: ``bound violated`` (the exact value exceeds the bound -- the one
+  meaning of the words, as in ``netsim analyze``), ``prediction contradicted`` (the bound
+  predicts stability but the run is diverging or diverged), ``bound conservative`` (the
+  bound does not predict stability, but the run is stable), else the measured verdict:
+  ``stable``, ``diverging``, ``undecided`` or ``diverged`` (the rule of
+  :mod:`netsim.verdicts`: a statistical test of the MSE growth over trials and steps,
+  the exact rho where the error recursion is exact, and the float64 precision horizon).
 
 It also reports the largest tolerated delay per estimator and setting, measured on
 the grid, next to the predicted one (Theorem 1's tau*), and the exact homogeneous

@@ -10,6 +10,7 @@ cell up in the finished report.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from typing import Any
 
@@ -50,35 +51,44 @@ def _curve(mse: np.ndarray) -> dict[str, list]:
     return {"steps": idx.tolist(), "mse": [float(v) for v in mse[idx]]}
 
 
-def _measure(results: list, steps: int, fraction: float) -> dict[str, Any]:
-    """Monte Carlo summary with ``netsim run``'s definitions, plus the decay fit."""
-    from netsim.runner import GROWTH_TOLERANCE
+def _measure(results: list, steps: int, fraction: float,
+             rho_exact: float | None = None) -> dict[str, Any]:
+    """Monte Carlo summary with ``netsim run``'s definitions (the verdict rule of
+    :mod:`netsim.verdicts`), plus the decay fit."""
     from netsim.traces.analysis import decay_fit
+    from netsim.verdicts import judge, steady_slice
 
+    per_trial = [r.squared_errors.mean(axis=1) for r in results]
+    judgement = judge(np.array(per_trial) if per_trial else np.zeros((0, steps + 1)),
+                      states=[r.states for r in results] if results else None,
+                      diverged_at=[r.diverged_at for r in results], rho_exact=rho_exact)
+    horizon = judgement.precision_horizon
     diverged = [(t, int(r.diverged_at)) for t, r in enumerate(results)
-                if r.diverged_at is not None]
-    good = [r.squared_errors.mean(axis=1) for r in results if r.diverged_at is None]
-    mse = np.mean(good, axis=0) if good else np.full(steps + 1, np.nan)
-    tail = max(1, int(round(fraction * (steps + 1))))
-    steady = float(np.mean(mse[-tail:])) if good else math.nan
-    half = mse[(steps + 1) // 2:]
-    growth = math.nan
-    if good and len(half) >= 2 and np.all(half > 0):
-        growth = float(np.exp(np.polyfit(np.arange(len(half)), np.log(half), 1)[0]))
-    if diverged:
-        verdict = "diverged"
-    elif not math.isfinite(growth) or growth ** len(half) > GROWTH_TOLERANCE:
-        verdict = "diverging"
+                if r.diverged_at is not None and (horizon is None or r.diverged_at < horizon)]
+    gone = {t for t, _ in diverged}
+    good = [m for t, m in enumerate(per_trial) if t not in gone]
+    if good:
+        with np.errstate(invalid="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            mse = np.nanmean(good, axis=0)
     else:
-        verdict = "stable"
-    fit = decay_fit(mse) if good else None
-    state_max = max((float(np.nanmax(np.abs(r.states))) for r in results), default=0.0)
+        mse = np.full(steps + 1, np.nan)
+    trusted = mse if horizon is None else mse[:horizon]
+    steady = float(np.mean(mse[steady_slice(len(mse), fraction, horizon)])) if good else math.nan
+    fit = decay_fit(trusted) if good and len(trusted) >= 4 else None
+    with np.errstate(invalid="ignore"):
+        state_max = max((float(np.nanmax(np.abs(r.states))) for r in results), default=0.0)
     rms = math.sqrt(steady) if math.isfinite(steady) and steady > 0 else math.nan
     roundoff = _EPS * state_max
     return {
-        "verdict": verdict,
+        "verdict": judgement.verdict,
+        "verdict_basis": judgement.basis,
+        "verdict_reason": judgement.reason,
+        "measured_growth_verdict": judgement.measured,
+        "growth": judgement.growth.to_dict(),
+        "precision_horizon": horizon,
         "steady_state_mse": steady,
-        "growth_rate": growth,
+        "growth_rate": judgement.growth.rate,
         "decay_factor": fit.factor if fit is not None and fit.transient else math.nan,
         "excess_decay_factor": (fit.excess_factor if fit is not None and fit.transient
                                 else math.nan),
@@ -147,6 +157,19 @@ def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
     return out
 
 
+def _exact_rho(analytics: dict[str, Any]) -> float | None:
+    """The exact spectral radius of a cell's error recursion, when it is exact: the
+    compensating estimator's augmented rho for fixed delays (eq. 9); None otherwise
+    (uncompensated eq. 11 holds only for a still state; the block rate only when every
+    message arrives within its block; a realised growth factor along one trial is not
+    exact for the others)."""
+    kind = analytics.get("exact_kind") or ""
+    if kind.startswith("augmented rho (LCSYS2022 eq. 9)"):
+        exact = analytics.get("exact")
+        return None if exact is None else float(exact)
+    return None
+
+
 def _realised_growth(P: np.ndarray, A: np.ndarray, C: Sequence[np.ndarray],
                      L: Sequence[np.ndarray], D: np.ndarray, compensated: bool
                      ) -> dict[str, Any]:
@@ -192,16 +215,25 @@ def _exp(value: float) -> float:
 
 
 def _verdict(family: Any, measured: dict[str, Any], analytics: dict[str, Any]) -> str:
-    """``family`` is unused: the verdict follows from the cell's own prediction (None
-    for families that declare no recursion, e.g. the reference Kalman filter)."""
-    stable = measured["verdict"] == "stable"
+    """The cell's verdict. ``family`` is unused: the verdict follows from the cell's own
+    prediction (None for families that declare no recursion, e.g. the reference Kalman
+    filter).
+
+    ``bound violated``: the exact value exceeds the bound (the only meaning, as in
+    ``netsim analyze``); ``prediction contradicted``: the bound predicts stability and
+    the run is diverging or diverged; ``bound conservative``: the run is stable although
+    the bound does not predict it; else the measured verdict (``stable``, ``diverging``,
+    ``undecided``, ``diverged``)."""
+    verdict = measured["verdict"]
     if analytics.get("predicted_stable") is None:
-        return "stable" if stable else "diverging"
-    if analytics.get("exact_violates_bound") or (analytics["predicted_stable"] and not stable):
+        return verdict
+    if analytics.get("exact_violates_bound"):
         return "bound violated"
-    if stable and not analytics["predicted_stable"]:
+    if analytics["predicted_stable"] and verdict in ("diverging", "diverged"):
+        return "prediction contradicted"
+    if verdict == "stable" and not analytics["predicted_stable"]:
         return "bound conservative"
-    return "stable" if stable else "diverging"
+    return verdict
 
 
 def _notes(family: EstimatorFamily, measured: dict[str, Any], analytics: dict[str, Any]
@@ -256,8 +288,8 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
     results = run_trials(variant, family, gains if family.needs_gains else None,
                          seeds, steps, engine=engine,
                          record_delays=[0] if keep else False, record_estimates=False)
-    measured = _measure(results, steps, variant.steady_state_fraction)
     analytics = _analytics(variant, gains, family, tau, results[0] if results else None)
+    measured = _measure(results, steps, variant.steady_state_fraction, _exact_rho(analytics))
     return {
         "measured": measured,
         "analytics": analytics,

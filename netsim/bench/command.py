@@ -37,9 +37,10 @@ def add_bench_parser(subparsers: Any) -> Any:
             "steady-state MSE, MSE growth and error decay factor, the exact augmented "
             "spectral radius (fixed delays) or the realised growth factor (time-varying), "
             "the papers' bounds (LCSYS2022 eq. 26 and Theorem 1's tau*, the delay-tolerant "
-            "rho(A-hat)^(1/(tau+1))) and a verdict (stable / diverging / bound violated / "
-            "bound conservative); the largest tolerated delay per estimator, measured vs "
-            "predicted; the papers' statements checked, with the numbers where they "
+            "rho(A-hat)^(1/(tau+1))) and a verdict (stable / diverging / undecided / bound "
+            "violated (exact > bound) / prediction contradicted / bound conservative); the "
+            "largest tolerated delay per estimator, measured vs predicted; the papers' "
+            "statements checked, with the numbers where they "
             f"disagree. Presets: {presets}."
         ),
     )

@@ -10,6 +10,7 @@ from typing import Any
 from netsim.bench.cells import delay_tolerance_cell
 from netsim.bench.cells import find_cell as _cell
 from netsim.bench.claims import CLAIMS, disagreements
+from netsim.bench.fmt import describe_cell, fmt_value
 from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, NO_DELAY, Preset
 from netsim.bench.variants import scenario_fingerprint
 from netsim.estimators.registry import (
@@ -159,7 +160,7 @@ def run_delay_tolerance(
     data["tolerance"] = _tolerance(data, {f.name: f for f in declared})
     claims = preset.claims if preset is not None else ("T-theorem1", "L-theorem1")
     data["claims"] = [CLAIMS[c](data) for c in claims]
-    data["disagreements"] = disagreements(data)
+    data["disagreements"] = disagreements(data) + _contradictions(data)
     data["run"] = {
         "elapsed_s": round(time.perf_counter() - started, 3),
         "executor": sweep.executor,
@@ -171,6 +172,19 @@ def run_delay_tolerance(
     return data
 
 
+def _contradictions(data: dict[str, Any]) -> list[str]:
+    """Cells whose bound predicts stability while the run diverges (verdict
+    ``prediction contradicted``), each as a disagreement with both facts."""
+    out = []
+    for c in data["cells"]:
+        if c["verdict"] == "prediction contradicted" and not c.get("computed_as"):
+            a = c["analytics"]
+            out.append(f"{c['family']}, {c['setting']}, tau {c['tau']}: prediction "
+                       f"contradicted: {a['bound_name']} = {fmt_value(a['bound'])} < 1 predicts "
+                       f"stability, measured {describe_cell(c)}")
+    return out
+
+
 def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
                ) -> list[dict[str, Any]]:
     scan = data["analysis"] or {}
@@ -180,12 +194,15 @@ def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
         if declared[family].delay_free:
             continue  # the reference: its results do not depend on the delays
         for setting in data["settings"]:
-            stable = []
+            stable: list[int] = []
+            undecided: list[int] = []
             measured = None
             broken = False
             for tau in data["taus"]:
                 c = _cell(data, setting, tau, family)
                 ok = c is not None and c["measured"]["verdict"] == "stable"
+                if c is not None and c["measured"]["verdict"] == "undecided":
+                    undecided.append(tau)
                 if ok:
                     stable.append(tau)
                     if not broken:
@@ -218,7 +235,9 @@ def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
             out.append({
                 "family": family, "setting": setting,
                 "measured_max": measured, "stable_taus": stable,
-                "unstable_taus": [t for t in data["taus"] if t not in stable],
+                "unstable_taus": [t for t in data["taus"]
+                                  if t not in stable and t not in undecided],
+                "undecided_taus": undecided,
                 "predicted": predicted, "predicted_by": why,
                 "exact_homogeneous": exact, "exact_by": exact_why,
                 "scan_tau_max": scan.get("tau_max"),

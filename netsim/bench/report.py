@@ -73,13 +73,16 @@ def format_report(data: dict[str, Any]) -> str:
                     f"{k}:{v}" for k, v in c["analytics"]["realised_delays"].items()))
         if realised:
             lines.append("realised link delays: " + "; ".join(realised))
-    lines += ["", "columns: measured = stable / diverging / div@k (a trial blew up at step k); "
+    lines += ["", "columns: measured = stable / diverging / undecided / div@k (a trial blew "
+              "up at step k), by the rule of netsim.verdicts; "
               "MSE grow = fitted MSE factor per step over the second half; decay = fitted "
               "per-step factor of the error norm over the transient; exact = augmented rho "
               "of the realised fixed delays (compensated eq. 9; uncompensated eq. 11, still "
               "state only; block: its rate), or the realised growth factor along trial 0's "
               "delays (time-varying); bound = LCSYS2022 eq. (26) (compensated, block) or "
-              "rho(A-hat)^(1/(tau+1)) (uncompensated); pred = the bound predicts stability."]
+              "rho(A-hat)^(1/(tau+1)) (uncompensated); pred = the bound predicts stability; "
+              "verdict: bound violated = exact > bound, prediction contradicted = predicted "
+              "stable but measured diverging/diverged."]
     lines += ["", "largest tolerated delay (measured on this grid: every tau up to it stable) "
               "vs predicted"]
     head = (f"{'estimator':<15}{'delays':<20}{'measured':>9}{'predicted':>10}  "

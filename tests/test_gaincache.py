@@ -6,10 +6,11 @@ import json
 
 import numpy as np
 import pytest
-from netsim import gaincache
-from netsim.cli import main
 from netsim.estimators.gains import design_for_scenario, design_request
 from netsim.models.scenario import resolve_scenario
+
+from netsim import gaincache
+from netsim.cli import main
 from netsim.runner import scenario_gains
 
 

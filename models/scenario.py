@@ -626,24 +626,7 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
         edges = _require(table, "edges", "network")
         graph = nx.DiGraph()
         graph.add_nodes_from(range(agents))
-        if not isinstance(edges, list):
-            raise ScenarioError("network.edges", "expected a list of [sender, receiver] pairs")
-        first: dict[tuple[int, int], int] = {}
-        for e, edge in enumerate(edges):
-            key = f"network.edges[{e}]"
-            if not (isinstance(edge, list) and len(edge) == 2):
-                raise ScenarioError(key, f"expected [sender, receiver], got {edge!r}")
-            j, i = (_int(v, key, 0) for v in edge)
-            if j >= agents or i >= agents:
-                raise ScenarioError(key, f"agent index out of range 0..{agents - 1}")
-            if i == j:
-                raise ScenarioError(key, f"[{j}, {i}] is a self-loop, not a link (every "
-                                    "agent always weighs its own estimate: p_ii > 0)")
-            if (j, i) in first:
-                raise ScenarioError(key, f"edge {j} -> {i} is listed twice (also "
-                                    f"network.edges[{first[(j, i)]}])")
-            first[(j, i)] = e
-            graph.add_edge(j, i)
+        graph.add_edges_from(_parse_edge_list(edges, "network.edges", agents))
     else:
         raise ScenarioError(
             "network.topology",
@@ -1094,9 +1077,10 @@ def _check_links_bound(scenario: Scenario, tau_given: bool) -> None:
 
 
 def _parse_edge_list(value: Any, key: str, n_agents: int) -> list[tuple[int, int]]:
+    """``[[sender, receiver], ...]``: agent indices in range, no self-loop, no duplicate."""
     if not isinstance(value, list):
         raise ScenarioError(key, f"expected a list of [sender, receiver] pairs, got {value!r}")
-    edges = []
+    first: dict[tuple[int, int], int] = {}
     for e, edge in enumerate(value):
         where = f"{key}[{e}]"
         if not (isinstance(edge, list) and len(edge) == 2):
@@ -1105,9 +1089,13 @@ def _parse_edge_list(value: Any, key: str, n_agents: int) -> list[tuple[int, int
         if j >= n_agents or i >= n_agents:
             raise ScenarioError(where, f"agent index out of range 0..{n_agents - 1}")
         if i == j:
-            raise ScenarioError(where, "a self-loop is not a link")
-        edges.append((j, i))
-    return edges
+            raise ScenarioError(where, f"[{j}, {i}] is a self-loop, not a link (every "
+                                "agent always weighs its own estimate: p_ii > 0)")
+        if (j, i) in first:
+            raise ScenarioError(where, f"edge {j} -> {i} is listed twice (also "
+                                f"{key}[{first[(j, i)]}])")
+        first[(j, i)] = e
+    return list(first)
 
 
 def _parse_topology(table: dict[str, Any], n_agents: int) -> GraphSequence | LinkSchedule:

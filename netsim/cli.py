@@ -76,6 +76,14 @@ def build_parser() -> argparse.ArgumentParser:
                      "file per estimator and trial, FILE.<estimator>.trial<k>.mcap")
     run.add_argument("--force", action="store_true",
                      help="overwrite trace files that exist (default: refuse, naming them)")
+    run.add_argument("--time-origin", metavar="WHEN",
+                     help="with --trace: log_time of simulation time 0, an ISO 8601 UTC "
+                     "date-time (2026-05-01T12:00:00Z) or seconds since 1970 (0: log_time "
+                     "= simulation time); default 2000-01-01T00:00:00Z, fixed so traces "
+                     "are bit-reproducible")
+    run.add_argument("--layout", action="store_true",
+                     help="with --trace: write a Foxglove layout beside each trace, "
+                     "FILE.layout.json for FILE.mcap (see 'netsim layout')")
     run.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
                      help="vectorised: all trials advance together in numpy arrays (fast; "
                      "same results and traces as the kernel, to round-off); events: the "
@@ -181,6 +189,30 @@ def build_parser() -> argparse.ArgumentParser:
     plot.add_argument("-o", "--output", required=True, metavar="FILE.png", help="PNG to write")
     plot.add_argument("--json", action="store_true",
                       help="print {\"output\": FILE.png, ...} as JSON on stdout")
+
+    layout = sub.add_parser(
+        "layout",
+        help="Foxglove layout JSON for a trace (error norms, state vs estimates, delays, "
+        "drops, age of information)",
+        description=(
+            "Write a Foxglove layout for a trace written by 'netsim run --trace' (format "
+            "2): Plot panels of each agent's error norm, the state against the agents' "
+            "estimates, the effective delay per link, delivered delays, drops and, for "
+            "AoI traces, the freshness indices. In Foxglove: open the .mcap file, then "
+            "Layouts > Import from file. Optionally a PNG of the same panels drawn from "
+            "the trace."
+        ),
+    )
+    layout.add_argument("trace", help="an MCAP file written by netsim (format 2)")
+    layout.add_argument("-o", "--output", metavar="FILE.json",
+                        help="layout file to write (default: beside the trace, "
+                        "TRACE.layout.json)")
+    layout.add_argument("--figure", metavar="FILE.png",
+                        help="also draw the layout's panels from the trace's data (matplotlib)")
+    layout.add_argument("--force", action="store_true",
+                        help="overwrite an existing layout file")
+    layout.add_argument("--json", action="store_true",
+                        help="print {\"layout\": FILE.json, ...} as JSON on stdout")
 
     claims = sub.add_parser(
         "claims", help="the papers' statements as executable checks (holds / fails / not "
@@ -363,6 +395,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
                            ) from None
     note_kernel_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
     trials = args.trials or scenario.trials
+    trace_options = _trace_options(args)
     if args.trace is not None:
         _check_traces(args.trace, families, trials, args.force)
     total = trials * len(families)
@@ -382,7 +415,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
             result = run_monte_carlo(
                 scenario, steps=args.steps, trials=args.trials, seed=args.seed,
                 families=families, progress=_progress, gains=gains, trace=args.trace,
-                on_trace=written.append, engine=args.engine,
+                on_trace=_on_trace(args, written), engine=args.engine,
+                trace_options=trace_options,
             )
     except KeyboardInterrupt:
         family = families[min(done[0] // trials, len(families) - 1)]
@@ -408,6 +442,42 @@ def _cmd_run(args: argparse.Namespace) -> int:
     else:
         sys.stdout.write(_format_run(data))
     return 0
+
+
+def _trace_options(args: argparse.Namespace) -> dict[str, Any]:
+    """``--time-origin`` and ``--layout`` (they need ``--trace``)."""
+    for flag, value in (("--time-origin", args.time_origin), ("--layout", args.layout)):
+        if value not in (None, False) and args.trace is None:
+            raise CommandError(f"{flag} needs --trace FILE.mcap")
+    if args.time_origin is None:
+        return {}
+    from netsim.traces.schemas import parse_time_origin
+
+    try:
+        return {"time_origin_ns": parse_time_origin(args.time_origin)}
+    except ValueError as exc:
+        raise CommandError(f"--time-origin: {exc}") from None
+
+
+def _on_trace(args: argparse.Namespace, written: list[str]) -> Any:
+    """Collect each finished trace; with ``--layout`` write its Foxglove layout."""
+    if not args.layout:
+        return written.append
+
+    def finished(path: str) -> None:
+        written.append(path)
+        from netsim.traces.layout import write_layout
+        from netsim.traces.reader import read_status
+
+        status = read_status(path)
+        if status is not None and status.get("status") in ("interrupted", "failed"):
+            return  # the run stops; no layout for a file left by an interruption
+        try:
+            write_layout(path)
+        except (OSError, ValueError) as exc:
+            raise CommandError(f"cannot write the layout of {path}: {exc}") from None
+
+    return finished
 
 
 def _check_traces(trace: str, families: Sequence[str], trials: int, force: bool) -> None:
@@ -805,6 +875,51 @@ def _cmd_plot(args: argparse.Namespace) -> int:
     return _emit(args, data, f"wrote {path}")
 
 
+def _cmd_layout(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from netsim.traces.layout import (
+        foxglove_layout,
+        layout_path_for,
+        layout_paths,
+        layout_source,
+        render_layout,
+    )
+    from netsim.traces.reader import TraceError
+
+    if args.output is not None and not args.output.lower().endswith(".json"):
+        raise CommandError(f"-o {args.output}: the layout must be a .json file")
+    if args.figure is not None and not args.figure.lower().endswith(".png"):
+        raise CommandError(f"--figure {args.figure}: the figure must be a .png file")
+    out = layout_path_for(args.trace) if args.output is None else Path(args.output)
+    if out.exists() and not args.force:
+        raise CommandError(f"{out}: exists; pass --force to overwrite it")
+    try:
+        source = layout_source(args.trace)
+        layout = foxglove_layout(source)
+    except (TraceError, ValueError) as exc:
+        raise CommandError(str(exc)) from None
+    try:
+        out.write_text(json.dumps(layout, indent=2) + "\n")
+    except OSError as exc:
+        raise CommandError(f"cannot write {out}: {exc.strerror or exc}") from None
+    tabs = [t["title"] for t in layout["configById"][layout["layout"]]["tabs"]]
+    data: dict[str, Any] = {"trace": args.trace, "layout": str(out), "tabs": tabs,
+                            "panels": sum(k.startswith("Plot!") for k in layout["configById"]),
+                            "paths": len(layout_paths(layout)), "figure": None}
+    if args.figure is not None:
+        try:
+            data["figure"] = str(render_layout(_read(args.trace), layout, args.figure))
+        except OSError as exc:
+            raise CommandError(f"cannot write {args.figure}: {exc.strerror or exc}") from None
+    text = (f"wrote {out}: {data['panels']} plot panels ({', '.join(tabs)}), "
+            f"{data['paths']} message paths; in Foxglove open {args.trace}, then "
+            "Layouts > Import from file")
+    if data["figure"]:
+        text += f"\nwrote {data['figure']}"
+    return _emit(args, data, text)
+
+
 def _cmd_inspect(args: argparse.Namespace) -> int:
     from netsim.traces.inspect import inspect_trace
     from netsim.traces.reader import TraceError, read_trace
@@ -915,6 +1030,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "inspect": _cmd_inspect,
         "replay": _cmd_replay,
         "plot": _cmd_plot,
+        "layout": _cmd_layout,
         "fusion": _cmd_fusion,
         "bench": _cmd_bench,
         "claims": _cmd_claims,

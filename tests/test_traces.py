@@ -24,9 +24,13 @@ from netsim.traces.inspect import delay_statistics, inspect_trace
 from netsim.traces.reader import NOT_USED as TRACE_NOT_USED
 from netsim.traces.reader import TraceError, read_trace
 from netsim.traces.recorder import TRACE_FORMAT, TraceRecorder, to_ns, trace_path
-from netsim.traces.schemas import DEFAULT_TIME_ORIGIN_NS
+from netsim.traces.schemas import (
+    DEFAULT_TIME_ORIGIN_NS,
+    MESSAGE_TYPES,
+    file_descriptor_set,
+    message_class,
+)
 from netsim.traces.schemas import PACKAGE as PACKAGE2
-from netsim.traces.schemas import MESSAGE_TYPES, file_descriptor_set, message_class
 
 from netsim.kernel import NOT_USED
 from netsim.runner import run_trial, scenario_gains

@@ -209,6 +209,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "TRACE.layout.json)")
     layout.add_argument("--figure", metavar="FILE.png",
                         help="also draw the layout's panels from the trace's data (matplotlib)")
+    layout.add_argument("--tabs", metavar="TAB,...",
+                        help="with --figure: draw only these tabs (e.g. Errors,Drops)")
     layout.add_argument("--force", action="store_true",
                         help="overwrite an existing layout file")
     layout.add_argument("--json", action="store_true",
@@ -899,17 +901,25 @@ def _cmd_layout(args: argparse.Namespace) -> int:
         layout = foxglove_layout(source)
     except (TraceError, ValueError) as exc:
         raise CommandError(str(exc)) from None
+    tabs = [t["title"] for t in layout["configById"][layout["layout"]]["tabs"]]
+    chosen = None
+    if args.tabs is not None:
+        chosen = [t.strip() for t in args.tabs.split(",") if t.strip()]
+        unknown = [t for t in chosen if t not in tabs]
+        if unknown or not chosen:
+            raise CommandError(f"--tabs {args.tabs}: this layout's tabs are "
+                               f"{', '.join(tabs)}")
     try:
         out.write_text(json.dumps(layout, indent=2) + "\n")
     except OSError as exc:
         raise CommandError(f"cannot write {out}: {exc.strerror or exc}") from None
-    tabs = [t["title"] for t in layout["configById"][layout["layout"]]["tabs"]]
     data: dict[str, Any] = {"trace": args.trace, "layout": str(out), "tabs": tabs,
                             "panels": sum(k.startswith("Plot!") for k in layout["configById"]),
                             "paths": len(layout_paths(layout)), "figure": None}
     if args.figure is not None:
         try:
-            data["figure"] = str(render_layout(_read(args.trace), layout, args.figure))
+            data["figure"] = str(render_layout(_read(args.trace), layout, args.figure,
+                                               tabs=chosen))
         except OSError as exc:
             raise CommandError(f"cannot write {args.figure}: {exc.strerror or exc}") from None
     text = (f"wrote {out}: {data['panels']} plot panels ({', '.join(tabs)}), "

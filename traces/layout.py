@@ -23,7 +23,8 @@ dimensions), so it is cheap for a large trace; an unfinished file is read in ful
 :func:`render_layout` draws the same panels from the trace's data with matplotlib (Agg,
 no screen), evaluating each panel's message paths: a picture of what Foxglove shows.
 
-This module imports ``models``-free ``netsim.traces`` modules only (no ``netsim``/``simpy``).
+This module imports ``netsim.traces`` modules, ``mcap`` and matplotlib (lazily), never
+``netsim`` or ``simpy``.
 """
 
 from __future__ import annotations
@@ -299,27 +300,31 @@ def foxglove_layout(source: LayoutSource | Trace, *, max_series: int = MAX_SERIE
     if state:
         tabs.append(("State", state))
 
+    all_links = sorted(set(source.links("sent")) | set(source.links("delivered"))
+                       | set(source.links("dropped"))
+                       | {(j, i) for i, js in source.neighbours.items() for j in js})
+    link_colour = {link: colour(q) for q, link in enumerate(all_links)}
     delays: list[dict[str, Any]] = []
     for i in source.agents("update"):
         for p, j in enumerate(source.neighbours.get(i, [])):
             if j == i:
                 continue
             delays.append(_series(f"{update_topic(i)}.effective_delay[{p}]",
-                                  f"r {j}->{i}", colour(len(delays))))
+                                  f"r {j}->{i}", link_colour[(j, i)]))
     delay_panels = panels("Effective delay r_ij[k] (steps; -1 own estimate used)", delays)
     delivered = [_series(f"{link_topic(j, i, 'delivered')}.delay_steps", f"{j}->{i}",
-                         colour(q), line=False)
-                 for q, (j, i) in enumerate(source.links("delivered"))]
+                         link_colour[(j, i)], line=False)
+                 for j, i in source.links("delivered")]
     delay_panels += panels("Delivered message delay d (steps) per link", delivered, y_min=0)
     if delay_panels:
         tabs.append(("Delays", delay_panels))
 
     dropped_links = source.links("dropped")
     if dropped_links:
-        which = [_series(f"{link_topic(j, i, 'dropped')}.sequence", f"{j}->{i}", colour(q),
-                         line=False) for q, (j, i) in enumerate(dropped_links)]
-        why = [_series(f"{link_topic(j, i, 'dropped')}.reason", f"{j}->{i}", colour(q),
-                       line=False) for q, (j, i) in enumerate(dropped_links)]
+        which = [_series(f"{link_topic(j, i, 'dropped')}.sequence", f"{j}->{i}",
+                         link_colour[(j, i)], line=False) for j, i in dropped_links]
+        why = [_series(f"{link_topic(j, i, 'dropped')}.reason", f"{j}->{i}",
+                       link_colour[(j, i)], line=False) for j, i in dropped_links]
         codes = ", ".join(f"{c} {r}" for c, r in sorted(source.drop_reasons.items()))
         tabs.append(("Drops", panels("Dropped messages (sequence number) per link", which)
                      + panels(f"Drop reason code ({codes or 'none'})", why, y_min=0)))

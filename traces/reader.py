@@ -463,9 +463,11 @@ class Trace:
     def _collect_link_events(self) -> dict[tuple[int, int], list[LinkEvent]]:
         out: dict[tuple[int, int], list[LinkEvent]] = {}
         reasons = self.drop_reasons
+        infos = {t: info for t in self.topics if t not in self.foreign_topics
+                 and (info := parse_topic(t)) is not None and info.kind == "link"}
         for record in self.messages:
-            info = parse_topic(record.topic)
-            if info is None or info.kind != "link" or record.topic in self.foreign_topics:
+            info = infos.get(record.topic)
+            if info is None:
                 continue
             m = record.message
             if info.format == 1:

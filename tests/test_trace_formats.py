@@ -122,3 +122,11 @@ def test_time_origin_and_bit_reproducible_files(tmp_path):
         assert stats.message_start_time == origin
         assert reader.get_header().library.startswith("netsim-trace/2 ")
     np.testing.assert_array_equal(trace.estimates(), read_trace(a).estimates())
+
+
+def test_plot_draws_both_formats_alike(pairs, tmp_path):
+    old = [str(pairs[name][0]) for name in RUNS]
+    new = [str(pairs[name][1]) for name in RUNS]
+    assert main(["plot", *old, "-o", str(tmp_path / "old.png")]) == 0
+    assert main(["plot", *new, "-o", str(tmp_path / "new.png")]) == 0
+    assert (tmp_path / "old.png").read_bytes() == (tmp_path / "new.png").read_bytes()

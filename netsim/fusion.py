@@ -68,6 +68,7 @@ __all__ = [
     "example2",
     "conditions",
     "example_setup",
+    "mse_curves",
     "exact_trace_curves",
     "xi11_trace_curves",
     "covariance_norm_curves",
@@ -339,6 +340,37 @@ def example_setup(example: str | dk.DkfeSetup, gamma11: float | None = None) -> 
     return dk.example1(g)
 
 
+def _lockstep_series(setup: dk.DkfeSetup, run: Any) -> dict[str, np.ndarray]:
+    """Every estimator of a lock-step run by its report name, (K+1, B, n) arrays."""
+    L = setup.n_sinks
+    out = {**{f"sink {i + 1} local KF": run.local[:, i] for i in range(L)},
+           **{f"CSE {i + 1} (d={setup.delays[i]})": run.cse[:, i] for i in range(L)},
+           "DKFE": run.dkfe}
+    if run.sdkfe is not None:
+        out["SDKFE"] = run.sdkfe
+    out["ODKFE (d=0)"] = run.odkfe
+    out["centralized KF"] = run.ckf
+    return out
+
+
+def mse_curves(example: str | dk.DkfeSetup, steps: int, trials: int, seed: int = 0, *,
+               gamma11: float | None = None) -> dict[str, list[float]]:
+    """Monte Carlo MSE E||x(t) - x-hat(t)||^2 of every estimator at t = 0..steps.
+
+    The lock-step engine (:func:`netsim.estimators.fusion.run_lockstep`, the same
+    estimator objects as the kernel) without the SDKFE and without the stability
+    conditions of :func:`run_fusion` (no LMIs): cheap enough for a sweep over gamma_11.
+    Keys as in :attr:`FusionRunResult.empirical` (without ``SDKFE``).
+    """
+    setup = example_setup(example, gamma11)
+    if steps < 1 or trials < 1:
+        raise ValueError("steps and trials must be positive")
+    with np.errstate(over="ignore", invalid="ignore"):
+        run = run_lockstep(setup, int(steps), int(trials), seed)
+        return {name: [float(v) for v in np.sum((run.states - est) ** 2, axis=-1).mean(axis=1)]
+                for name, est in _lockstep_series(setup, run).items()}
+
+
 def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
                trials: int = 50, seed: int = 0, *, engine: str = "kernel",
                time_varying: bool = False,
@@ -378,10 +410,7 @@ def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
         run = run_lockstep(setup, steps, trials, seed, steady_weights=steady.weights,
                            covariances=covs)
         states = run.states  # (K+1, B, n)
-        series = {**{f"sink {i + 1} local KF": run.local[:, i] for i in range(L)},
-                  **{f"CSE {i + 1} (d={setup.delays[i]})": run.cse[:, i] for i in range(L)},
-                  "DKFE": run.dkfe, "SDKFE": run.sdkfe, "ODKFE (d=0)": run.odkfe,
-                  "centralized KF": run.ckf}
+        series = _lockstep_series(setup, run)
         diverged = 0
     else:
         per: dict[str, list[np.ndarray]] = {}

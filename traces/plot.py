@@ -42,7 +42,7 @@ from netsim.models.augmented import (
 from netsim.traces.reader import NOT_USED, Trace
 from netsim.traces.replay import TraceSystem, effective_pattern, trace_system
 
-__all__ = ["plot_traces", "homogeneous_rho", "TAU_PLOT_MAX"]
+__all__ = ["plot_traces", "traces_figure", "homogeneous_rho", "TAU_PLOT_MAX"]
 
 #: Largest homogeneous delay drawn in the spectral panel (the augmented matrices grow
 #: as N n (tau+1)).
@@ -243,27 +243,9 @@ def _spectral_panel(ax: Axes, traces: Sequence[Trace],
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
 
 
-def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
-                title: str | None = None, tau_range: int | None = None) -> Path:
-    """Write one PNG with the panels that have data (see the module docstring).
-
-    Parameters
-    ----------
-    traces : sequence of Trace
-        Read with :func:`netsim.traces.reader.read_trace`; the spectral panel uses the matrices
-        of the first trace that has P, A, C_i and L_i (left out when none has them).
-    path : str or os.PathLike
-        The PNG file to write (parent directories must exist).
-    title : str, optional
-        Figure title (default: the scenario name of the first trace).
-    tau_range : int, optional
-        Largest homogeneous delay of the spectral panel (default max(tau_obs, tau*+2),
-        at most TAU_PLOT_MAX).
-
-    Returns
-    -------
-    pathlib.Path
-    """
+def traces_figure(traces: Sequence[Trace], *, title: str | None = None,
+                  tau_range: int | None = None) -> Figure:
+    """The ``matplotlib.figure.Figure`` of :func:`plot_traces` (panels with data only)."""
     traces = list(traces)
     if not traces:
         raise ValueError("plot_traces needs at least one trace")
@@ -295,6 +277,31 @@ def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
         title = f"{name}: {len(traces)} trace(s)" if name else f"{len(traces)} trace(s)"
     fig.suptitle(title, fontsize=13)
     fig.tight_layout(rect=(0, 0, 1, 0.97))
+    return fig
+
+
+def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
+                title: str | None = None, tau_range: int | None = None) -> Path:
+    """Write one PNG with the panels that have data (see the module docstring).
+
+    Parameters
+    ----------
+    traces : sequence of Trace
+        Read with :func:`netsim.traces.reader.read_trace`; the spectral panel uses the matrices
+        of the first trace that has P, A, C_i and L_i (left out when none has them).
+    path : str or os.PathLike
+        The PNG file to write (parent directories must exist).
+    title : str, optional
+        Figure title (default: the scenario name of the first trace).
+    tau_range : int, optional
+        Largest homogeneous delay of the spectral panel (default max(tau_obs, tau*+2),
+        at most TAU_PLOT_MAX).
+
+    Returns
+    -------
+    pathlib.Path
+    """
+    fig = traces_figure(traces, title=title, tau_range=tau_range)
     out = Path(path)
     fig.savefig(out, format="png")
     return out

@@ -69,6 +69,8 @@ class ReproduceResult:
     items: list[ItemReport]
     report: Path
     elapsed: float
+    #: CPU seconds of this process (with workers > 1 the benchmark's worker processes,
+    #: children of a forkserver, are not included).
     cpu: float
 
     def to_dict(self) -> dict[str, Any]:
@@ -80,7 +82,7 @@ class ReproduceResult:
         lines = [f"{r.item.paper} {r.item.label}: {r.png}, {', '.join(r.data_files)}"
                  for r in self.items]
         lines.append(f"{len(self.items)} figures and tables, report {self.report} "
-                     f"({self.elapsed:.1f} s wall, {self.cpu:.1f} s CPU with workers, "
+                     f"({self.elapsed:.1f} s wall, {self.cpu:.1f} s CPU in this process, "
                      f"{self.trials} trials)")
         return "\n".join(lines) + "\n"
 
@@ -141,7 +143,8 @@ def _md_escape(text: str) -> str:
 def _markdown(result: ReproduceResult) -> str:
     out = ["# netsim reproduce: the papers' figures and tables", "",
            f"{len(result.items)} items, {result.trials} Monte Carlo trials, seed "
-           f"{result.seed}; {result.elapsed:.0f} s wall, {result.cpu:.0f} s CPU. Each item: "
+           f"{result.seed}; {result.elapsed:.0f} s wall, {result.cpu:.0f} s CPU in this process. "
+           "Each item: "
            "our figure, what the paper states, where our system differs, and the verdicts "
            "of the claims it bears on (`netsim claims`; *this run* is the same claim "
            "checked on this run's data where the benchmark has such a check).", ""]

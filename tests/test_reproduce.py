@@ -41,7 +41,7 @@ PNG = b"\x89PNG\r\n\x1a\n"
 def reproduced(tmp_path_factory):
     out = tmp_path_factory.mktemp("reproduce")
     code = main(["reproduce", "--out", str(out), "--trials", "4", "--workers", "1",
-                 "--json", "--no-progress"])
+                 "--claim-budget", "0.5", "--json", "--no-progress"])
     assert code == 0
     return out
 
@@ -172,6 +172,7 @@ def test_fig8_dkfe_minus_sdkfe_vanishes(reproduced):
     (["reproduce", "--trials", "0"], "--trials"),
     (["reproduce", "--seed", "-1"], "--seed"),
     (["reproduce", "--workers", "0"], "--workers"),
+    (["reproduce", "--claim-budget", "nan"], "--claim-budget"),
 ])
 def test_bad_input_is_one_line_and_exit_2(argv, needle, capsys, tmp_path):
     assert main([*argv, "--out", str(tmp_path / "x")]) == 2
@@ -217,3 +218,22 @@ def test_delay_histogram_ticks_are_thinned_at_large_delays():
     ticks = [t for t in ax.get_xticks() if -0.5 <= t <= 43.5]
     assert len(ticks) <= 12
     assert all(float(t).is_integer() for t in ticks)
+
+
+@pytest.mark.slow
+def test_dkfe_monte_carlo_agrees_with_the_exact_traces(tmp_path):
+    """Fig. 6 and Fig. 3 at 400 trials: the Monte Carlo MSE over the steady part agrees
+    with the exact covariance traces within a few standard errors (stable cases)."""
+    assert main(["reproduce", "dkfe", "--out", str(tmp_path), "--trials", "400",
+                 "--claim-budget", "0.5", "--no-progress"]) == 0
+    rows = _rows(tmp_path / "dkfe-fig6.csv")
+    for name in ("CSE 1", "CSE 2", "DKFE", "ODKFE"):
+        steady = [r for r in rows if int(r["t"]) >= 100]
+        mc = np.mean([float(r[f"mse_{name}_monte_carlo"]) for r in steady])
+        exact = np.mean([float(r[f"trace_{name}_exact"]) for r in steady])
+        assert mc == pytest.approx(exact, rel=0.1), name
+    fig3 = [r for r in _rows(tmp_path / "dkfe-fig3.csv")
+            if float(r["gamma11"]) == 0.5 and int(r["t"]) >= 50]
+    mc = np.mean([float(r["mse_cse_monte_carlo"]) for r in fig3])
+    exact = np.mean([float(r["trace_Xi11_exact"]) for r in fig3])
+    assert mc == pytest.approx(exact, rel=0.1)

@@ -174,7 +174,8 @@ def _delay_panel(ax: Axes, groups: _DelayGroups) -> None:
     for g, (name, vals, colour) in enumerate(groups):
         frac = np.bincount(vals, minlength=top + 1)[: top + 1] / vals.size
         ax.bar(bins - 0.4 + width * (g + 0.5), frac, width=width, color=colour, label=name)
-    ax.xaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_xlim(-0.6, top + 0.6)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
     ax.set_xlabel("delay (steps)")
     ax.set_ylabel("fraction of messages / of uses")
     ax.set_title("Delay histograms")

@@ -4,11 +4,12 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 from typing import Any
 
 from netsim.reproduce.items import ITEMS, PAPERS
-from netsim.reproduce.report import DEFAULT_TRIALS, reproduce
+from netsim.reproduce.report import CLAIM_BUDGET, DEFAULT_TRIALS, reproduce
 
 __all__ = ["add_reproduce_parser", "cmd_reproduce", "MAX_TRIALS"]
 
@@ -43,6 +44,9 @@ def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
                      "(default 0; the delay benchmarks use their scenario's seed)")
     rep.add_argument("--workers", type=int, default=2,
                      help="local processes of the delay benchmarks (default 2)")
+    rep.add_argument("--claim-budget", type=float, default=CLAIM_BUDGET, metavar="SECONDS",
+                     help="seconds of each claim check's counterexample search (default "
+                     f"{CLAIM_BUDGET:g})")
     rep.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     rep.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     return rep
@@ -68,6 +72,9 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise CommandError(f"--trials must be an integer in 1..{MAX_TRIALS}, got {args.trials}")
     if args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
+    if not (math.isfinite(args.claim_budget) and args.claim_budget > 0):
+        raise CommandError(f"--claim-budget must be a positive number of seconds, got "
+                           f"{args.claim_budget}")
     if args.workers < 1:
         raise CommandError(f"--workers must be a positive integer, got {args.workers}")
     try:
@@ -87,7 +94,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         bar.set_postfix_str(chosen[0].id)
     try:
         result = reproduce(args.papers, out=args.out, trials=args.trials, seed=args.seed,
-                           workers=args.workers, progress=step)
+                           workers=args.workers, claim_budget=args.claim_budget,
+                           progress=step)
     except OSError as exc:
         raise CommandError(f"--out {args.out}: {exc.strerror or exc}") from None
     finally:

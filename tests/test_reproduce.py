@@ -56,7 +56,7 @@ def test_every_item_is_listed_for_the_four_papers():
     labels = {(it.paper, it.label) for it in ITEMS}
     assert labels == {("LCSYS2022", "Fig. 1"), ("delay-tolerant", "Fig. 1"),
                       ("delay-tolerant", "Fig. 2"), ("aoi", "Fig. 2"), ("dkfe", "Table I"),
-                      *(("dkfe", f"Fig. {k}") for k in range(3, 9))}
+                      ("dkfe", "Example 2"), *(("dkfe", f"Fig. {k}") for k in range(3, 9))}
     assert [it.id for it in items_for(["DKFE"])] == [it.id for it in ITEMS
                                                      if it.paper == "dkfe"]
 

@@ -237,3 +237,14 @@ def test_dkfe_monte_carlo_agrees_with_the_exact_traces(tmp_path):
     mc = np.mean([float(r["mse_cse_monte_carlo"]) for r in fig3])
     exact = np.mean([float(r["trace_Xi11_exact"]) for r in fig3])
     assert mc == pytest.approx(exact, rel=0.1)
+
+
+def test_gamma11_option_of_the_fusion_runs():
+    from netsim.fusion import example_setup, mse_curves
+
+    assert example_setup("dkfe-example1", 0.3).selections[0].H[0, 0] == pytest.approx(0.3)
+    for bad in (("dkfe-example2", 0.5), ("dkfe-example1", 1.5), ("dkfe-example1", math.nan)):
+        with pytest.raises(ValueError):
+            example_setup(*bad)
+    curves = mse_curves("dkfe-example1", 3, 2, gamma11=0.0)
+    assert len(curves["CSE 1 (d=0)"]) == 4

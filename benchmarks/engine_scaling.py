@@ -429,10 +429,7 @@ def measure_big() -> dict[str, Any]:
 
 
 def plot_grid(grid: dict[str, Any], path: str) -> str:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib.figure import Figure
     from matplotlib.ticker import LogLocator, NullFormatter, ScalarFormatter
 
     def plain_ticks(ax: Any) -> None:
@@ -442,7 +439,8 @@ def plot_grid(grid: dict[str, Any], path: str) -> str:
             axis.set_major_formatter(ScalarFormatter())
             axis.set_minor_formatter(NullFormatter())
 
-    fig, axes = plt.subplots(2, len(GRID), figsize=(4 * len(GRID), 7))
+    fig = Figure(figsize=(4 * len(GRID), 7))
+    axes = fig.subplots(2, len(GRID))
     for c, (param, rows) in enumerate(grid["points"].items()):
         x = np.array([r[param] + (1 if param == "tau" else 0) for r in rows], dtype=float)
         label = "tau + 1" if param == "tau" else GRID_LABEL[param]
@@ -470,7 +468,6 @@ def plot_grid(grid: dict[str, Any], path: str) -> str:
     fig.tight_layout()
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=100)
-    plt.close(fig)
     return str(path)
 
 

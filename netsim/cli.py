@@ -281,6 +281,9 @@ def build_parser() -> argparse.ArgumentParser:
     from netsim.bench import add_bench_parser
 
     add_bench_parser(sub)
+    from netsim.reproduce import add_reproduce_parser
+
+    add_reproduce_parser(sub)
     for name, command in sub.choices.items():
         _add_no_cache(name, command)
     return parser
@@ -1026,6 +1029,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return cmd_bench(args)
 
 
+def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from netsim.reproduce import cmd_reproduce
+
+    return cmd_reproduce(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``netsim`` command; returns the exit code."""
     parser = build_parser()
@@ -1044,6 +1053,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "fusion": _cmd_fusion,
         "bench": _cmd_bench,
         "claims": _cmd_claims,
+        "reproduce": _cmd_reproduce,
         "scenarios": _cmd_scenarios,
     }
     from netsim import gaincache

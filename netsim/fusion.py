@@ -67,6 +67,13 @@ __all__ = [
     "table1",
     "example2",
     "conditions",
+    "example_setup",
+    "mse_curves",
+    "exact_trace_curves",
+    "xi11_trace_curves",
+    "covariance_norm_curves",
+    "FusionTrajectories",
+    "fusion_trajectories",
 ]
 
 ESTIMATOR_NAMES = ("local", "cse", "dkfe", "sdkfe", "odkfe", "centralized-kf")
@@ -220,6 +227,8 @@ class FusionRunResult:
     fused_gap: list[float]  # mean |x-hat(t) - x-hat_s(t)| (Er, Fig. 8) at each mark
     conditions: list[dict[str, Any]]
     diverged_trials: int = 0
+    #: With ``curves=True``: per estimator the Monte Carlo MSE at every step 0..K.
+    curves: dict[str, list[float]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -243,6 +252,7 @@ class FusionRunResult:
             "dkfe_minus_sdkfe_mean_abs": json_tree(self.fused_gap),
             "conditions": json_tree(self.conditions),
             "diverged_trials": self.diverged_trials,
+            **({"mse_curves": json_tree(self.curves)} if self.curves is not None else {}),
         }
 
     def format_text(self) -> str:
@@ -309,15 +319,73 @@ def _exact_traces(setup: dk.DkfeSetup, cov: FusionCovariance, ocov: FusionCovari
     return out
 
 
+def example_setup(example: str | dk.DkfeSetup, gamma11: float | None = None) -> dk.DkfeSetup:
+    """The setup of an example name (or the setup itself), with Example 1's gamma_11.
+
+    ``gamma11`` (Example 1 only, in [0, 1]; default 0.5) is the probability that the sink
+    sends component 1 (eq. 84). ValueError for another example or a value out of range.
+    """
+    if isinstance(example, dk.DkfeSetup):
+        if gamma11 is not None:
+            raise ValueError("gamma11 applies to the named example dkfe-example1 only")
+        return example
+    setup = dk.get_example(example)
+    if gamma11 is None:
+        return setup
+    if setup.name != "dkfe-example1":
+        raise ValueError(f"gamma11 applies to dkfe-example1 only, not {setup.name}")
+    g = float(gamma11)
+    if not (math.isfinite(g) and 0.0 <= g <= 1.0):
+        raise ValueError(f"gamma11 must be in [0, 1], got {gamma11}")
+    return dk.example1(g)
+
+
+def _lockstep_series(setup: dk.DkfeSetup, run: Any) -> dict[str, np.ndarray]:
+    """Every estimator of a lock-step run by its report name, (K+1, B, n) arrays."""
+    L = setup.n_sinks
+    out = {**{f"sink {i + 1} local KF": run.local[:, i] for i in range(L)},
+           **{f"CSE {i + 1} (d={setup.delays[i]})": run.cse[:, i] for i in range(L)},
+           "DKFE": run.dkfe}
+    if run.sdkfe is not None:
+        out["SDKFE"] = run.sdkfe
+    out["ODKFE (d=0)"] = run.odkfe
+    out["centralized KF"] = run.ckf
+    return out
+
+
+def mse_curves(example: str | dk.DkfeSetup, steps: int, trials: int, seed: int = 0, *,
+               gamma11: float | None = None) -> dict[str, list[float]]:
+    """Monte Carlo MSE E||x(t) - x-hat(t)||^2 of every estimator at t = 0..steps.
+
+    The lock-step engine (:func:`netsim.estimators.fusion.run_lockstep`, the same
+    estimator objects as the kernel) without the SDKFE and without the stability
+    conditions of :func:`run_fusion` (no LMIs): cheap enough for a sweep over gamma_11.
+    Keys as in :attr:`FusionRunResult.empirical` (without ``SDKFE``).
+    """
+    setup = example_setup(example, gamma11)
+    if steps < 1 or trials < 1:
+        raise ValueError("steps and trials must be positive")
+    with np.errstate(over="ignore", invalid="ignore"):
+        run = run_lockstep(setup, int(steps), int(trials), seed)
+        return {name: [float(v) for v in np.sum((run.states - est) ** 2, axis=-1).mean(axis=1)]
+                for name, est in _lockstep_series(setup, run).items()}
+
+
 def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
                trials: int = 50, seed: int = 0, *, engine: str = "kernel",
                time_varying: bool = False,
-               progress: Callable[[int], None] | None = None) -> FusionRunResult:
+               progress: Callable[[int], None] | None = None,
+               gamma11: float | None = None, curves: bool = False) -> FusionRunResult:
     """Monte Carlo of an example: sinks, DKFE, SDKFE, ODKFE and centralised KF.
 
     Parameters
     ----------
     example : name (``dkfe-example1``, ``dkfe-example2``) or a DkfeSetup
+    gamma11 : float, optional
+        Example 1's selection probability gamma_11 (eq. 84; default 0.5), see
+        :func:`example_setup`.
+    curves : bool
+        Also keep every estimator's Monte Carlo MSE at every step (``curves``).
     steps, trials, seed : int
     engine : ``kernel`` (every trial in the SimPy kernel) or ``lockstep``
         (all trials at once, vectorised, the same estimator objects; constant delays).
@@ -326,7 +394,7 @@ def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
     progress : callable(int), optional
         Called with 1 after each kernel trial.
     """
-    setup = dk.get_example(example) if isinstance(example, str) else example
+    setup = example_setup(example, gamma11)
     if steps < 1 or trials < 1:
         raise ValueError("steps and trials must be positive")
     if engine not in ("kernel", "lockstep"):
@@ -342,10 +410,7 @@ def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
         run = run_lockstep(setup, steps, trials, seed, steady_weights=steady.weights,
                            covariances=covs)
         states = run.states  # (K+1, B, n)
-        series = {**{f"sink {i + 1} local KF": run.local[:, i] for i in range(L)},
-                  **{f"CSE {i + 1} (d={setup.delays[i]})": run.cse[:, i] for i in range(L)},
-                  "DKFE": run.dkfe, "SDKFE": run.sdkfe, "ODKFE (d=0)": run.odkfe,
-                  "centralized KF": run.ckf}
+        series = _lockstep_series(setup, run)
         diverged = 0
     else:
         per: dict[str, list[np.ndarray]] = {}
@@ -375,8 +440,11 @@ def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
         series = {k: np.stack(v, axis=1) for k, v in per.items()}
     marks = sorted({0, 1, 2, steps // 10, steps // 4, steps // 2, steps})
     emp, se = {}, {}
+    full: dict[str, list[float]] | None = {} if curves else None
     for name, est in series.items():
         sq = np.sum((states - est) ** 2, axis=-1)  # (K+1, B)
+        if full is not None:
+            full[name] = [float(v) for v in sq.mean(axis=1)]
         emp[name] = [float(sq[m].mean()) for m in marks]
         se[name] = [float(sq[m].std(ddof=1) / math.sqrt(sq.shape[1])) if sq.shape[1] > 1
                     else math.nan for m in marks]
@@ -386,8 +454,89 @@ def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
         time_varying=time_varying, marks=marks, empirical=emp, standard_error=se,
         theory=_exact_traces(setup, cov, ocov, steady, marks), steady=steady,
         odkfe_steady=osteady, fused_gap=[float(gap[m].mean()) for m in marks],
-        conditions=conditions(setup), diverged_trials=diverged,
+        conditions=conditions(setup), diverged_trials=diverged, curves=full,
     )
+
+
+# ---------------------------------------------------------------------------
+# curves of the exact covariances and one trial's trajectories (the paper's figures)
+# ---------------------------------------------------------------------------
+
+
+def exact_trace_curves(setup: dk.DkfeSetup, steps: int) -> dict[str, list[float]]:
+    """Trace of every estimator's exact error covariance at t = 0..steps (Fig. 6).
+
+    Keys as in :attr:`FusionRunResult.theory` (``CSE i (d=..)``, ``DKFE``, ``SDKFE``,
+    ``ODKFE (d=0)``, local and centralised Kalman filters); each a list of steps + 1.
+    """
+    cov, ocov, _ = covariances_for(setup)
+    return _exact_traces(setup, cov, ocov, cov.steady_state(), range(int(steps) + 1))
+
+
+def xi11_trace_curves(gammas: Sequence[float], steps: int, delay: int = 0
+                      ) -> dict[float, list[float]]:
+    """Example 1: Tr Xi_11(t), t = 0..steps, of the compensating estimate per gamma_11.
+
+    The exact covariance recursion (:class:`netsim.estimators.fusion.FusionCovariance`)
+    of :func:`netsim.models.dkfe.example1` (Figs. 3-4 of the dkfe paper); values may
+    grow without bound (to inf) for the gamma_11 where (75) fails.
+    """
+    out: dict[float, list[float]] = {}
+    with np.errstate(over="ignore", invalid="ignore"):
+        for g in gammas:
+            cov, _, _ = covariances_for(dk.example1(float(g), delay))
+            out[float(g)] = [float(np.trace(cov.at(t).Xi_block(0, 0)))
+                             for t in range(int(steps) + 1)]
+    return out
+
+
+def covariance_norm_curves(setup: dk.DkfeSetup, steps: int,
+                           initial_covariances: Sequence[np.ndarray]
+                           ) -> list[dict[str, list[float]]]:
+    """||P(t)||_2 and ||Omega_i(t)||_2, t = 0..steps, for each initial covariance of x(0).
+
+    Fig. 7 of the dkfe paper (Theorem 3: the same limits from every initial value).
+    Returns one dict per initial covariance with keys ``P`` and ``Omega_1``..``Omega_L``.
+    """
+    from dataclasses import replace
+
+    out = []
+    for P0 in initial_covariances:
+        P0 = np.asarray(P0, dtype=float)
+        cov, _, _ = covariances_for(replace(setup, x0_cov=P0))
+        row: dict[str, list[float]] = {"P": []}
+        for i in range(setup.n_sinks):
+            row[f"Omega_{i + 1}"] = []
+        for t in range(int(steps) + 1):
+            snap = cov.at(t)
+            row["P"].append(float(np.linalg.norm(snap.P, 2)))
+            for i, w in enumerate(snap.weights):
+                row[f"Omega_{i + 1}"].append(float(np.linalg.norm(w, 2)))
+        out.append(row)
+    return out
+
+
+@dataclass
+class FusionTrajectories:
+    """One trial's state and fused estimates, (K+1, n) arrays (Figs. 5 and 8)."""
+
+    states: np.ndarray
+    dkfe: np.ndarray
+    sdkfe: np.ndarray
+    odkfe: np.ndarray
+    cse: np.ndarray  # (K+1, L, n)
+
+
+def fusion_trajectories(setup: dk.DkfeSetup, steps: int, seed: int = 0,
+                        trial: int = 0) -> FusionTrajectories:
+    """Trial ``trial`` of :func:`run_fusion` (same seed, kernel engine): x(t), the DKFE,
+    the SDKFE with the steady-state weights (79), the ODKFE and the CSEs."""
+    covs = covariances_for(setup)
+    steady = covs[0].steady_state()
+    tr = run_fusion_trial(setup, child_sequence(seed, "trial", trial), steps,
+                          covariances=covs, steady_weights=steady.weights)
+    assert tr.sdkfe is not None
+    return FusionTrajectories(tr.states, tr.dkfe, tr.sdkfe, tr.odkfe, tr.cse)
 
 
 # ---------------------------------------------------------------------------

@@ -1,6 +1,9 @@
 """One PNG summarising traces: MSE, delays, spectral radius versus the papers' bounds.
 
-:func:`plot_traces` draws three panels (matplotlib, Agg backend, no screen needed):
+:func:`plot_traces` draws up to four panels (a ``matplotlib.figure.Figure`` written
+straight to PNG: no pyplot, the user's matplotlib backend is never changed); a panel
+with nothing to show (no delays recorded, no P, A, C_i, L_i in the traces, no AoI
+observer) is left out:
 
 1. the network MSE (1/N) sum_i ||x_k - x-hat^i_k||^2 over time, one line per trace
    (labelled by family and trial), log scale;
@@ -14,7 +17,8 @@
    rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)) and the delay-tolerant bound
    rho(A-hat)^(1/(tau+1)); a horizontal line at 1, a vertical line at the observed
    maximum delay tau_obs (and a dotted one at tau*), and a marker per consensus trace
-   at the exact rho of its realised (last-step) delay pattern.
+   at the exact rho of its realised (last-step) delay pattern;
+4. for AoI traces, the largest freshness index per agent over time.
 
 This module imports ``models`` (``netsim.models.augmented``), never ``netsim`` or ``simpy``.
 """
@@ -25,22 +29,20 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from netsim.models.augmented import (  # noqa: E402
+import numpy as np
+from matplotlib.axes import Axes
+from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
+from netsim.models.augmented import (
     augmented_spectral_radius,
     delay_bound_lcsys,
     delay_bound_tolerant,
     tau_star,
 )
-from netsim.traces.reader import NOT_USED, Trace  # noqa: E402
-from netsim.traces.replay import TraceSystem, effective_pattern, trace_system  # noqa: E402
+from netsim.traces.reader import NOT_USED, Trace
+from netsim.traces.replay import TraceSystem, effective_pattern, trace_system
 
-__all__ = ["plot_traces", "homogeneous_rho", "TAU_PLOT_MAX"]
+__all__ = ["plot_traces", "traces_figure", "homogeneous_rho", "TAU_PLOT_MAX"]
 
 #: Largest homogeneous delay drawn in the spectral panel (the augmented matrices grow
 #: as N n (tau+1)).
@@ -88,7 +90,7 @@ def _link_delays(trace: Trace) -> list[int]:
             for m in trace.link_events(j, i, "delivered")]
 
 
-def _mse_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
+def _mse_panel(ax: Axes, traces: Sequence[Trace]) -> None:
     drawn = 0
     for index, trace in enumerate(traces):
         sq = trace.squared_errors()
@@ -121,7 +123,7 @@ def _mse_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
                 transform=ax.transAxes)
 
 
-def _freshness_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
+def _freshness_panel(ax: Axes, traces: Sequence[Trace]) -> None:
     """Largest freshness index (age of information) per AoI agent over time."""
     for trace in traces:
         ages = trace.freshness()
@@ -138,10 +140,13 @@ def _freshness_panel(ax: plt.Axes, traces: Sequence[Trace]) -> None:
     ax.legend(fontsize=8)
 
 
-def _delay_panel(ax: plt.Axes, traces: Sequence[Trace],
-                 systems: list[TraceSystem | None]) -> int | None:
-    """Draw the histograms; return tau_obs (max effective delay of consensus traces)."""
-    groups: list[tuple[str, np.ndarray, str]] = []
+_DelayGroups = list[tuple[str, np.ndarray, str]]
+
+
+def _delay_groups(traces: Sequence[Trace], systems: list[TraceSystem | None]
+                  ) -> tuple[_DelayGroups, int | None]:
+    """The histograms to draw and tau_obs (max effective delay of consensus traces)."""
+    groups: _DelayGroups = []
     link = np.array([d for t in traces for d in _link_delays(t)], dtype=int)
     if link.size:
         groups.append((f"link delay d, delivered messages, all traces ({link.size})", link,
@@ -158,37 +163,38 @@ def _delay_panel(ax: plt.Axes, traces: Sequence[Trace],
                            _colour(index)))
     if tau_obs is None and link.size:
         tau_obs = int(link.max())
-    if not groups:
-        ax.text(0.5, 0.5, "no delays recorded", ha="center", va="center",
-                transform=ax.transAxes)
-        ax.set_title("Delays")
-        return tau_obs
+    return groups, tau_obs
+
+
+def _delay_panel(ax: Axes, groups: _DelayGroups) -> None:
+    """Draw the delay histograms (integer ticks, thinned by MaxNLocator)."""
     top = max(int(v.max()) for _, v, _ in groups)
     bins = np.arange(top + 1)
     width = 0.8 / len(groups)
     for g, (name, vals, colour) in enumerate(groups):
         frac = np.bincount(vals, minlength=top + 1)[: top + 1] / vals.size
         ax.bar(bins - 0.4 + width * (g + 0.5), frac, width=width, color=colour, label=name)
-    ax.set_xticks(bins)
+    ax.set_xlim(-0.6, top + 0.6)
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True, min_n_ticks=1))
     ax.set_xlabel("delay (steps)")
     ax.set_ylabel("fraction of messages / of uses")
     ax.set_title("Delay histograms")
     ax.grid(True, axis="y", alpha=0.3)
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=1)
-    return tau_obs
 
 
-def _spectral_panel(ax: plt.Axes, traces: Sequence[Trace],
+def _has_errors(traces: Sequence[Trace]) -> bool:
+    for trace in traces:
+        sq = trace.squared_errors()
+        if sq.size and np.any(np.isfinite(sq) & (sq >= 0)):
+            return True
+    return False
+
+
+def _spectral_panel(ax: Axes, traces: Sequence[Trace],
                     systems: list[TraceSystem | None], tau_obs: int | None,
                     tau_range: int | None) -> None:
-    index = next((i for i, s in enumerate(systems) if s is not None), None)
-    if index is None:
-        ax.text(0.5, 0.5, "no P, A, C_i, L_i in the traces", ha="center", va="center",
-                transform=ax.transAxes)
-        ax.set_title("Spectral radius vs delay")
-        return
-    system = systems[index]
-    assert system is not None
+    system = next(s for s in systems if s is not None)
     P, A, C, L = system.P, system.A, system.C, system.L
     star = tau_star(P, A, C, L, tau_max=TAU_PLOT_MAX)
     if tau_range is None:
@@ -238,15 +244,52 @@ def _spectral_panel(ax: plt.Axes, traces: Sequence[Trace],
     ax.legend(fontsize=8, loc="upper center", bbox_to_anchor=(0.5, -0.13), ncol=2)
 
 
+def traces_figure(traces: Sequence[Trace], *, title: str | None = None,
+                  tau_range: int | None = None) -> Figure:
+    """The ``matplotlib.figure.Figure`` of :func:`plot_traces` (panels with data only)."""
+    traces = list(traces)
+    if not traces:
+        raise ValueError("plot_traces needs at least one trace")
+    systems = [trace_system(t)[0] for t in traces]
+    aoi = [t for t in traces if any(name.endswith("/freshness") for name in t.counts)]
+    groups, tau_obs = _delay_groups(traces, systems)
+    panels: list[str] = []
+    if _has_errors(traces) or not (groups or aoi or any(s is not None for s in systems)):
+        panels.append("mse")  # an empty trace still gets its (labelled) MSE panel
+    if groups:
+        panels.append("delays")
+    if any(s is not None for s in systems):
+        panels.append("spectral")
+    if aoi:
+        panels.append("freshness")
+    fig = Figure(figsize=(6.5 * len(panels) + 1, 8), dpi=100)
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    for ax, panel in zip(axes, panels, strict=True):
+        if panel == "mse":
+            _mse_panel(ax, traces)
+        elif panel == "delays":
+            _delay_panel(ax, groups)
+        elif panel == "spectral":
+            _spectral_panel(ax, traces, systems, tau_obs, tau_range)
+        else:
+            _freshness_panel(ax, aoi)
+    if title is None:
+        name = traces[0].scenario.get("name", "")
+        title = f"{name}: {len(traces)} trace(s)" if name else f"{len(traces)} trace(s)"
+    fig.suptitle(title, fontsize=13)
+    fig.tight_layout(rect=(0, 0, 1, 0.97))
+    return fig
+
+
 def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
                 title: str | None = None, tau_range: int | None = None) -> Path:
-    """Write one PNG with the three panels (see the module docstring).
+    """Write one PNG with the panels that have data (see the module docstring).
 
     Parameters
     ----------
     traces : sequence of Trace
         Read with :func:`netsim.traces.reader.read_trace`; the spectral panel uses the matrices
-        of the first trace that has P, A, C_i and L_i.
+        of the first trace that has P, A, C_i and L_i (left out when none has them).
     path : str or os.PathLike
         The PNG file to write (parent directories must exist).
     title : str, optional
@@ -259,26 +302,7 @@ def plot_traces(traces: Sequence[Trace], path: str | os.PathLike[str], *,
     -------
     pathlib.Path
     """
-    traces = list(traces)
-    if not traces:
-        raise ValueError("plot_traces needs at least one trace")
-    systems = [trace_system(t)[0] for t in traces]
-    aoi = [t for t in traces if any(name.endswith("/freshness") for name in t.counts)]
-    panels = 4 if aoi else 3
-    fig, axes = plt.subplots(1, panels, figsize=(20 if panels == 3 else 26, 8), dpi=100)
-    try:
-        _mse_panel(axes[0], traces)
-        tau_obs = _delay_panel(axes[1], traces, systems)
-        _spectral_panel(axes[2], traces, systems, tau_obs, tau_range)
-        if aoi:
-            _freshness_panel(axes[3], aoi)
-        if title is None:
-            name = traces[0].scenario.get("name", "")
-            title = f"{name}: {len(traces)} trace(s)" if name else f"{len(traces)} trace(s)"
-        fig.suptitle(title, fontsize=13)
-        fig.tight_layout(rect=(0, 0, 1, 0.97))
-        out = Path(path)
-        fig.savefig(out, format="png")
-    finally:
-        plt.close(fig)
+    fig = traces_figure(traces, title=title, tau_range=tau_range)
+    out = Path(path)
+    fig.savefig(out, format="png")
     return out

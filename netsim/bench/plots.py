@@ -1,4 +1,5 @@
-"""The delay-tolerance report as a PNG (matplotlib, imported when called)."""
+"""The delay-tolerance report as a PNG (a ``matplotlib.figure.Figure``, imported when called;
+no pyplot, so the user's backend is never changed)."""
 
 from __future__ import annotations
 
@@ -16,14 +17,13 @@ __all__ = ["plot_report"]
 def plot_report(data: dict[str, Any], path: str | Path) -> Path:
     """PNG: steady-state MSE vs tau per estimator (one panel per delay setting) and the
     focus estimator's MSE over time for each tau."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from matplotlib import colormaps
+    from matplotlib.figure import Figure
 
     settings = list(data["settings"])
     ncol = max(1, len(settings))
-    fig, axes = plt.subplots(2, ncol, figsize=(5.2 * ncol, 8.2), squeeze=False)
+    fig = Figure(figsize=(5.2 * ncol, 8.2))
+    axes = fig.subplots(2, ncol, squeeze=False)
     focus = (data["preset"] or {}).get("focus") or "compensated"
     if focus not in data["families"]:
         focus = data["families"][0]
@@ -67,7 +67,7 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
         ax2 = axes[1][col]
-        cmap = plt.get_cmap("viridis")
+        cmap = colormaps["viridis"]
         for n, tau in enumerate(data["taus"]):
             c = _cell(data, setting, tau, focus)
             if c is None or not c["measured"].get("curve"):
@@ -88,5 +88,4 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
-    plt.close(fig)
     return path

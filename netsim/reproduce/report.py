@@ -1,0 +1,240 @@
+"""``netsim reproduce``: build every item, look up its claims, write the Markdown report."""
+
+from __future__ import annotations
+
+import re
+import resource
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from netsim.reproduce.items import PAPER_TITLES, PAPERS, BuildContext, Item, items_for
+
+__all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "reproduce",
+           "DEFAULT_TRIALS", "CLAIM_BUDGET"]
+
+#: Default Monte Carlo trials (LCSYS2022 Fig. 1 uses 100).
+DEFAULT_TRIALS = 100
+#: Seconds each claim's counterexample search may take.
+CLAIM_BUDGET = 3.0
+
+
+@dataclass
+class ClaimVerdict:
+    """A registry claim next to an item: the standalone check, and this run's bench row."""
+
+    id: str
+    where: str
+    statement: str
+    verdict: str
+    summary: str
+    reason: str | None = None
+    this_run: str | None = None  # bench status (agrees / differs / DISAGREES / ...)
+    this_run_ours: str | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class ItemReport:
+    """One figure or table: files, our numbers, differences, claims."""
+
+    item: Item
+    png: str
+    data_files: list[str]
+    ours: list[str]
+    differs: list[str]
+    claims: list[ClaimVerdict]
+    missing_claims: list[str]
+    seconds: float
+    numbers: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"id": self.item.id, "paper": self.item.paper, "label": self.item.label,
+                "png": self.png, "data": self.data_files, "ours": self.ours,
+                "differs": self.differs, "claims": [c.to_dict() for c in self.claims],
+                "missing_claims": self.missing_claims, "seconds": round(self.seconds, 2)}
+
+
+@dataclass
+class ReproduceResult:
+    """Everything one run wrote."""
+
+    out: Path
+    trials: int
+    seed: int
+    items: list[ItemReport]
+    report: Path
+    elapsed: float
+    #: CPU seconds of this process (with workers > 1 the benchmark's worker processes,
+    #: children of a forkserver, are not included).
+    cpu: float
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"out": str(self.out), "report": str(self.report), "trials": self.trials,
+                "seed": self.seed, "elapsed_s": round(self.elapsed, 2),
+                "cpu_s": round(self.cpu, 2), "items": [r.to_dict() for r in self.items]}
+
+    def format_text(self) -> str:
+        lines = [f"{r.item.paper} {r.item.label}: {r.png}, {', '.join(r.data_files)}"
+                 for r in self.items]
+        lines.append(f"{len(self.items)} figures and tables, report {self.report} "
+                     f"({self.elapsed:.1f} s wall, {self.cpu:.1f} s CPU in this process, "
+                     f"{self.trials} trials)")
+        return "\n".join(lines) + "\n"
+
+
+def _cpu() -> float:
+    own = resource.getrusage(resource.RUSAGE_SELF)
+    kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def _label_pattern(label: str) -> re.Pattern[str]:
+    return re.compile(r"(?<![\w.])" + re.escape(label) + r"(?![\w])")
+
+
+def claim_verdicts(item: Item, bench_rows: Sequence[dict[str, Any]], context: Any,
+                   cache: dict[str, Any]) -> tuple[list[ClaimVerdict], list[str]]:
+    """The registry claims an item bears on, each with its standalone verdict.
+
+    The claims are the item's ids (a missing id is reported, not an error) and any other
+    claim of the same paper whose ``where`` names the item's label (``Fig. 6``). Checks
+    run once per id (``cache``). ``bench_rows``: the bench's rows for this run's data.
+    """
+    from netsim.claims import REGISTRY, get_claim
+
+    ids = list(item.claims)
+    pat = _label_pattern(item.label)
+    for cid, claim in REGISTRY.items():
+        if claim.paper == item.paper and pat.search(claim.where) and cid not in ids:
+            ids.append(cid)
+    rows = {r.get("id"): r for r in bench_rows}
+    out, missing = [], []
+    for cid in ids:
+        try:
+            claim = get_claim(cid)
+        except KeyError:
+            missing.append(cid)
+            continue
+        if cid not in cache:
+            try:
+                cache[cid] = claim.run(context)
+            except Exception as exc:  # a broken check must not lose the whole report
+                from netsim.claims import NOT_CHECKABLE, Outcome
+
+                cache[cid] = Outcome(NOT_CHECKABLE, f"the check raised {type(exc).__name__}",
+                                     reason=str(exc))
+        o = cache[cid]
+        row = rows.get(cid)
+        out.append(ClaimVerdict(cid, claim.where, claim.statement, o.verdict, o.summary,
+                                o.reason, None if row is None else row.get("status"),
+                                None if row is None else row.get("ours")))
+    return out, missing
+
+
+def _md_escape(text: str) -> str:
+    return str(text).replace("|", "/").replace("\n", " ")
+
+
+def _markdown(result: ReproduceResult) -> str:
+    out = ["# netsim reproduce: the papers' figures and tables", "",
+           f"{len(result.items)} items, {result.trials} Monte Carlo trials, seed "
+           f"{result.seed}; {result.elapsed:.0f} s wall, {result.cpu:.0f} s CPU in this process. "
+           "Each item: "
+           "our figure, what the paper states, where our system differs, and the verdicts "
+           "of the claims it bears on (`netsim claims`; *this run* is the same claim "
+           "checked on this run's data where the benchmark has such a check).", ""]
+    for paper in PAPERS:
+        mine = [r for r in result.items if r.item.paper == paper]
+        if not mine:
+            continue
+        out += [f"- **{PAPER_TITLES[paper]}**: "
+                + ", ".join(f"[{r.item.label}](#{r.item.id})" for r in mine)]
+    out.append("")
+    for paper in PAPERS:
+        mine = [r for r in result.items if r.item.paper == paper]
+        if not mine:
+            continue
+        out += [f"## {PAPER_TITLES[paper]}", ""]
+        for r in mine:
+            it = r.item
+            out += [f'<a id="{it.id}"></a>', "", f"### {paper} {it.label}", "",
+                    f"![{paper} {it.label}]({r.png})", "",
+                    "Data: " + ", ".join(f"[{f}]({f})" for f in r.data_files), "",
+                    f"**The paper's caption:** {it.caption}", "",
+                    f"**What the paper states:** {it.paper_says}", "",
+                    "**Ours:**", *[f"- {line}" for line in r.ours], "",
+                    "**Where our system differs from the paper's:**",
+                    *[f"- {line}" for line in r.differs], ""]
+            if r.claims:
+                out += ["**Claims:**", "", "| claim | where | verdict | this run | numbers |",
+                        "|---|---|---|---|---|"]
+                for c in r.claims:
+                    why = f" ({c.reason})" if c.reason else ""
+                    run = (f"{c.this_run}: {c.this_run_ours}" if c.this_run else "-")
+                    out.append(f"| {c.id} | {_md_escape(c.where)} | **{c.verdict}** | "
+                               f"{_md_escape(run)} | {_md_escape(c.summary + why)} |")
+                out.append("")
+            if r.missing_claims:
+                out += ["Claim ids not in this registry: " + ", ".join(r.missing_claims), ""]
+    return "\n".join(out) + "\n"
+
+
+def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reproduce-out",
+              trials: int = DEFAULT_TRIALS, seed: int = 0, workers: int = 2,
+              claim_budget: float = CLAIM_BUDGET,
+              progress: Callable[[str], None] | None = None) -> ReproduceResult:
+    """Regenerate the figures and tables of ``papers`` (default all) into ``out``.
+
+    Parameters
+    ----------
+    papers : sequence of str, optional
+        Keys of :data:`netsim.reproduce.items.PAPERS` (case-insensitive).
+    out : path
+        Folder for ``<item>.png``, its data (CSV / JSON) and ``report.md``.
+    trials : int
+        Monte Carlo trials of every simulated curve (precision against time).
+    seed : int
+        Seed of the AoI and dkfe runs (the delay benchmarks use their scenario's seed).
+    workers : int
+        Local processes of the delay benchmarks.
+    claim_budget : float
+        Seconds of each claim check's counterexample search.
+    progress : callable(str), optional
+        Called with each item's id when it is done.
+
+    Returns
+    -------
+    ReproduceResult
+    """
+    from netsim.claims import Context
+
+    chosen = items_for(papers)
+    if trials < 1:
+        raise ValueError(f"trials must be a positive integer, got {trials}")
+    folder = Path(out)
+    folder.mkdir(parents=True, exist_ok=True)
+    ctx = BuildContext(folder, int(trials), int(seed), int(workers))
+    claim_ctx = Context(seed=int(seed), budget=float(claim_budget), out=None)
+    checks: dict[str, Any] = {}
+    start, cpu0 = time.perf_counter(), _cpu()
+    reports = []
+    for item in chosen:
+        t0 = time.perf_counter()
+        built = item.build(ctx)
+        png = f"{item.id}.png"
+        built.figure.savefig(folder / png, format="png")
+        claims, missing = claim_verdicts(item, built.bench_claims, claim_ctx, checks)
+        reports.append(ItemReport(item, png, built.data_files, built.ours,
+                                  list(item.differs) + built.differs, claims, missing,
+                                  time.perf_counter() - t0, built.numbers))
+        if progress is not None:
+            progress(item.id)
+    result = ReproduceResult(folder, int(trials), int(seed), reports, folder / "report.md",
+                             time.perf_counter() - start, _cpu() - cpu0)
+    result.report.write_text(_markdown(result), encoding="utf-8")
+    return result

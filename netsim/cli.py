@@ -277,6 +277,9 @@ def build_parser() -> argparse.ArgumentParser:
     f_run.add_argument("--time-varying", action="store_true",
                        help="random link delays in 0..d_i - 1, padded to d_i at the centre "
                        "(Remark 1; kernel engine)")
+    f_run.add_argument("--gamma", type=float, default=None, metavar="G",
+                       help="dkfe-example1 only: gamma_11, the probability that the sink "
+                       "sends component 1 (eq. 84; default 0.5), in [0, 1] (Figs. 3-4)")
     f_run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     from netsim.bench import add_bench_parser
 
@@ -992,7 +995,8 @@ def _cmd_fusion(args: argparse.Namespace) -> int:
     try:
         engine = {"events": "kernel", "vectorised": "lockstep"}.get(args.engine, args.engine)
         result = nf.run_fusion(args.example, args.steps, args.trials, args.seed,
-                               engine=engine, time_varying=args.time_varying)
+                               engine=engine, time_varying=args.time_varying,
+                               gamma11=args.gamma)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
     return _emit(args, result.to_dict(), result.format_text())

@@ -420,3 +420,30 @@ def test_commands_produce_json_and_text():
     assert lock.to_dict()["engine"] == "lockstep"
     with pytest.raises(ValueError, match="unknown example"):
         nf.run_fusion("nope")
+
+
+def test_fusion_run_gamma_flag_sets_example1_gamma11():
+    """``netsim fusion run dkfe-example1 --gamma G`` runs Example 1 at gamma_11 = G.
+
+    Independent of the Monte Carlo: the exact DKFE trace at the last mark must equal the
+    trace of the sink's exact error covariance recursion for the setup ``example1(G)``
+    built directly from the model module, and two gammas must give different traces.
+    """
+    from netsim.cli import main
+
+    def exact_last(gamma: float) -> float:
+        import contextlib
+        import io
+
+        buf = io.StringIO()
+        with contextlib.redirect_stdout(buf):
+            assert main(["fusion", "run", "dkfe-example1", "--gamma", str(gamma),
+                         "--trials", "2", "--steps", "10", "--json"]) == 0
+        return json.loads(buf.getvalue())["exact_trace"]["DKFE"][-1]
+
+    direct = nf.run_fusion(dk.example1(0.3), 10, 2, 0)
+    assert exact_last(0.3) == pytest.approx(direct.to_dict()["exact_trace"]["DKFE"][-1],
+                                            rel=1e-12)
+    assert exact_last(0.3) != pytest.approx(exact_last(0.8), rel=1e-3)
+    assert main(["fusion", "run", "dkfe-example2", "--gamma", "0.5"]) == 2
+    assert main(["fusion", "run", "dkfe-example1", "--gamma", "1.5"]) == 2

@@ -425,9 +425,10 @@ def test_commands_produce_json_and_text():
 def test_fusion_run_gamma_flag_sets_example1_gamma11():
     """``netsim fusion run dkfe-example1 --gamma G`` runs Example 1 at gamma_11 = G.
 
-    Independent of the Monte Carlo: the exact DKFE trace at the last mark must equal the
-    trace of the sink's exact error covariance recursion for the setup ``example1(G)``
-    built directly from the model module, and two gammas must give different traces.
+    The exact DKFE trace the command prints must equal the Python API's on the setup
+    ``example1(G)`` built directly from the model module (so the flag reaches eq. 84),
+    two gammas must give different traces, and a gamma for Example 2 or outside [0, 1]
+    is refused with exit 2.
     """
     from netsim.cli import main
 

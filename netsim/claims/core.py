@@ -116,6 +116,10 @@ class Claim:
         The paper's printed numbers this claim refers to.
     bench : callable(dict) -> dict, optional
         The form used by ``netsim bench delay-tolerance`` on its report (a bench row).
+    searches : tuple of str
+        Counterexample searches the check reads (names in
+        :data:`netsim.claims.searches.SEARCHES`); :func:`netsim.claims.run_claims` runs
+        them first, in parallel worker processes.
     """
 
     id: str
@@ -127,6 +131,7 @@ class Claim:
     check: Callable[[Context], Outcome] | None = None
     printed: Mapping[str, Any] = field(default_factory=dict)
     bench: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+    searches: tuple[str, ...] = ()
 
     def run(self, context: Context) -> Outcome:
         """Run the standalone check (``not checkable`` if there is none)."""
@@ -139,4 +144,5 @@ class Claim:
         """The claim without its check (JSON-safe)."""
         return {"id": self.id, "paper": self.paper, "where": self.where,
                 "statement": self.statement, "hypotheses": list(self.hypotheses),
-                "kind": self.kind, "printed": dict(self.printed)}
+                "kind": self.kind, "printed": dict(self.printed),
+                "searches": list(self.searches)}

@@ -130,6 +130,16 @@ def check_theorem1(context: Context) -> Outcome:
                 f"undelayed) the exact augmented rho is {found.exact_rho:.4f} > 1.")
             cx["scenario"] = str(path)
             cx["netsim_run"] = numbers["netsim_run"] = confirm_run(path, "compensated")
+        head = (f"counterexample a = {found.instance.a:g}, N = {found.instance.N}, "
+                f"P = {[list(r) for r in found.instance.P]}, c = {list(found.instance.c)}, "
+                f"K = {list(found.instance.k)}: rho(A-hat) = {found.rho_delay_free:.4f}, "
+                f"tau* = {found.tau_star}, exact rho at tau = {found.tau} is "
+                f"{found.exact_rho:.4f} > 1"
+                + (f" (netsim run: {cx['netsim_run']['measured']})" if "netsim_run" in cx
+                   else "")
+                + f"; on our LCSYS2022 instance it holds (max exact rho "
+                f"{numbers['ours_max_exact_rho_up_to_tau_star']} up to tau* = "
+                f"{ours['tau_star']})")
         return Outcome(
             FAILS,
             f"counterexample a = {found.instance.a:g}, N = {found.instance.N}, "
@@ -141,16 +151,17 @@ def check_theorem1(context: Context) -> Outcome:
             + (f"; netsim run: {_run_words(cx['netsim_run'])}" if "netsim_run" in cx else "")
             + "); on our LCSYS2022 instance it holds "
             f"(max exact rho {numbers['ours_max_exact_rho_up_to_tau_star']} up to tau* = "
-            f"{ours['tau_star']})", numbers, cx)
+            f"{ours['tau_star']})", numbers, cx, headline=head)
     if ours["violations"]:
         t = ours["violations"][0]
         return Outcome(FAILS, f"our instance: exact rho {ours['exact'][t]:.4f} >= 1 at tau "
                        f"= {t} <= tau* = {ours['tau_star']}", numbers,
                        {"instance": "lcsys2022-homogeneous", "tau": t})
-    return Outcome(HOLDS, f"no counterexample in {found.tried} random instances "
-                   f"({found.elapsed:.1f} s); our instance: max exact rho "
-                   f"{numbers['ours_max_exact_rho_up_to_tau_star']} up to tau* = "
-                   f"{ours['tau_star']}", numbers)
+    tail = (f"our instance: max exact rho {numbers['ours_max_exact_rho_up_to_tau_star']} "
+            f"up to tau* = {ours['tau_star']}")
+    return Outcome(HOLDS, f"holds on {found.tried} searched instances "
+                   f"({found.elapsed:.1f} s); " + tail, numbers,
+                   headline="no counterexample in the seeded search; " + tail)
 
 
 def searched(context: Context, claim_id: str) -> Any:
@@ -179,16 +190,18 @@ def _search_words(found: Any) -> str:
 
 
 def _bound_counterexample(context: Context, claim_id: str, compensated: bool,
-                          label: str) -> tuple[list[str], dict[str, Any], dict[str, Any] | None]:
-    """The search of a bound claim: its line, numbers and counterexample (with scenario,
-    simulation of the error recursion and, when written, the scenario file)."""
+                          label: str
+                          ) -> tuple[list[str], list[str], dict[str, Any], dict[str, Any] | None]:
+    """The search of a bound claim: its line, the line without counts and seconds,
+    numbers and counterexample (with the simulation of the error recursion and, when
+    written, the scenario file)."""
     from netsim.claims.searches import simulate_error_growth, write_delayed_scenario
 
     found = searched(context, claim_id)
     numbers = {"search": found.to_dict()}
     if found.instance is None:
         return ([f"search: holds on {found.tried} searched instances ({found.elapsed:.1f} s)"],
-                numbers, None)
+                ["search: no counterexample"], numbers, None)
     x, d = found.instance, found.details
     sim = simulate_error_growth(x, compensated)
     cx: dict[str, Any] = {**x.to_dict(), **d, "simulated_error_growth": sim}
@@ -201,11 +214,12 @@ def _bound_counterexample(context: Context, claim_id: str, compensated: bool,
             ("compensated",) if compensated else ("uncompensated",))
         cx["scenario"] = str(path)
     kind = "homogeneous" if x.homogeneous else "heterogeneous"
-    line = (f"search: {_search_words(found)} contradict it; shrunk: a = {x.inst.a:g}, "
-            f"P = {[list(r) for r in x.inst.P]}, c = {list(x.inst.c)}, K = {list(x.inst.k)}, "
-            f"{kind} delays {[list(r) for r in x.delays]}: exact {d['exact_rho']:.4f} > bound "
-            f"{d['bound']:.4f} (simulated error growth {sim:.4f} per step)")
-    return [line], numbers, cx
+    what = (f"a = {x.inst.a:g}, P = {[list(r) for r in x.inst.P]}, c = {list(x.inst.c)}, "
+            f"K = {list(x.inst.k)}, {kind} delays {[list(r) for r in x.delays]}: exact "
+            f"{d['exact_rho']:.4f} > bound {d['bound']:.4f} (simulated error growth "
+            f"{sim:.4f} per step)")
+    return ([f"search: {_search_words(found)} contradict it; shrunk: " + what],
+            ["search counterexample (shrunk): " + what], numbers, cx)
 
 
 def check_eq26_bound(context: Context) -> Outcome:
@@ -216,22 +230,26 @@ def check_eq26_bound(context: Context) -> Outcome:
     rows = [bound_on(P, A, C, L, homogeneous_delays(P, t), "eq26") for t in range(star + 1)]
     bad = [r for r in rows if r["exact"] > r["bound"] + 1e-9]
     het = bound_on(**HETEROGENEOUS_EXAMPLE, which="eq26")
-    lines, snum, cx = _bound_counterexample(context, "L-eq26-bound", True,
-                                            "LCSYS2022 eq. (26)")
+    lines, heads, snum, cx = _bound_counterexample(context, "L-eq26-bound", True,
+                                                   "LCSYS2022 eq. (26)")
     numbers = {"ours": [{k: _r(v) for k, v in r.items()} for r in rows],
                "heterogeneous_example": {k: _r(v) for k, v in het.items()}, **snum}
     if bad or cx is not None:
         ours = ("our instance (homogeneous, self-loops undelayed): " + ", ".join(
             f"tau = {r['tau']} ({r['exact']:.4f} > {r['bound']:.4f})" for r in bad)
             if bad else f"our instance: exact <= eq. (26) for tau = 0..{star}")
+        tail = (f"; {ours}; scalar heterogeneous example: {het['exact']:.4f} > "
+                f"{het['bound']:.4f}")
         return Outcome(
-            FAILS, "exact rho above the eq. (26) value; " + "; ".join(lines) + "; " + ours
-            + f"; scalar heterogeneous example: {het['exact']:.4f} > {het['bound']:.4f}",
+            FAILS, "exact rho above the eq. (26) value; " + "; ".join(lines) + tail,
             numbers, cx or {"instance": "lcsys2022-homogeneous", "tau": bad[0]["tau"],
                             "exact_rho": bad[0]["exact"], "bound": bad[0]["bound"],
-                            "heterogeneous_example": HETEROGENEOUS_EXAMPLE})
+                            "heterogeneous_example": HETEROGENEOUS_EXAMPLE},
+            headline="exact rho above the eq. (26) value; " + "; ".join(heads) + tail)
     return Outcome(HOLDS, f"exact <= eq. (26) for tau = 0..{star} on our instance; "
-                   + "; ".join(lines), numbers)
+                   + "; ".join(lines), numbers,
+                   headline=f"exact <= eq. (26) for tau = 0..{star} on our instance; "
+                   + "; ".join(heads))
 
 
 def check_eq14(context: Context) -> Outcome:
@@ -303,18 +321,20 @@ def check_tolerant_bound(context: Context) -> Outcome:
                "heterogeneous_example": {k: _r(v) for k, v in het.items()}}
     cases = [f"our instance tau = {r['tau']}: {r['exact']:.4f} > {r['bound']:.4f}"
              for r in bad]
-    lines, snum, cx = _bound_counterexample(context, "T-lemma5-bound", False,
-                                            "the delay-tolerant paper's Lemma 5 bound")
+    lines, heads, snum, cx = _bound_counterexample(
+        context, "T-lemma5-bound", False, "the delay-tolerant paper's Lemma 5 bound")
     numbers.update(snum)
-    if cx is not None:
-        cases = lines + cases
     if het["exact"] > het["bound"]:
         cases.append(f"scalar heterogeneous example (a = -1.5, link 1->0 delayed 1): exact "
                      f"{het['exact']:.4f} > bound {het['bound']:.4f}")
-    if cases:
-        return Outcome(FAILS, "; ".join(cases) + " (eq. 11 matrix)", numbers,
-                       cx or {"heterogeneous_example": HETEROGENEOUS_EXAMPLE})
-    return Outcome(HOLDS, "exact <= bound on every case; " + "; ".join(lines), numbers)
+    if cases or cx is not None:
+        found = (lines if cx is not None else [])
+        head = (heads if cx is not None else [])
+        return Outcome(FAILS, "; ".join(found + cases) + " (eq. 11 matrix)", numbers,
+                       cx or {"heterogeneous_example": HETEROGENEOUS_EXAMPLE},
+                       headline="; ".join(head + cases) + " (eq. 11 matrix)")
+    return Outcome(HOLDS, "exact <= bound on every case; " + "; ".join(lines), numbers,
+                   headline="exact <= bound on every case; " + "; ".join(heads))
 
 
 def check_tolerant_theorem1(context: Context) -> Outcome:
@@ -355,20 +375,25 @@ def check_tolerant_theorem1(context: Context) -> Outcome:
             cx["scenario"] = str(path)
             cx["netsim_run"] = confirm_run(path, "uncompensated")
         kind = "homogeneous" if x.homogeneous else "heterogeneous"
-        line = (f"search (|a| <= 1, bounded state): {_search_words(found)}; shrunk: a = "
-                f"{x.inst.a:g}, P = {[list(r) for r in x.inst.P]}, c = {list(x.inst.c)}, K = "
-                f"{list(x.inst.k)}, {kind} delays {[list(r) for r in x.delays]}: rho(A-hat) = "
-                f"{d['rho_delay_free']:.4f}, exact eq. (11) rho {d['exact_rho']:.4f} > 1 "
-                f"(simulated error growth {sim:.4f}/step"
+        what = (f"a = {x.inst.a:g}, P = {[list(r) for r in x.inst.P]}, c = "
+                f"{list(x.inst.c)}, K = {list(x.inst.k)}, {kind} delays "
+                f"{[list(r) for r in x.delays]}: rho(A-hat) = {d['rho_delay_free']:.4f}, exact "
+                f"eq. (11) rho {d['exact_rho']:.4f} > 1 (simulated error growth {sim:.4f}/step")
+        line = (f"search (|a| <= 1, bounded state): {_search_words(found)}; shrunk: " + what
                 + (f"; netsim run: {_run_words(cx['netsim_run'])}" if "netsim_run" in cx else "")
                 + ")")
+        head = ("search counterexample (|a| <= 1, bounded state; shrunk): " + what
+                + (f"; netsim run: {cx['netsim_run']['measured']}" if "netsim_run" in cx
+                   else "") + ")")
     else:
         line = (f"search (|a| <= 1): holds on {found.tried} searched instances "
                 f"({found.elapsed:.1f} s)")
+        head = "search (|a| <= 1): no counterexample"
     if growth > 1.001 or cx is not None:
         return Outcome(FAILS, line + "; " + ours, numbers,
-                       cx or {"instance": "lcsys2022-homogeneous", "tau": scenario.delay_bound})
-    return Outcome(HOLDS, line + "; " + ours, numbers)
+                       cx or {"instance": "lcsys2022-homogeneous", "tau": scenario.delay_bound},
+                       headline=head + "; " + ours)
+    return Outcome(HOLDS, line + "; " + ours, numbers, headline=head + "; " + ours)
 
 
 def check_tolerant_decay(context: Context) -> Outcome:
@@ -657,6 +682,12 @@ def _aoi_search_line(found: Any) -> str:
     return (f"counterexample {found.instance.to_dict()} violates {d['violated']}: {d}")
 
 
+def _aoi_search_head(found: Any) -> str:
+    if found.instance is None:
+        return "no counterexample in the seeded random search (n 2..6, N 2..5, T 1..3)"
+    return _aoi_search_line(found)
+
+
 def check_aoi_corollary1_search(context: Context) -> Outcome:
     """aoi Corollary 1: the cases of :func:`check_aoi_corollary1` and the search."""
     base = check_aoi_corollary1(context)
@@ -665,7 +696,8 @@ def check_aoi_corollary1_search(context: Context) -> Outcome:
     numbers = {**base.numbers, "search": found.to_dict()}
     verdict = FAILS if bad or base.verdict == FAILS else HOLDS
     return Outcome(verdict, base.summary + "; search: " + _aoi_search_line(found), numbers,
-                   found.to_dict() if bad else base.counterexample)
+                   found.to_dict() if bad else base.counterexample,
+                   headline=base.summary + "; search: " + _aoi_search_head(found))
 
 
 def _aoi_lemma(context: Context, which: str) -> Outcome:
@@ -683,10 +715,11 @@ def _aoi_lemma(context: Context, which: str) -> Outcome:
     sbad = found.instance is not None and which in found.details["violated"]
     s = "; ".join(f"{r['case']}: {r[key]} <= {r[bound]}" for r in rows)
     numbers = {"cases": rows, "search": found.to_dict()}
+    head = s + "; search: " + _aoi_search_head(found)
     if bad or sbad:
         return Outcome(FAILS, s + "; search: " + _aoi_search_line(found), numbers,
-                       bad[0] if bad else found.to_dict())
-    return Outcome(HOLDS, s + "; search: " + _aoi_search_line(found), numbers)
+                       bad[0] if bad else found.to_dict(), headline=head)
+    return Outcome(HOLDS, s + "; search: " + _aoi_search_line(found), numbers, headline=head)
 
 
 def aoi_numbers_example() -> dict[str, Any]:
@@ -868,8 +901,12 @@ def check_dkfe_75_search(context: Context) -> Outcome:
     found = searched(context, "D-cond75")
     numbers = {**base.numbers, "search": found.to_dict()}
     if found.instance is not None:
-        return Outcome(FAILS, base.summary + f"; search: counterexample {found.to_dict()}",
-                       numbers, found.to_dict())
+        text = base.summary + f"; search: counterexample {found.instance.to_dict()}: " \
+            f"{found.details}"
+        return Outcome(FAILS, text, numbers, found.to_dict(), headline=text)
     return Outcome(base.verdict, base.summary + f"; search: holds on {found.tried} searched "
                    f"random one-sink instances (n 2..3, d 0..2) in {found.elapsed:.1f} s, "
-                   "judged by the exact second-moment radius", numbers, base.counterexample)
+                   "judged by the exact second-moment radius", numbers, base.counterexample,
+                   headline=base.summary + "; search: no counterexample in the seeded random "
+                   "one-sink instances (n 2..3, d 0..2), judged by the exact second-moment "
+                   "radius")

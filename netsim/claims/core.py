@@ -40,6 +40,10 @@ class Outcome:
         ``scenario``: the path of a scenario file reproducing it).
     reason : str or None
         For ``not checkable``: why.
+    headline : str or None
+        The deciding numbers without what depends on the machine's speed (how many
+        instances a search tried in its budget, seconds); None: ``summary`` has none.
+        The README's findings are made of headlines.
     """
 
     verdict: str
@@ -47,6 +51,7 @@ class Outcome:
     numbers: dict[str, Any] = field(default_factory=dict)
     counterexample: dict[str, Any] | None = None
     reason: str | None = None
+    headline: str | None = None
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -55,7 +60,8 @@ class Outcome:
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form."""
         return {"verdict": self.verdict, "summary": self.summary, "numbers": self.numbers,
-                "counterexample": self.counterexample, "reason": self.reason}
+                "counterexample": self.counterexample, "reason": self.reason,
+                "headline": self.headline or self.summary}
 
 
 @dataclass

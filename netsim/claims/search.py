@@ -169,7 +169,13 @@ class SearchResult:
                 "first": self.first}
 
 
-def _random_instance(rng: np.random.Generator, a_max: float = 2.0) -> ScalarInstance:
+def _random_instance(rng: np.random.Generator, a_max: float = 2.0,
+                     k_range: tuple[float, float] = (-1.0, 2.0),
+                     a_edge: float = 0.0) -> ScalarInstance:
+    """A random scalar instance: N in 2..4 agents on a directed cycle plus random links
+    (self-loops on), random row-stochastic weights, random sensors and gains
+    ``k_i ~ U(k_range)``, ``a ~ U(-a_max, a_max)`` (or, with probability ``a_edge``,
+    ``a = +-a_max``)."""
     N = int(rng.choice([2, 3, 4], p=[0.5, 0.3, 0.2]))
     adj = np.eye(N, dtype=bool)
     for i in range(N):
@@ -180,8 +186,11 @@ def _random_instance(rng: np.random.Generator, a_max: float = 2.0) -> ScalarInst
     c = rng.integers(0, 2, N).astype(float)
     if c.sum() == 0:
         c[int(rng.integers(N))] = 1.0
-    k = np.where(c != 0, rng.uniform(-1.0, 2.0, N), 0.0)
-    a = float(rng.uniform(-a_max, a_max))
+    k = np.where(c != 0, rng.uniform(k_range[0], k_range[1], N), 0.0)
+    if a_edge and rng.random() < a_edge:
+        a = float(rng.choice([-a_max, a_max]))
+    else:
+        a = float(rng.uniform(-a_max, a_max))
     return ScalarInstance(a, tuple(map(tuple, P.tolist())), tuple(c.tolist()),
                           tuple(k.tolist()))
 

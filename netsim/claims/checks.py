@@ -910,3 +910,142 @@ def check_dkfe_75_search(context: Context) -> Outcome:
                    headline=base.summary + "; search: no counterexample in the seeded random "
                    "one-sink instances (n 2..3, d 0..2), judged by the exact second-moment "
                    "radius")
+
+
+# -- LCSYS2022 Lemmas 1, 3 and Corollary 1 ------------------------------------------------
+
+
+def kron_observable(P: Any, A: Any, C: Sequence[Any]) -> bool:
+    """Is ``(P kron A, D_C-bar)`` observable (rank of the observability matrix)?"""
+    from netsim.models.augmented import output_gain_matrix
+
+    F = np.kron(np.asarray(P, float), np.asarray(A, float))
+    D = output_gain_matrix(C)
+    m = F.shape[0]
+    blocks, M = [], np.eye(m)
+    for _ in range(m):
+        blocks.append(D @ M)
+        M = M @ F
+    return bool(np.linalg.matrix_rank(np.vstack(blocks)) == m)
+
+
+def check_lemma1(context: Context) -> Outcome:
+    """LCSYS2022 (and delay-tolerant) Lemma 1: (P kron A, D_C) is structurally observable
+    for irreducible self-looped P when (A, C) is observable."""
+    from netsim.claims.search import _random_instance
+
+    inst = lcsys_instance(context)
+    ours = kron_observable(inst["P"], inst["A"], inst["C"])
+    rng = np.random.default_rng(np.random.SeedSequence(context.seed, spawn_key=(101,)))
+    tried = bad = 0
+    for _ in range(300):
+        x = _random_instance(rng)
+        if x.a == 0 or not any(x.c):
+            continue
+        tried += 1
+        P, A, C, _ = x.matrices()
+        bad += not kron_observable(P, A, C)
+    numbers = {"ours": ours, "random_tried": tried, "random_unobservable": bad}
+    s = (f"our LCSYS2022 instance: {'observable' if ours else 'NOT observable'}; "
+         f"{tried - bad} of {tried} random scalar instances (random weights on irreducible "
+         "self-looped graphs, a != 0, some c_i != 0) observable")
+    return Outcome(HOLDS if ours and not bad else FAILS, s, numbers)
+
+
+def check_lemma3(context: Context) -> Outcome:
+    """LCSYS2022 Lemma 3 (eigenvalues of P kron A) and Discussion 2 (rho(P kron A) = rho(A)
+    for row-stochastic P)."""
+    rng = np.random.default_rng(np.random.SeedSequence(context.seed, spawn_key=(102,)))
+    worst = worst_rho = 0.0
+    for _ in range(50):
+        N, n = int(rng.integers(2, 5)), int(rng.integers(1, 4))
+        P, A = rng.random((N, N)), rng.standard_normal((n, n))
+        kron = np.sort_complex(np.linalg.eigvals(np.kron(P, A)))
+        prod = np.sort_complex(np.outer(np.linalg.eigvals(P), np.linalg.eigvals(A)).ravel())
+        worst = max(worst, float(np.max(np.abs(kron - prod))))
+        S = P / P.sum(axis=1, keepdims=True)
+        worst_rho = max(worst_rho, abs(float(max(abs(np.linalg.eigvals(np.kron(S, A)))))
+                                       - float(max(abs(np.linalg.eigvals(A))))))
+    ok = worst < 1e-8 and worst_rho < 1e-8
+    return Outcome(HOLDS if ok else FAILS,
+                   f"50 random pairs: eig(P kron A) = {{lambda_i mu_j}} (largest difference "
+                   f"{worst:.1e}); rho(P kron A) = rho(A) for row-stochastic P (largest "
+                   f"difference {worst_rho:.1e})", {"max_diff": worst, "max_diff_rho": worst_rho})
+
+
+def check_corollary1(context: Context) -> Outcome:
+    """LCSYS2022 Corollary 1: for observable (P kron A, D_C) a block-diagonal K with
+    rho(A-hat) < 1 exists (our LMI design on our instance)."""
+    inst = lcsys_instance(context)
+    g = inst["gains"]
+    from netsim.models.augmented import delay_free_spectral_radius
+
+    hand = float(delay_free_spectral_radius(inst["P"], inst["A"], inst["C"], inst["L"]))
+    ok = hand < 1 and kron_observable(inst["P"], inst["A"], inst["C"])
+    return Outcome(HOLDS if ok else FAILS,
+                   f"our instance: the block-diagonal LMI design ({g.method}) gives rho(A-hat) = "
+                   f"{hand:.4f} < 1", {"rho_delay_free": _r(hand), "method": g.method})
+
+
+# -- dkfe Figs. 6-8 from a Monte Carlo run with the exact covariances ----------------------
+
+
+def _fusion(context: Context, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
+    """``netsim fusion`` on Example 2 (300 steps, lockstep), x(0) ~ N(0, scale I)."""
+    def make() -> dict[str, Any]:
+        from dataclasses import replace
+
+        from netsim.fusion import run_fusion
+        from netsim.models.dkfe import example2
+
+        setup = example2()
+        setup = replace(setup, x0_cov=scale * np.eye(setup.n))
+        return run_fusion(setup, steps=300, trials=trials, seed=context.seed,
+                          engine="lockstep").to_dict()
+    return context.cached(f"fusion:{scale}:{trials}", make)
+
+
+def check_dkfe_fig6_run(context: Context) -> Outcome:
+    """dkfe Fig. 6 / eq. (57): at every step the DKFE's covariance trace is at most each
+    CSE's (strictly after t = 0), the ODKFE's below the DKFE's; all converge."""
+    d = _fusion(context)
+    tr, marks = d["exact_trace"], d["marks"]
+    cse = [k for k in tr if k.startswith("CSE")]
+    dk, od = tr["DKFE"], tr["ODKFE (d=0)"]
+    bad = [m for i, m in enumerate(marks) if any(dk[i] > tr[c][i] + 1e-12 for c in cse)
+           or (m > 0 and (any(dk[i] >= tr[c][i] for c in cse) or od[i] >= dk[i]))]
+    last = len(marks) - 1
+    conv = all(abs(tr[k][last] - tr[k][last - 1]) < 1e-3 * abs(tr[k][last]) for k in tr)
+    s = (f"exact traces at t = {marks}: DKFE {[round(v, 4) for v in dk]}, "
+         + ", ".join(f"{c} {[round(v, 4) for v in tr[c]]}" for c in cse)
+         + f", ODKFE {[round(v, 4) for v in od]}; Monte Carlo ({d['trials']} trials) at "
+         f"t = {marks[last]}: DKFE {d['mse']['DKFE'][last]:.3f}")
+    numbers = {"marks": marks, "exact_trace": tr, "converged": conv}
+    if bad or not conv:
+        return Outcome(FAILS, f"not at t = {bad} (converged: {conv}); " + s, numbers)
+    return Outcome(HOLDS, s, numbers)
+
+
+def check_dkfe_fig7(context: Context) -> Outcome:
+    """dkfe Fig. 7 / Theorem 3: P(t) converges to a unique matrix from different initial
+    values (exact covariance recursion from x(0) ~ N(0, I) and N(0, 10 I))."""
+    a, b = _fusion(context), _fusion(context, 10.0, trials=2)
+    pa, pb = a["exact_trace"]["DKFE"], b["exact_trace"]["DKFE"]
+    diff0, diff = abs(pa[0] - pb[0]), abs(pa[-1] - pb[-1])
+    ok = diff < 1e-6 * max(1.0, abs(pa[-1]))
+    return Outcome(HOLDS if ok else FAILS,
+                   f"tr P(t) from x(0) ~ N(0, I) and N(0, 10 I): {pa[0]:.4f} vs {pb[0]:.4f} at "
+                   f"t = 0, {pa[-1]:.6f} vs {pb[-1]:.6f} at t = {a['marks'][-1]} (difference "
+                   f"{diff:.1e})", {"diff_t0": diff0, "diff_end": diff})
+
+
+def check_dkfe_fig8(context: Context) -> Outcome:
+    """dkfe Fig. 8: the DKFE and the SDKFE (steady weights) estimates converge."""
+    d = _fusion(context)
+    gap, marks = d["dkfe_minus_sdkfe_mean_abs"], d["marks"]
+    peak = max(gap)
+    ok = gap[-1] < 1e-6 * peak
+    return Outcome(HOLDS if ok else FAILS,
+                   "mean |DKFE - SDKFE| over the components and trials: " + ", ".join(
+                       f"t={m}: {g:.2e}" for m, g in zip(marks, gap, strict=True)),
+                   {"gap": gap, "marks": marks})

@@ -45,6 +45,16 @@ _CLAIMS = [
           "matrix has rho = rho(A-hat_tau)^(1/(tau+1)) (q(lambda) = p(lambda^(tau+1)))",
           ("every link and self-loop delayed by tau",), "theorem", _c.check_lemma4,
           searches=("L-theorem1",)),
+    Claim("L-lemma1", _p.LCSYS, "Lemma 1 (and delay-tolerant Lemma 1)",
+          "(P kron A, D_C-bar) is structurally observable if P is irreducible (self-loops "
+          "on) and (A, C) is observable", ("Assumption 1, self-damped strongly connected "
+                                           "graph",), "theorem", _c.check_lemma1),
+    Claim("L-lemma3", _p.LCSYS, "Lemma 3, Discussion 2 (and delay-tolerant Lemma 3)",
+          "the eigenvalues of P kron A are the products lambda_i mu_j; hence rho(P kron A) = "
+          "rho(A) for row-stochastic P", (), "theorem", _c.check_lemma3),
+    Claim("L-corollary1", _p.LCSYS, "Corollary 1, Section III-A",
+          "for observable (P kron A, D_C-bar) a block-diagonal K with rho(A-hat) < 1 can be "
+          "designed (LMI)", ("Lemma 1",), "theorem", _c.check_corollary1),
     Claim("L-rho", _p.LCSYS, "Section IV",
           f"the LMI gains give rho(A-hat) = {_p.LCSYS_RHO:g}", (_NOT_PRINTED,), "printed",
           _c.check_printed_rho, {"rho_delay_free": _p.LCSYS_RHO},
@@ -150,9 +160,16 @@ _CLAIMS = [
           "zeta_inf,1 = 0.8657 < 1 and zeta_inf,2 = 1.3554 > 1 ((74) fails for sink 2)",
           ("Example 2, d = (1, 2)",), "printed", _c.check_dkfe_eq95),
     Claim("D-fig6", _p.DKFE, "Fig. 6, eq. (57)",
-          "the DKFE's error covariance trace is below each CSE's, and the ODKFE's (no "
-          "delays) below the DKFE's; all converge", ("Example 2, d = (1, 2)",), "figure",
-          _c.check_dkfe_fig6),
+          "at every step the DKFE's error covariance trace is below each CSE's, and the "
+          "ODKFE's (no delays) below the DKFE's; all converge", ("Example 2, d = (1, 2)",),
+          "figure", _c.check_dkfe_fig6_run),
+    Claim("D-fig7", _p.DKFE, "Fig. 7, Theorem 3",
+          "the fusion covariance P(t) converges to a unique steady-state matrix under "
+          "different initial values", ("Example 2, d = (1, 2)",), "figure",
+          _c.check_dkfe_fig7),
+    Claim("D-fig8", _p.DKFE, "Fig. 8",
+          "the difference between the DKFE and the SDKFE estimates converges to zero",
+          ("Example 2, d = (1, 2)",), "figure", _c.check_dkfe_fig8),
 ]
 
 #: Every claim by id, in the order above.

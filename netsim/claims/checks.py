@@ -517,20 +517,23 @@ def check_dkfe_77(context: Context) -> Outcome:
 # -- checks added for full coverage -----------------------------------------------------
 
 
-def _bench(context: Context, preset: str) -> dict[str, Any]:
-    """A small ``netsim bench delay-tolerance PRESET`` report (BENCH_TRIALS trials, the
-    preset's steps, its focus family only), cached per preset."""
-    def make() -> dict[str, Any]:
-        from netsim.bench.delay_tolerance import run_delay_tolerance
-        from netsim.bench.presets import PRESETS
-        from netsim.models.scenario import resolve_scenario
+def bench_report(preset: str, seed: int) -> dict[str, Any]:
+    """A small ``netsim bench delay-tolerance PRESET`` report: BENCH_TRIALS trials, the
+    preset's steps, its focus family only (serial: it may run in a worker process)."""
+    from netsim.bench.delay_tolerance import run_delay_tolerance
+    from netsim.bench.presets import PRESETS
+    from netsim.models.scenario import resolve_scenario
 
-        p = PRESETS[preset]
-        return run_delay_tolerance(resolve_scenario(p.scenario), taus=p.taus,
-                                   delays=p.delays, trials=BENCH_TRIALS, steps=p.steps,
-                                   seed=context.seed, families=[p.focus], preset=p,
-                                   executor="serial", progress=False)
-    return context.cached(f"bench:{preset}", make)
+    p = PRESETS[preset]
+    return run_delay_tolerance(resolve_scenario(p.scenario), taus=p.taus, delays=p.delays,
+                               trials=BENCH_TRIALS, steps=p.steps, seed=seed,
+                               families=[p.focus], preset=p, executor="serial",
+                               progress=False)
+
+
+def _bench(context: Context, preset: str) -> dict[str, Any]:
+    """:func:`bench_report` for the context's seed, cached per preset."""
+    return context.cached(f"bench:{preset}", lambda: bench_report(preset, context.seed))
 
 
 #: Trials of the bench runs behind the figure claims.
@@ -990,19 +993,22 @@ def check_corollary1(context: Context) -> Outcome:
 # -- dkfe Figs. 6-8 from a Monte Carlo run with the exact covariances ----------------------
 
 
-def _fusion(context: Context, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
+def fusion_report(seed: int, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
     """``netsim fusion`` on Example 2 (300 steps, lockstep), x(0) ~ N(0, scale I)."""
-    def make() -> dict[str, Any]:
-        from dataclasses import replace
+    from dataclasses import replace
 
-        from netsim.fusion import run_fusion
-        from netsim.models.dkfe import example2
+    from netsim.fusion import run_fusion
+    from netsim.models.dkfe import example2
 
-        setup = example2()
-        setup = replace(setup, x0_cov=scale * np.eye(setup.n))
-        return run_fusion(setup, steps=300, trials=trials, seed=context.seed,
-                          engine="lockstep").to_dict()
-    return context.cached(f"fusion:{scale}:{trials}", make)
+    setup = example2()
+    setup = replace(setup, x0_cov=scale * np.eye(setup.n))
+    return run_fusion(setup, steps=300, trials=trials, seed=seed, engine="lockstep").to_dict()
+
+
+def _fusion(context: Context, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
+    """:func:`fusion_report` for the context's seed, cached."""
+    return context.cached(f"fusion:{scale:g}:{trials}",
+                          lambda: fusion_report(context.seed, scale, trials))
 
 
 def check_dkfe_fig6_run(context: Context) -> Outcome:

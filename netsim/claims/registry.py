@@ -70,13 +70,15 @@ _CLAIMS = [
     Claim("L-stable-0-3-8", _p.LCSYS, "Fig. 1",
           "compensated MSE bounded, steady-state stable for tau = 0, 3, 8 (homogeneous and "
           "heterogeneous)", (_NOT_PRINTED,), "figure", _c.check_stable_038_bench,
-          {"taus": list(_p.LCSYS_FIG1_TAUS)}, bench=_B["L-stable-0-3-8"]),
+          {"taus": list(_p.LCSYS_FIG1_TAUS)}, bench=_B["L-stable-0-3-8"],
+          searches=("bench:lcsys2022-fig1",)),
     Claim("L-hom-19", _p.LCSYS, "Fig. 1, Section IV",
           "homogeneous tau = 19: the MSE is marginally unstable, rho(A-bar) = 1",
           (_NOT_PRINTED,), "printed", _c.check_hom19, {"rho_19": _p.LCSYS_HOM19_RHO},
           bench=_B["L-hom-19"]),
     Claim("L-het-19", _p.LCSYS, "Fig. 1", "heterogeneous tau = 19: the MSE is stable",
-          (_NOT_PRINTED,), "figure", _c.check_het19_bench, bench=_B["L-het-19"]),
+          (_NOT_PRINTED,), "figure", _c.check_het19_bench, bench=_B["L-het-19"],
+          searches=("bench:lcsys2022-fig1",)),
     # -- delay-tolerant paper -----------------------------------------------------------
     Claim("T-theorem1", _p.TOLERANT, "Theorem 1",
           "with rho(A-hat) < 1 the uncompensated estimator (6)-(7) tracks the system with "
@@ -104,11 +106,12 @@ _CLAIMS = [
     Claim("T-fig1-stable", _p.TOLERANT, "Fig. 1",
           "uncompensated MSE bounded, steady-state stable without delay and with tau-bar = "
           "10 and 25 (random delays)", (_NOT_PRINTED,), "figure", _c.check_tolerant_fig1,
-          bench=_B["T-fig1-stable"]),
+          bench=_B["T-fig1-stable"], searches=("bench:delay-tolerant-fig1",)),
     Claim("T-fig2-stable", _p.TOLERANT, "Fig. 2",
           "uncompensated MSE bounded for asynchronous varying, synchronous varying and "
           "asynchronous fixed delays, tau-bar = 15", (_NOT_PRINTED,), "figure",
-          _c.check_tolerant_fig2, bench=_B["T-fig2-stable"]),
+          _c.check_tolerant_fig2, bench=_B["T-fig2-stable"],
+          searches=("bench:delay-tolerant-fig2",)),
     # -- aoi paper ---------------------------------------------------------------------------
     Claim("A-theorem1", _p.AOI, "Theorem 1",
           "the gains can be designed so that every node's error converges to zero "
@@ -162,14 +165,15 @@ _CLAIMS = [
     Claim("D-fig6", _p.DKFE, "Fig. 6, eq. (57)",
           "at every step the DKFE's error covariance trace is below each CSE's, and the "
           "ODKFE's (no delays) below the DKFE's; all converge", ("Example 2, d = (1, 2)",),
-          "figure", _c.check_dkfe_fig6_run),
+          "figure", _c.check_dkfe_fig6_run, searches=("fusion:1:20",)),
     Claim("D-fig7", _p.DKFE, "Fig. 7, Theorem 3",
           "the fusion covariance P(t) converges to a unique steady-state matrix under "
           "different initial values", ("Example 2, d = (1, 2)",), "figure",
           _c.check_dkfe_fig7),
     Claim("D-fig8", _p.DKFE, "Fig. 8",
           "the difference between the DKFE and the SDKFE estimates converges to zero",
-          ("Example 2, d = (1, 2)",), "figure", _c.check_dkfe_fig8),
+          ("Example 2, d = (1, 2)",), "figure", _c.check_dkfe_fig8,
+          searches=("fusion:1:20",)),
 ]
 
 #: Every claim by id, in the order above.

@@ -116,6 +116,8 @@ class ClaimsReport:
 
 
 def _search_key(name: str) -> str:
+    if name.startswith(("bench:", "fusion:")):
+        return name
     return "search" if name == "L-theorem1" else f"search:{name}"
 
 
@@ -133,6 +135,8 @@ def run_searches(names: Sequence[str], seed: int, budget: float,
     from concurrent.futures import ProcessPoolExecutor
 
     ctx = multiprocessing.get_context("forkserver")
+    # the counterexample searches (budget seconds each) first, then the shorter jobs
+    names.sort(key=lambda n: n.startswith(("bench:", "fusion:")))
     with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
         futures = {n: pool.submit(run_search, n, seed, budget) for n in names}
         return {_search_key(n): f.result() for n, f in futures.items()}

@@ -488,7 +488,21 @@ _ORDER = tuple(SEARCHES)
 
 def run_search(claim_id: str, seed: int, budget: float) -> Any:
     """Run the search of ``claim_id`` (L-theorem1 with ``seed`` itself, the others with
-    their own stream ``SeedSequence(seed, spawn_key=(index,))``)."""
+    their own stream ``SeedSequence(seed, spawn_key=(index,))``).
+
+    Also runs the claims' other long computations by name, so that they can share the
+    worker processes: ``bench:PRESET`` (:func:`netsim.claims.checks.bench_report`) and
+    ``fusion:SCALE:TRIALS`` (:func:`netsim.claims.checks.fusion_report`).
+    """
+    if claim_id.startswith("bench:"):
+        from netsim.claims.checks import bench_report
+
+        return bench_report(claim_id.split(":", 1)[1], seed)
+    if claim_id.startswith("fusion:"):
+        from netsim.claims.checks import fusion_report
+
+        _, scale, trials = claim_id.split(":")
+        return fusion_report(seed, float(scale), int(trials))
     if claim_id == "L-theorem1":
         return SEARCHES[claim_id](seed, budget)
     ss = np.random.SeedSequence(seed, spawn_key=(_ORDER.index(claim_id),))

@@ -181,6 +181,12 @@ def test_lcsys_instance_numbers_against_hand_matrices():
         *[Li @ Ci for Li, Ci in zip(L, C, strict=True)])
     b3 = rho(G @ np.kron(P, np.linalg.matrix_power(A, 4))) ** 0.25
     assert REGISTRY["L-eq26"].run(ctx).numbers["3"] == pytest.approx(b3, abs=1e-4)
+    # tau* (Theorem 1's definition) by hand: the largest tau with
+    # rho((I - K D)(P kron A^(t+1))) < 1 for every t <= tau
+    star = -1
+    while star < 30 and rho(G @ np.kron(P, np.linalg.matrix_power(A, star + 2))) < 1:
+        star += 1
+    assert REGISTRY["L-tau-star"].run(ctx).numbers["tau_star"] == star
 
 
 # -- figure statements (small bench runs) ---------------------------------------------
@@ -202,6 +208,18 @@ def test_figure_checks_follow_the_bench_cells(monkeypatch):
     for cell in data["cells"]:
         assert cell["measured"]["verdict"] != "stable"
         assert cell["measured"]["growth_rate"] == pytest.approx(r2, rel=0.01)
+    # LCSYS2022 Fig. 1 on our instance: stable cells, each with an exact rho below 1 that
+    # the hand-built eq. (9) matrix reproduces for the homogeneous delays
+    from netsim.claims.checks import homogeneous_delays, lcsys_instance
+
+    assert REGISTRY["L-stable-0-3-8"].run(ctx).verdict == "holds"
+    inst = lcsys_instance(ctx)
+    for cell in ctx.cache["bench:lcsys2022-fig1"]["cells"]:
+        if cell["setting"] == "homogeneous" and cell["tau"] in (3, 8):
+            hand = rho(augmented_by_hand(inst["P"], inst["A"], inst["C"], inst["L"],
+                                         homogeneous_delays(inst["P"], cell["tau"])))
+            assert cell["analytics"]["exact"] == pytest.approx(hand, abs=1e-6) and hand < 1
+            assert cell["measured"]["verdict"] == "stable"
 
 
 # -- aoi: a second implementation of the freshness-index rules -----------------------------

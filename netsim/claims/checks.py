@@ -23,7 +23,9 @@ from netsim.models.augmented import (
 )
 
 __all__ = ["lcsys_instance", "homogeneous_delays", "theorem1_on", "eq14_on", "bound_on",
-           "naive_growth", "HETEROGENEOUS_EXAMPLE"]
+           "naive_growth", "HETEROGENEOUS_EXAMPLE", "searched", "confirm_run",
+           "bench_report", "fusion_report", "BENCH_TRIALS", "convergence_time", "lemma2_on",
+           "lemma4_on", "kron_observable", "aoi_rate", "aoi_numbers_example"]
 
 #: The scalar heterogeneous example of :func:`netsim.models.augmented.delay_bound_lcsys`:
 #: ``N = 2``, ``a = -1.5``, link 1 -> 0 delayed by one step, every other delay 0.

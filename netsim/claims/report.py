@@ -12,7 +12,7 @@ from typing import Any
 
 from netsim.claims.core import FAILS, HOLDS, NOT_CHECKABLE, Claim, Context, Outcome
 
-__all__ = ["ClaimResult", "ClaimsReport", "run_claims"]
+__all__ = ["ClaimResult", "ClaimsReport", "run_claims", "run_searches"]
 
 
 def _jsonable(v: Any) -> Any:

@@ -56,7 +56,8 @@ from netsim.models.augmented import (
     delay_bound_tolerant,
 )
 
-__all__ = ["DelayedInstance", "SEARCHES", "run_search", "simulate_error_growth",
+__all__ = ["DelayedInstance", "AoiInstance", "DkfeInstance", "aoi_numbers", "dkfe_numbers",
+           "SEARCHES", "run_search", "simulate_error_growth",
            "search_eq26", "search_lemma5", "search_tolerant_theorem1", "search_aoi",
            "search_dkfe", "delayed_scenario_toml", "write_delayed_scenario", "confirm_run",
            "BOUND_SLACK"]

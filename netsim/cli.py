@@ -630,6 +630,8 @@ def _format_run(data: dict[str, Any]) -> str:
                 f"{_fmt(a['rho_exact_uncompensated'])}"
             )
     lines.append("")
+    from netsim.verdicts import BEYOND_HORIZON
+
     marks = list(next(iter(data["estimators"].values()))["mse_at"])
     header = f"{'estimator':<16}{'verdict':<22}{'steady MSE':>12}{'growth/step':>13}  " + " ".join(
         f"{'MSE@' + m:>11}" for m in marks
@@ -643,8 +645,15 @@ def _format_run(data: dict[str, Any]) -> str:
             verdict = f"diverged at step {first} ({len(e['diverged_trials'])} trials)"
         row = f"{name:<16}{verdict:<22}{_fmt(e['steady_state_mse']):>12}"
         row += f"{_fmt(e['growth_rate']):>13}  "
-        row += " ".join(f"{_fmt(e['mse_at'][m]):>11}" for m in marks)
+        untrusted = set(e.get("mse_at_beyond_horizon") or ())
+        row += " ".join(f"{BEYOND_HORIZON if m in untrusted else _fmt(e['mse_at'][m]):>11}"
+                        for m in marks)
         lines.append(row)
+    for name, e in data["estimators"].items():
+        if e.get("mse_at_beyond_horizon"):
+            lines.append(f"{name}: MSE@ {', '.join(e['mse_at_beyond_horizon'])} not shown "
+                         f"{BEYOND_HORIZON}: beyond the float64 precision horizon at step "
+                         f"{e['precision_horizon']} (rounding of the state, not trusted)")
     for e in data["estimators"].values():
         lines += (e.get("report") or {}).get("summary_lines", [])
     for name, e in data["estimators"].items():

@@ -396,6 +396,10 @@ class EstimatorSummary:
             "mse_at": {str(m): _json_float(self.mse[m]) for m in marks},
             "diverged_trials": [{"trial": t, "step": s} for t, s in self.diverged],
             "precision_horizon": self.precision_horizon,
+            # the MSE@ values from the precision horizon on are rounding, not errors
+            "mse_at_beyond_horizon": verdicts.beyond_horizon(marks, self.precision_horizon),
+            "mse_at_trusted": verdicts.trusted_values(
+                {str(m): _json_float(self.mse[m]) for m in marks}, self.precision_horizon),
             **({"verdict_detail": self.judgement.to_dict()}
                if self.judgement is not None else {}),
             "messages": {

@@ -69,6 +69,9 @@ __all__ = [
     "judge",
     "horizon_text",
     "steady_slice",
+    "BEYOND_HORIZON",
+    "beyond_horizon",
+    "trusted_values",
 ]
 
 #: Factor by which the MSE trend may grow over the fitted window (the second half of
@@ -256,6 +259,27 @@ def steady_slice(length: int, fraction: float, horizon: int | None = None) -> sl
     end = length if horizon is None else max(1, min(int(horizon), length))
     tail = max(1, int(round(fraction * end)))
     return slice(end - tail, end)
+
+
+#: What ``netsim run`` prints in an MSE@ column at or after the precision horizon.
+BEYOND_HORIZON = "(beyond)"
+
+
+def beyond_horizon(marks: Sequence[int | str], horizon: int | None) -> list[str]:
+    """The marks (step numbers) at or after the precision horizon ``horizon``, as strings.
+
+    Errors from the horizon step on are rounding of the state, not estimation errors
+    (:func:`precision_horizon`); ``netsim run`` does not print them.
+    """
+    if horizon is None:
+        return []
+    return [str(m) for m in marks if int(m) >= int(horizon)]
+
+
+def trusted_values(values: dict[str, float | None], horizon: int | None) -> dict[str, float | None]:
+    """``values`` (keyed by step) with None at every step at or after ``horizon``."""
+    bad = set(beyond_horizon(list(values), horizon))
+    return {k: (None if k in bad else v) for k, v in values.items()}
 
 
 def horizon_text(step: int | None) -> str:

@@ -50,7 +50,8 @@ def test_registry_entries_are_complete():
     assert papers == {"LCSYS2022", "delay-tolerant", "aoi", "dkfe"}
     for c in REGISTRY.values():
         assert c.statement and c.where and c.kind in ("theorem", "printed", "figure")
-    assert [c.id for c in select(["aoi"])] == ["A-corollary1", "A-naive-growth"]
+    assert [c.id for c in select(["aoi"])] == ["A-theorem1", "A-lemma3", "A-lemma5",
+                                            "A-corollary1", "A-naive-growth"]
     with pytest.raises(ValueError):
         select(["no-such-claim"])
 
@@ -132,7 +133,7 @@ def test_search_finds_shrunk_counterexamples_satisfying_the_hypotheses():
 
 def test_netsim_claims_finds_and_writes_a_theorem1_counterexample(tmp_path, capsys):
     out = tmp_path / "out"
-    assert main(["claims", "L-theorem1", "L-decay", "A-naive-growth", "--budget", "3",
+    assert main(["claims", "L-theorem1", "L-decay", "A-naive-growth", "--budget", "6",
                  "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
     lines = {ln.split()[0]: ln for ln in text.splitlines() if ln.split()
@@ -166,8 +167,8 @@ def test_netsim_claims_finds_and_writes_a_theorem1_counterexample(tmp_path, caps
 
 
 def test_json_equals_text_verdicts(tmp_path, capsys):
-    args = ["claims", "dkfe", "A-naive-growth", "L-rho", "--budget", "1", "--out",
-            str(tmp_path), "--no-progress"]
+    args = ["claims", "D-table1", "D-cond75", "D-eq94", "A-naive-growth", "L-rho",
+            "--budget", "1", "--out", str(tmp_path), "--no-progress"]
     assert main(args) == 0
     text = capsys.readouterr().out
     assert main(args + ["--json"]) == 0

@@ -20,6 +20,7 @@ from netsim.bench.cells import _verdict
 from netsim.bench.variants import delay_variant
 from netsim.runner import fixed_delay_matrix, run_monte_carlo, scenario_gains
 from netsim.verdicts import (
+    BEYOND_HORIZON,
     DIVERGING,
     GROWTH_TOLERANCE,
     MIN_WINDOW,
@@ -162,6 +163,15 @@ def test_unstable_plant_reports_the_precision_horizon_not_a_divergence(capsys):
     assert precision_horizon([run.states[:k // 2]],
                              [run.squared_errors[:k // 2].mean(axis=1)]) is None
     assert math.isfinite(s.steady_state_mse) and s.steady_state_mse < 10
+    # the MSE@ columns from the horizon on are not printed, and marked in the JSON
+    d = s.to_dict()
+    beyond = [m for m in d["mse_at"] if int(m) >= k]
+    assert beyond and d["mse_at_beyond_horizon"] == beyond
+    assert all(d["mse_at_trusted"][m] is None for m in beyond)
+    assert all(d["mse_at_trusted"][m] == d["mse_at"][m] for m in d["mse_at"] if int(m) < k)
+    row = next(ln for ln in out.splitlines() if ln.startswith("compensated "))
+    assert row.count(BEYOND_HORIZON) == len(beyond)
+    assert f"precision horizon at step {k}" in out
 
 
 # -- heterogeneous delays reach the bound ---------------------------------------------

@@ -4,10 +4,13 @@
 delay-tolerant paper, the aoi paper, the dkfe paper) as a :class:`Claim`: its id, paper,
 equation or section, the statement, its hypotheses and a check returning an
 :class:`Outcome` (``holds``, ``fails`` with numbers and a counterexample, or ``not
-checkable`` with the reason). :func:`run_claims` runs a selection (``netsim claims``);
-:mod:`netsim.claims.search` is the seeded counterexample search for LCSYS2022 Theorem 1;
-:mod:`netsim.claims.bench_checks` holds the same claims' checks on a ``netsim bench
-delay-tolerance`` report.
+checkable`` with the reason). :func:`run_claims` runs a selection (``netsim claims``),
+first the counterexample searches and long runs the claims read, in worker processes;
+:mod:`netsim.claims.search` is the seeded search and shrinking engine (and the LCSYS2022
+Theorem 1 search), :mod:`netsim.claims.searches` the searches of the other claims
+stated over a class of systems; :mod:`netsim.claims.bench_checks` holds the same claims'
+checks on a ``netsim bench delay-tolerance`` report; :mod:`netsim.claims.findings`
+generates the README's findings from a report.
 """
 
 from __future__ import annotations

@@ -40,6 +40,10 @@ class Outcome:
         ``scenario``: the path of a scenario file reproducing it).
     reason : str or None
         For ``not checkable``: why.
+    headline : str or None
+        The deciding numbers without what depends on the machine's speed (how many
+        instances a search tried in its budget, seconds); None: ``summary`` has none.
+        The README's findings are made of headlines.
     """
 
     verdict: str
@@ -47,6 +51,7 @@ class Outcome:
     numbers: dict[str, Any] = field(default_factory=dict)
     counterexample: dict[str, Any] | None = None
     reason: str | None = None
+    headline: str | None = None
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
@@ -55,7 +60,8 @@ class Outcome:
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form."""
         return {"verdict": self.verdict, "summary": self.summary, "numbers": self.numbers,
-                "counterexample": self.counterexample, "reason": self.reason}
+                "counterexample": self.counterexample, "reason": self.reason,
+                "headline": self.headline or self.summary}
 
 
 @dataclass
@@ -116,6 +122,10 @@ class Claim:
         The paper's printed numbers this claim refers to.
     bench : callable(dict) -> dict, optional
         The form used by ``netsim bench delay-tolerance`` on its report (a bench row).
+    searches : tuple of str
+        Counterexample searches the check reads (names in
+        :data:`netsim.claims.searches.SEARCHES`); :func:`netsim.claims.run_claims` runs
+        them first, in parallel worker processes.
     """
 
     id: str
@@ -127,6 +137,7 @@ class Claim:
     check: Callable[[Context], Outcome] | None = None
     printed: Mapping[str, Any] = field(default_factory=dict)
     bench: Callable[[dict[str, Any]], dict[str, Any]] | None = None
+    searches: tuple[str, ...] = ()
 
     def run(self, context: Context) -> Outcome:
         """Run the standalone check (``not checkable`` if there is none)."""
@@ -139,4 +150,5 @@ class Claim:
         """The claim without its check (JSON-safe)."""
         return {"id": self.id, "paper": self.paper, "where": self.where,
                 "statement": self.statement, "hypotheses": list(self.hypotheses),
-                "kind": self.kind, "printed": dict(self.printed)}
+                "kind": self.kind, "printed": dict(self.printed),
+                "searches": list(self.searches)}

@@ -12,7 +12,7 @@ from typing import Any
 
 from netsim.claims.core import FAILS, HOLDS, NOT_CHECKABLE, Claim, Context, Outcome
 
-__all__ = ["ClaimResult", "ClaimsReport", "run_claims"]
+__all__ = ["ClaimResult", "ClaimsReport", "run_claims", "run_searches"]
 
 
 def _jsonable(v: Any) -> Any:
@@ -115,9 +115,37 @@ class ClaimsReport:
         return "\n".join(out) + "\n"
 
 
+def _search_key(name: str) -> str:
+    if name.startswith(("bench:", "fusion:")):
+        return name
+    return "search" if name == "L-theorem1" else f"search:{name}"
+
+
+def run_searches(names: Sequence[str], seed: int, budget: float,
+                 workers: int = 2) -> dict[str, Any]:
+    """Run the counterexample searches ``names`` (each with ``budget`` seconds), in up to
+    ``workers`` worker processes (forkserver, as :mod:`netsim.sweep`); returns the
+    :class:`~netsim.claims.core.Context` cache entries by key."""
+    from netsim.claims.searches import run_search
+
+    names = list(dict.fromkeys(names))
+    if workers <= 1 or len(names) <= 1:
+        return {_search_key(n): run_search(n, seed, budget) for n in names}
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    ctx = multiprocessing.get_context("forkserver")
+    # the counterexample searches (budget seconds each) first, then the shorter jobs
+    names.sort(key=lambda n: n.startswith(("bench:", "fusion:")))
+    with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
+        futures = {n: pool.submit(run_search, n, seed, budget) for n in names}
+        return {_search_key(n): f.result() for n, f in futures.items()}
+
+
 def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
                out: str | Path | None = None,
-               progress: Callable[[str], None] | None = None) -> ClaimsReport:
+               progress: Callable[[str], None] | None = None,
+               workers: int = 2) -> ClaimsReport:
     """Run the checks of ``claims``; write ``claims.md`` and counterexamples into ``out``.
 
     Parameters
@@ -131,6 +159,9 @@ def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
         Folder for the report and the scenario files (None: nothing is written).
     progress : callable(str), optional
         Called with each claim's id after its check.
+    workers : int
+        Worker processes for the counterexample searches the claims read (they run
+        first, ``budget`` seconds each; 1: in this process).
 
     Returns
     -------
@@ -139,6 +170,8 @@ def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
     folder = None if out is None else Path(out)
     context = Context(seed=seed, budget=budget, out=folder)
     start = time.monotonic()
+    context.cache.update(run_searches([n for c in claims for n in c.searches], seed, budget,
+                                      workers))
     results = []
     for claim in claims:
         t0 = time.monotonic()

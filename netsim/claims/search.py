@@ -24,8 +24,8 @@ import numpy as np
 
 from netsim.models.augmented import augmented_spectral_radius, spectral_radius, tau_star
 
-__all__ = ["ScalarInstance", "SearchResult", "search_theorem1", "scenario_toml",
-           "write_scenario", "MARGIN", "TAU_MAX"]
+__all__ = ["ScalarInstance", "SearchResult", "Found", "random_search", "shrink",
+           "search_theorem1", "scenario_toml", "write_scenario", "MARGIN", "TAU_MAX"]
 
 #: A counterexample must have exact rho >= 1 + MARGIN (so that a run visibly diverges
 #: and round-off cannot flip the verdict).
@@ -169,7 +169,13 @@ class SearchResult:
                 "first": self.first}
 
 
-def _random_instance(rng: np.random.Generator) -> ScalarInstance:
+def _random_instance(rng: np.random.Generator, a_max: float = 2.0,
+                     k_range: tuple[float, float] = (-1.0, 2.0),
+                     a_edge: float = 0.0) -> ScalarInstance:
+    """A random scalar instance: N in 2..4 agents on a directed cycle plus random links
+    (self-loops on), random row-stochastic weights, random sensors and gains
+    ``k_i ~ U(k_range)``, ``a ~ U(-a_max, a_max)`` (or, with probability ``a_edge``,
+    ``a = +-a_max``)."""
     N = int(rng.choice([2, 3, 4], p=[0.5, 0.3, 0.2]))
     adj = np.eye(N, dtype=bool)
     for i in range(N):
@@ -180,8 +186,11 @@ def _random_instance(rng: np.random.Generator) -> ScalarInstance:
     c = rng.integers(0, 2, N).astype(float)
     if c.sum() == 0:
         c[int(rng.integers(N))] = 1.0
-    k = np.where(c != 0, rng.uniform(-1.0, 2.0, N), 0.0)
-    a = float(rng.uniform(-2.0, 2.0))
+    k = np.where(c != 0, rng.uniform(k_range[0], k_range[1], N), 0.0)
+    if a_edge and rng.random() < a_edge:
+        a = float(rng.choice([-a_max, a_max]))
+    else:
+        a = float(rng.uniform(-a_max, a_max))
     return ScalarInstance(a, tuple(map(tuple, P.tolist())), tuple(c.tolist()),
                           tuple(k.tolist()))
 
@@ -222,23 +231,155 @@ def _simpler(inst: ScalarInstance) -> list[ScalarInstance]:
     return out
 
 
-def _shrink(inst: ScalarInstance, deadline: float) -> ScalarInstance:
+@dataclass
+class Found:
+    """What :func:`random_search` found (any claim).
+
+    Attributes
+    ----------
+    claim : str
+        The claim searched.
+    tried : int
+        Instances drawn that satisfy the claim's hypotheses.
+    hits : int
+        Among them, counterexamples.
+    elapsed : float
+        Seconds spent (search and shrinking).
+    instance : object or None
+        The shrunk counterexample (None: none found).
+    details : dict or None
+        The judge's numbers on ``instance``.
+    first : dict or None
+        The judge's numbers on the first hit before shrinking.
+    confirmed : dict or None
+        What the simulation of ``instance`` showed (filled in by the caller).
+    """
+
+    claim: str
+    tried: int
+    hits: int
+    elapsed: float
+    instance: Any = None
+    details: dict[str, Any] | None = None
+    first: dict[str, Any] | None = None
+    confirmed: dict[str, Any] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form."""
+        inst = self.instance
+        return {"claim": self.claim, "tried": self.tried, "hits": self.hits,
+                "elapsed_s": round(self.elapsed, 3),
+                "instance": inst.to_dict() if hasattr(inst, "to_dict") else inst,
+                "details": self.details, "first": self.first, "confirmed": self.confirmed}
+
+
+def shrink(instance: Any, judge: Callable[[Any], dict[str, Any] | None],
+           simpler: Callable[[Any], list[Any]], deadline: float) -> Any:
+    """Greedy shrinking: replace ``instance`` by its first simpler candidate that is still
+    a counterexample (``judge`` not None), until none is or ``deadline`` passes."""
     improved = True
     while improved and time.monotonic() < deadline:
         improved = False
-        for cand in _simpler(inst):
+        for cand in simpler(instance):
             if time.monotonic() >= deadline:
                 break
-            if cand.violation() is not None:
-                inst = cand
+            if judge(cand) is not None:
+                instance = cand
                 improved = True
                 break
-    return inst
+    return instance
+
+
+def random_search(claim: str, draw: Callable[[np.random.Generator], Any | None],
+                  judge: Callable[[Any], dict[str, Any] | None],
+                  simpler: Callable[[Any], list[Any]] | None = None, *, seed: int = 0,
+                  budget: float = 10.0, max_instances: int = 400,
+                  stop_at_hit: bool = False,
+                  progress: Callable[[float], None] | None = None) -> Found:
+    """Seeded random search for a counterexample, then shrinking of the first hit.
+
+    Parameters
+    ----------
+    claim : str
+        The claim's id (recorded in the result).
+    draw : callable(numpy.random.Generator) -> instance or None
+        A random instance satisfying the claim's hypotheses (None: the draw did not,
+        and does not count).
+    judge : callable(instance) -> dict or None
+        The deciding numbers if the instance contradicts the claim, else None.
+    simpler : callable(instance) -> list, optional
+        Simpler candidates of an instance, simplest first (for :func:`shrink`).
+    seed : int
+        Seed of the generator (``numpy.random.default_rng(seed)``).
+    budget : float
+        Seconds for search and shrinking; a quarter (at least 1 s) is kept for
+        shrinking once there is a hit.
+    max_instances : int
+        Stop after this many instances satisfying the hypotheses.
+    stop_at_hit : bool
+        Stop drawing at the first hit.
+    progress : callable(float), optional
+        Called with the fraction of the budget used.
+
+    Returns
+    -------
+    Found
+    """
+    start = time.monotonic()
+    end = start + budget
+    rng = np.random.default_rng(seed)
+    tried = hits = 0
+    first: Any = None
+    first_details: dict[str, Any] | None = None
+    reserve = max(1.0, budget / 4)
+    while tried < max_instances and time.monotonic() < end - (0 if first is not None
+                                                              else reserve):
+        inst = draw(rng)
+        if inst is None:
+            continue
+        tried += 1
+        d = judge(inst)
+        if d is not None:
+            hits += 1
+            if first is None:
+                first, first_details = inst, d
+                if stop_at_hit:
+                    break
+        if progress is not None:
+            progress(min(1.0, (time.monotonic() - start) / budget))
+    found = Found(claim, tried, hits, 0.0)
+    if first is not None:
+        found.first = {**(first.to_dict() if hasattr(first, "to_dict") else {}),
+                       **(first_details or {})}
+        small = first if simpler is None else shrink(first, judge, simpler,
+                                                     max(end, time.monotonic() + 1.0))
+        found.instance, found.details = small, judge(small)
+    found.elapsed = time.monotonic() - start
+    if progress is not None:
+        progress(1.0)
+    return found
+
+
+
+def _theorem1_draw(rng: np.random.Generator) -> ScalarInstance | None:
+    inst = _random_instance(rng)
+    if inst.hypotheses() is not None:
+        return None
+    star = inst.tau_star()
+    return inst if star is not None and star >= 1 else None
+
+
+def _theorem1_judge(inst: ScalarInstance) -> dict[str, Any] | None:
+    v = inst.violation()
+    return None if v is None else {"tau_star": v[0], "tau": v[1], "exact_rho": v[2]}
 
 
 def search_theorem1(seed: int = 0, budget: float = 10.0, max_instances: int = 400,
                     progress: Callable[[float], None] | None = None) -> SearchResult:
     """Random search (seeded) for a counterexample to LCSYS2022 Theorem 1.
+
+    Uses :func:`random_search` over :func:`_random_instance` draws that satisfy the
+    hypotheses with ``tau* >= 1``, judged by :meth:`ScalarInstance.violation`.
 
     Parameters
     ----------
@@ -256,39 +397,19 @@ def search_theorem1(seed: int = 0, budget: float = 10.0, max_instances: int = 40
     -------
     SearchResult
     """
-    start = time.monotonic()
-    end = start + budget
-    rng = np.random.default_rng(seed)
-    tried = hits = 0
-    first: ScalarInstance | None = None
-    while tried < max_instances and time.monotonic() < end - (0 if first else
-                                                              max(1.0, budget / 4)):
-        inst = _random_instance(rng)
-        if inst.hypotheses() is not None:
-            continue
-        star = inst.tau_star()
-        if star is None or star < 1:
-            continue
-        tried += 1
-        if inst.violation() is not None:
-            hits += 1
-            first = first or inst
-        if progress is not None:
-            progress(min(1.0, (time.monotonic() - start) / budget))
-    result = SearchResult(tried=tried, hits=hits, elapsed=0.0)
-    if first is not None:
-        star0, tau0, rho0 = first.violation()  # type: ignore[misc]
-        result.first = {**first.to_dict(), "tau": tau0, "tau_star": star0, "exact_rho": rho0}
-        shrunk = _shrink(first, max(end, time.monotonic() + 1.0))
-        star, tau, rho = shrunk.violation()  # type: ignore[misc]
+    found = random_search("L-theorem1", _theorem1_draw, _theorem1_judge, _simpler,
+                          seed=seed, budget=budget, max_instances=max_instances,
+                          progress=progress)
+    result = SearchResult(tried=found.tried, hits=found.hits, elapsed=found.elapsed)
+    if found.instance is not None:
         from netsim.models.augmented import delay_bound_lcsys
 
-        result.instance, result.tau, result.tau_star, result.exact_rho = shrunk, tau, star, rho
+        shrunk, d = found.instance, found.details or {}
+        result.first = found.first
+        result.instance, result.tau, result.tau_star = shrunk, d["tau"], d["tau_star"]
+        result.exact_rho = d["exact_rho"]
         result.rho_delay_free = shrunk.rho_delay_free()
-        result.bound_eq26 = float(delay_bound_lcsys(*shrunk.matrices(), tau))
-    result.elapsed = time.monotonic() - start
-    if progress is not None:
-        progress(1.0)
+        result.bound_eq26 = float(delay_bound_lcsys(*shrunk.matrices(), d["tau"]))
     return result
 
 

@@ -1,0 +1,54 @@
+"""The README's "Findings so far" list is what `netsim claims` reports (issue 18).
+
+Every line of the generated block names one registry claim with its verdict, every
+claim has one line, and the claims that need neither a search nor a bench run are run
+here and must give the README's line exactly (the full comparison, searches included,
+is ``python -m netsim.claims.findings --check``, run by the slow test).
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from netsim.claims import CLAIM_IDS, REGISTRY, VERDICTS, run_claims
+from netsim.claims.findings import finding_line, main, readme_findings
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+LINE = re.compile(r"^- `(?P<id>[A-Za-z0-9-]+)` \((?P<paper>[^,]+), .*?\): "
+                  r"\*\*(?P<verdict>[a-z ]+)\*\*\. ")
+#: Claims whose checks need no search and no bench run (a few seconds together).
+CHEAP = ("L-decay", "L-lemma2", "L-lemma1", "L-lemma3", "L-corollary1", "L-rho", "L-tau-star",
+         "L-eq26", "L-hom-19", "T-lemma2", "T-decay", "T-rho", "T-bounds", "A-naive-growth",
+         "D-table1", "D-cond77", "D-eq83", "D-ex1-numbers", "D-eq88", "D-eq93", "D-eq94",
+         "D-eq95")
+
+
+def _lines() -> list[str]:
+    return readme_findings(README.read_text(encoding="utf-8"))
+
+
+def test_every_finding_is_one_registry_claim_with_its_verdict():
+    seen = []
+    for line in _lines():
+        m = LINE.match(line)
+        assert m, f"not a generated finding line: {line[:80]}"
+        claim = REGISTRY[m["id"]]
+        assert m["paper"] == claim.paper and m["verdict"] in VERDICTS
+        seen.append(m["id"])
+    assert sorted(seen) == sorted(CLAIM_IDS)  # one line per claim, nothing else
+
+
+def test_cheap_findings_equal_a_fresh_run():
+    assert not any(REGISTRY[c].searches for c in CHEAP)
+    report = run_claims([REGISTRY[c] for c in CHEAP], seed=0, budget=1.0, workers=1)
+    readme = {LINE.match(ln)["id"]: ln for ln in _lines()}
+    for r in report.results:
+        assert readme[r.claim.id] == finding_line(r), r.claim.id
+
+
+@pytest.mark.slow
+def test_readme_findings_are_the_full_report():
+    assert main([str(README), "--check"]) == 0

@@ -190,8 +190,13 @@ def message_records(
     return records, starts
 
 
+_INDEX_HEAD_DTYPE = np.dtype([("opcode", "u1"), ("length", "<u8"), ("channel_id", "<u2"),
+                              ("bytes", "<u4")])
+_INDEX_MAP_DTYPE = np.dtype([("channel_id", "<u2"), ("offset", "<u8")])
+
+
 class _ChunkBuilder:
-    """Records of the chunk in progress and their per-channel message index."""
+    """Records of the chunk in progress and the (channel, log_time, offset) of each."""
 
     def __init__(self) -> None:
         self.reset()
@@ -202,21 +207,15 @@ class _ChunkBuilder:
         self.count = 0
         self.start_time: int | None = None
         self.end_time = 0
-        # per channel: lists of (log_time array, offset array) (bulk) ...
-        self.bulk_index: dict[int, list[tuple[np.ndarray, np.ndarray]]] = {}
-        # ... and of per-event (log_time, offset) pairs
-        self.event_index: dict[int, list[int]] = {}
+        self.bulk: list[tuple[np.ndarray, np.ndarray, np.ndarray]] = []
+        self.events: list[int] = []  # flat channel, log_time, offset triples
 
     def add_one(self, channel_id: int, sequence: int, log_time: int, publish_time: int,
                 data: bytes) -> None:
         self.pieces.append(_MESSAGE_STRUCT.pack(OP_MESSAGE, _FIXED + len(data), channel_id,
                                                 sequence, log_time, publish_time))
         self.pieces.append(data)
-        entry = self.event_index.get(channel_id)
-        if entry is None:
-            entry = self.event_index[channel_id] = []
-        entry.append(log_time)
-        entry.append(self.size)
+        self.events += (channel_id, log_time, self.size)
         self.size += _HEAD + len(data)
         self.count += 1
         if self.start_time is None or log_time < self.start_time:
@@ -228,7 +227,7 @@ class _ChunkBuilder:
                  log_time: np.ndarray) -> None:
         if not starts.shape[0]:
             return
-        offsets = starts.astype(np.uint64) + np.uint64(self.size)
+        self.bulk.append((channel_id, log_time, starts.astype(np.uint64) + np.uint64(self.size)))
         self.pieces.append(records)
         self.size += records.shape[0]
         self.count += starts.shape[0]
@@ -236,34 +235,46 @@ class _ChunkBuilder:
         if self.start_time is None or lo < self.start_time:
             self.start_time = lo
         self.end_time = max(self.end_time, hi)
-        first = int(channel_id[0])
-        if np.all(channel_id == first):
-            self.bulk_index.setdefault(first, []).append((log_time, offsets))
-            return
-        order = np.argsort(channel_id, kind="stable")
-        ids = channel_id[order]
-        cut = np.flatnonzero(np.diff(ids)) + 1
-        for part in np.split(order, cut):
-            self.bulk_index.setdefault(int(channel_id[part[0]]), []).append(
-                (log_time[part], offsets[part]))
 
-    def index(self) -> dict[int, np.ndarray]:
-        """Per channel, shape (m, 2) uint64: (log_time, offset), sorted by log_time."""
-        out: dict[int, np.ndarray] = {}
-        for ch in sorted(set(self.bulk_index) | set(self.event_index)):
-            parts = [np.column_stack([t.astype(np.uint64), o]) for t, o in
-                     self.bulk_index.get(ch, [])]
-            flat = self.event_index.get(ch)
-            if flat:
-                parts.append(np.asarray(flat, dtype=np.uint64).reshape(-1, 2))
-            pairs = parts[0] if len(parts) == 1 else np.concatenate(parts)
-            if pairs.shape[0] > 1:
-                # offsets ascending on ties: file order (the spec's readers sort by time)
-                order = np.lexsort((pairs[:, 1], pairs[:, 0]))
-                if np.any(np.diff(order) != 1):
-                    pairs = pairs[order]
-            out[ch] = np.ascontiguousarray(pairs, dtype="<u8")
-        return out
+    def message_indexes(self, base: int) -> tuple[np.ndarray, bytes]:
+        """The Message Index records of the chunk, one per channel (increasing id),
+        entries sorted by log_time (ties in file order), written at file offset
+        ``base``; and the chunk index's map channel -> record offset (its bytes)."""
+        parts = list(self.bulk)
+        if self.events:
+            flat = np.asarray(self.events, dtype=np.uint64).reshape(-1, 3)
+            parts.append((flat[:, 0], flat[:, 1], flat[:, 2]))
+        if len(parts) == 1:
+            channel, log_time, offset = parts[0]
+        else:
+            channel = np.concatenate([p[0] for p in parts])
+            log_time = np.concatenate([p[1] for p in parts])
+            offset = np.concatenate([p[2] for p in parts])
+        channel = channel.astype(np.uint16, copy=False)
+        order = np.lexsort((offset, log_time, channel))
+        channel = channel[order]
+        pairs = np.empty((order.shape[0], 2), dtype="<u8")
+        pairs[:, 0] = log_time[order]
+        pairs[:, 1] = offset[order]
+        first = np.concatenate([[0], np.flatnonzero(np.diff(channel)) + 1])
+        counts = np.diff(np.append(first, channel.shape[0]))
+        heads = np.empty(first.shape[0], dtype=_INDEX_HEAD_DTYPE)
+        heads["opcode"] = OP_MESSAGE_INDEX
+        heads["length"] = 6 + 16 * counts
+        heads["channel_id"] = channel[first]
+        heads["bytes"] = 16 * counts
+        sizes = 15 + 16 * counts
+        starts = np.cumsum(sizes) - sizes
+        out = np.empty(int(sizes.sum()), dtype=np.uint8)
+        is_head = np.zeros(out.shape[0], dtype=bool)
+        head_at = (starts[:, None] + np.arange(15)).reshape(-1)
+        is_head[head_at] = True
+        out[head_at] = heads.view(np.uint8).reshape(-1)
+        out[~is_head] = pairs.view(np.uint8).reshape(-1)
+        offsets = np.empty(first.shape[0], dtype=_INDEX_MAP_DTYPE)
+        offsets["channel_id"] = heads["channel_id"]
+        offsets["offset"] = starts + base
+        return out, offsets.tobytes()
 
     def content(self) -> bytes:
         return b"".join(p if isinstance(p, bytes) else memoryview(p) for p in self.pieces)
@@ -539,18 +550,9 @@ class BulkMcapWriter:
         self._write(head + body)
         self._write(compressed)
         chunk_length = self._position - chunk_start
-        index_offsets: list[tuple[int, int]] = []
         index_start = self._position
-        pieces = []
-        at = index_start
-        for ch, pairs in chunk.index().items():
-            raw = pairs.tobytes()
-            record = struct.pack("<BQHI", OP_MESSAGE_INDEX, 6 + len(raw), ch, len(raw)) + raw
-            index_offsets.append((ch, at))
-            at += len(record)
-            pieces.append(record)
-        self._write(b"".join(pieces))
-        offsets_map = b"".join(struct.pack("<HQ", ch, off) for ch, off in index_offsets)
+        indexes, offsets_map = chunk.message_indexes(index_start)
+        self._write(indexes)
         self._chunk_indexes.append(_record(OP_CHUNK_INDEX, struct.pack(
             "<QQQQ", start, end, chunk_start, chunk_length)
             + struct.pack("<I", len(offsets_map)) + offsets_map

@@ -108,6 +108,35 @@ def test_file_reads_back_like_mcaps_own_writer(tmp_path, chunk_size):
                                                                   else 0)
     # chunk indexes point at chunks whose message indexes list their messages
     assert sum(len(r.records) for r in _message_indexes(ours, sa)) == len(a[1])
+    _check_message_indexes(ours, sa)
+
+
+def _check_message_indexes(path, summary):
+    """Every message index entry points at a message of its channel with its log_time,
+    entries sorted by log_time, every message listed once."""
+    import struct
+
+    import zstandard
+
+    data = Path(path).read_bytes()
+    for index in summary.chunk_indexes:
+        at = index.chunk_start_offset + 9
+        start, end, usize, _crc, clen = struct.unpack_from("<QQQII", data, at)
+        at += 32 + clen
+        (rlen,) = struct.unpack_from("<Q", data, at)
+        records = zstandard.ZstdDecompressor().decompress(data[at + 8:at + 8 + rlen],
+                                                          max_output_size=usize)
+        listed = []
+        for channel, offset in index.message_index_offsets.items():
+            (n,) = struct.unpack_from("<I", data, offset + 11)
+            pairs = np.frombuffer(data, "<u8", n // 8, offset + 15).reshape(-1, 2)
+            assert np.all(np.diff(pairs[:, 0].astype(np.int64)) >= 0)
+            for log_time, where in pairs.tolist():
+                op, _, ch, _, lt = struct.unpack_from("<BQHIQ", records, where)
+                assert (op, ch, lt) == (5, channel, log_time)
+                assert start <= lt <= end
+                listed.append(where)
+        assert len(set(listed)) == len(listed)
 
 
 def _message_indexes(path, summary):

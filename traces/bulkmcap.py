@@ -251,8 +251,17 @@ class _ChunkBuilder:
             log_time = np.concatenate([p[1] for p in parts])
             offset = np.concatenate([p[2] for p in parts])
         channel = channel.astype(np.uint16, copy=False)
-        order = np.lexsort((offset, log_time, channel))
-        channel = channel[order]
+        # entries arrive in file order (offsets increasing): a stable sort by channel
+        # (radix sort for uint16) keeps file order within a channel, which is log_time
+        # order unless a channel's messages were added out of time order
+        order = np.argsort(channel, kind="stable")
+        by_channel = channel[order]
+        t_sorted = log_time[order]
+        backwards = (t_sorted[1:] < t_sorted[:-1]) & (by_channel[1:] == by_channel[:-1])
+        if backwards.any() or (self.events and self.bulk):
+            order = np.lexsort((offset, log_time, channel))
+            by_channel = channel[order]
+        channel = by_channel
         pairs = np.empty((order.shape[0], 2), dtype="<u8")
         pairs[:, 0] = log_time[order]
         pairs[:, 1] = offset[order]

@@ -24,7 +24,8 @@ from netsim.traces.inspect import delay_statistics, inspect_trace
 from netsim.traces.reader import NOT_USED as TRACE_NOT_USED
 from netsim.traces.reader import TraceError, read_trace
 from netsim.traces.recorder import TRACE_FORMAT, TraceRecorder, to_ns, trace_path
-from netsim.traces.schemas import MESSAGE_TYPES, PACKAGE, file_descriptor_set, message_class
+from netsim.traces.schemas import FORMAT1_PACKAGE as PACKAGE
+from netsim.traces.schemas import MESSAGE_TYPES, file_descriptor_set, message_class
 
 from netsim.kernel import NOT_USED
 from netsim.runner import run_trial, scenario_gains
@@ -537,11 +538,13 @@ def test_trace_path_convention():
 
 
 def test_schemas_are_self_describing():
+    from netsim.traces.schemas import PACKAGE as PACKAGE2
+
     fds = file_descriptor_set()
-    assert [f.package for f in fds.file] == [PACKAGE]
+    assert [f.package for f in fds.file] == [PACKAGE2]
     assert {m.name for m in fds.file[0].message_type} == set(MESSAGE_TYPES)
-    estimate = message_class("netsim.trace.Estimate")(step=3, agent=1, estimate=[1.0, 2.0],
-                                                      error_norm=0.5)
+    estimate = message_class(f"{PACKAGE2}.Estimate")(step=3, agent=1, estimate=[1.0, 2.0],
+                                                     error_norm=0.5)
     again = message_class("Estimate").FromString(estimate.SerializeToString())
     assert again.error_norm == 0.5 and list(again.estimate) == [1.0, 2.0]
     fields = {f.name for f in message_class("EstimatorUpdate").DESCRIPTOR.fields}

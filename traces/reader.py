@@ -50,7 +50,7 @@ from mcap.records import (
 from mcap.stream_reader import breakup_chunk
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
-from netsim.traces.schemas import PACKAGE
+from netsim.traces.schemas import PACKAGE_PREFIX as PACKAGE
 
 __all__ = ["NOT_USED", "TraceError", "TraceRecord", "LostChunk", "Trace", "read_trace",
            "read_status"]

@@ -81,10 +81,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from google.protobuf import descriptor_pb2
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from netsim.models.jsonsafe import json_default
-from netsim.traces.schemas import file_descriptor_set, message_classes, schema_name
+from netsim.traces.schemas import format1_file_descriptor_proto, format1_message_classes
+
+
+def message_classes():  # format 1 until the recorder writes format 2
+    return format1_message_classes()
+
+
+def schema_name(name):
+    return f"netsim.trace.{name}"
+
+
+def file_descriptor_set():
+    fds = descriptor_pb2.FileDescriptorSet()
+    fds.file.append(format1_file_descriptor_proto())
+    return fds
 
 __all__ = [
     "TRACE_FORMAT",

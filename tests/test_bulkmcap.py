@@ -56,7 +56,7 @@ def _write_both(tmp_path, batches, events, chunk_size):
             ref.register_channel(f"/c{c}", "protobuf", rsid, {"c": str(c)})
         w.add_metadata("run", {"a": "1"})
         ref.add_metadata("run", {"a": "1"})
-        w.add_attachment("m.npy", "application/x-npy", b"abc", log_time=5, create_time=6)
+        w.add_attachment(6, 5, "m.npy", "application/x-npy", b"abc")
         ref.add_attachment(6, 5, "m.npy", "application/x-npy", b"abc")
         for channel, log_time, publish, sequence, payloads in batches:
             if isinstance(payloads, tuple):

@@ -310,13 +310,15 @@ class BulkMcapWriter:
         The file to create (overwritten), or an open stream (left open by close()).
     profile : str
         The Header's profile ("" for none).
-    library : str
-        The Header's library string.
+    library : str or None
+        The Header's library string; None: the header is written by :meth:`start`
+        (``mcap.writer.Writer``'s protocol: construct, ``start(profile, library)``,
+        ``register_schema``, ``register_channel``, ``add_message``, ``finish``).
     chunk_size : int
         Close a chunk once its uncompressed records reach this many bytes (a bulk
         batch is split across chunks at record boundaries).
-    compression : str
-        ``zstd`` (default) or ``none``.
+    compression : str or mcap.writer.CompressionType
+        ``zstd`` (default) or ``none`` (``CompressionType.ZSTD`` / ``NONE``).
     level : int
         zstd compression level.
     fsync : bool
@@ -326,17 +328,18 @@ class BulkMcapWriter:
     def __init__(
         self,
         output: str | os.PathLike[str] | IO[bytes],
+        chunk_size: int = 1024 * 1024,
+        compression: Any = "zstd",
         *,
         profile: str = "",
-        library: str = "netsim-bulkmcap",
-        chunk_size: int = 1024 * 1024,
-        compression: str = "zstd",
+        library: str | None = "netsim-bulkmcap",
         level: int = 3,
         fsync: bool = False,
     ) -> None:
         if chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
-        compression = compression.lower()
+        # a string, or mcap.writer.CompressionType (ZSTD, NONE)
+        compression = str(getattr(compression, "name", compression)).lower()
         if compression not in ("zstd", "none", ""):
             raise ValueError(f"unknown compression {compression!r}; expected zstd or none")
         self.compression = "zstd" if compression == "zstd" else ""
@@ -360,21 +363,31 @@ class BulkMcapWriter:
         self._chunk_indexes: list[bytes] = []
         self._attachment_indexes: list[bytes] = []
         self._metadata_indexes: list[bytes] = []
-        self._channel_counts = np.zeros(0, dtype=np.int64)
+        self._counts: list[int] = []  # messages per channel id
         self.message_count = 0
         self.chunk_count = 0
         self._start_time: int | None = None
         self._end_time = 0
         self._chunk = _ChunkBuilder()
-        try:
-            self._write(MAGIC)
-            self._write(_record(OP_HEADER, _string(profile) + _string(library)))
-            self._stream.flush()
-        except BaseException:
-            if self._own:
-                self._stream.close()
-            raise
+        self._started = False
+        if library is not None:
+            try:
+                self.start(profile, library)
+            except BaseException:
+                if self._own:
+                    self._stream.close()
+                raise
         _LIVE.add(self)
+
+    def start(self, profile: str = "", library: str = "netsim-bulkmcap") -> None:
+        """Write the magic and the Header (done by the constructor unless it was given
+        ``library=None``; as ``mcap.writer.Writer.start``)."""
+        if self._started:
+            raise RuntimeError("the MCAP writer was already started")
+        self._started = True
+        self._write(MAGIC)
+        self._write(_record(OP_HEADER, _string(profile) + _string(library)))
+        self._stream.flush()
 
     # -- definitions ----------------------------------------------------------------
 
@@ -406,6 +419,7 @@ class BulkMcapWriter:
                          + _string_map(metadata or {}))
         self._channels[channel_id] = record
         self._channel_ids[topic] = channel_id
+        self._counts.append(0)
         self._write(record)
         return channel_id
 
@@ -419,9 +433,10 @@ class BulkMcapWriter:
             "<QQ", offset, len(record)) + _string(name)))
         self._stream.flush()
 
-    def add_attachment(self, name: str, media_type: str, data: bytes, *, log_time: int = 0,
-                       create_time: int = 0) -> None:
-        """Write an Attachment record (CRC set; indexed in the summary)."""
+    def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str,
+                       data: bytes) -> None:
+        """Write an Attachment record (CRC set; indexed in the summary); the arguments
+        of ``mcap.writer.Writer.add_attachment``."""
         self._check_open()
         offset = self._position
         body = (struct.pack("<QQ", log_time, create_time) + _string(name)
@@ -433,16 +448,25 @@ class BulkMcapWriter:
             + _string(name) + _string(media_type)))
         self._stream.flush()
 
+    def register_schema(self, name: str, encoding: str, data: bytes) -> int:
+        """:meth:`add_schema` under ``mcap.writer.Writer``'s name."""
+        return self.add_schema(name, encoding, data)
+
+    def register_channel(self, topic: str, message_encoding: str, schema_id: int,
+                         metadata: Mapping[str, str] | None = None) -> int:
+        """:meth:`add_channel` under ``mcap.writer.Writer``'s name."""
+        return self.add_channel(topic, message_encoding, schema_id, metadata)
+
     # -- messages --------------------------------------------------------------------
 
     def add_message(self, channel_id: int, log_time: int, data: bytes,
                     publish_time: int = 0, sequence: int = 0) -> None:
         """Append one message to the chunk in progress (closed when full)."""
+        if self.closed:
+            raise RuntimeError("the MCAP writer is closed")
+        self._counts[channel_id] += 1  # IndexError for a channel never added
         chunk = self._chunk
         chunk.add_one(channel_id, sequence, log_time, publish_time, data)
-        if channel_id >= self._channel_counts.shape[0]:
-            self._grow_counts(channel_id)
-        self._channel_counts[channel_id] += 1
         if chunk.size >= self.chunk_size:
             self._finish_chunk()
 
@@ -476,10 +500,9 @@ class BulkMcapWriter:
         publish = log_time if publish_time is None else publish_time
         records, starts = message_records(channel, sequence, log_time, publish, payloads,
                                           offsets)
-        counts = np.bincount(channel, minlength=self._channel_counts.shape[0])
-        if counts.shape[0] > self._channel_counts.shape[0]:
-            self._grow_counts(counts.shape[0] - 1)
-        self._channel_counts[:counts.shape[0]] += counts
+        counts = np.bincount(channel)
+        for ch in np.flatnonzero(counts).tolist():
+            self._counts[ch] += int(counts[ch])
         total = records.shape[0]
         first = 0
         while first < n:
@@ -510,6 +533,8 @@ class BulkMcapWriter:
         self.closed = True
         _LIVE.discard(self)
         try:
+            if not self._started:
+                self.start()
             self._finish_chunk()
             self._write(_record(OP_DATA_END, struct.pack("<I", self._crc)))
             self._write_summary()
@@ -532,12 +557,8 @@ class BulkMcapWriter:
     def _check_open(self) -> None:
         if self.closed:
             raise RuntimeError("the MCAP writer is closed")
-
-    def _grow_counts(self, channel_id: int) -> None:
-        grown = np.zeros(max(channel_id + 1, 2 * self._channel_counts.shape[0]),
-                         dtype=np.int64)
-        grown[:self._channel_counts.shape[0]] = self._channel_counts
-        self._channel_counts = grown
+        if not self._started:
+            self.start()
 
     def _write(self, data: Any) -> None:
         self._stream.write(data)
@@ -592,8 +613,7 @@ class BulkMcapWriter:
             parts.append(data)
             at += len(data)
 
-        counts = {ch: int(self._channel_counts[ch]) for ch in self._channels
-                  if ch < self._channel_counts.shape[0] and self._channel_counts[ch]}
+        counts = {ch: c for ch, c in enumerate(self._counts) if c}
         counts_map = b"".join(struct.pack("<HQ", ch, c) for ch, c in counts.items())
         statistics = _record(OP_STATISTICS, struct.pack(
             "<QHIIIIQQ", self.message_count, len(self._schemas), len(self._channels),

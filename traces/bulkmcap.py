@@ -311,7 +311,8 @@ class BulkMcapWriter:
     profile : str
         The Header's profile ("" for none).
     library : str or None
-        The Header's library string; None: the header is written by :meth:`start`
+        The Header's library string, written at once; None (default): the header is
+        written by :meth:`start` (or with defaults by the first record)
         (``mcap.writer.Writer``'s protocol: construct, ``start(profile, library)``,
         ``register_schema``, ``register_channel``, ``add_message``, ``finish``).
     chunk_size : int
@@ -332,7 +333,7 @@ class BulkMcapWriter:
         compression: Any = "zstd",
         *,
         profile: str = "",
-        library: str | None = "netsim-bulkmcap",
+        library: str | None = None,
         level: int = 3,
         fsync: bool = False,
     ) -> None:

@@ -83,7 +83,8 @@ from typing import Any
 import numpy as np
 from google.protobuf import descriptor_pb2
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
+from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.models.jsonsafe import json_default
 from netsim.traces.schemas import format1_file_descriptor_proto, format1_message_classes
 

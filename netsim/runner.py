@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import math
 import warnings
-from collections.abc import Callable, Collection, Sequence
+from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
@@ -532,7 +532,7 @@ def _replayable_lockstep(family: EstimatorFamily) -> bool:
 
 
 def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_trace,
-                  batch=None, batch_trial=None):
+                  batch=None, batch_trial=None, trace_options=None):
     """Run (event kernel) or replay (``batch``: a vectorised batch) trial t into a trace."""
     from netsim.traces.recorder import TraceRecorder, trace_path
 
@@ -541,7 +541,8 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
     path = trace_path(trace) if single else trace_path(trace, family, t)
     try:
         recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed,
-                                         steps=steps, family_traits=declared.traits())
+                                         steps=steps, family_traits=declared.traits(),
+                                         **dict(trace_options or {}))
     except OSError as exc:
         raise TraceWriteError(path, exc) from exc
     written = False
@@ -585,6 +586,7 @@ def run_monte_carlo(
     on_trace: Callable[[str], None] | None = None,
     engine: str = "auto",
     keep_trials: bool = False,
+    trace_options: Mapping[str, Any] | None = None,
 ) -> MonteCarloResult:
     """Run every estimator family of the scenario over Monte Carlo trials.
 
@@ -611,6 +613,9 @@ def run_monte_carlo(
     keep_trials : bool
         Keep every trial's :class:`TrialResult` (states, estimates, squared errors,
         effective delays) in ``MonteCarloResult.runs``.
+    trace_options : mapping, optional
+        Keyword arguments of every trace's
+        :class:`netsim.traces.recorder.TraceRecorder` (e.g. ``time_origin_ns``).
 
     Returns
     -------
@@ -647,7 +652,8 @@ def run_monte_carlo(
         runs: list[TrialResult] = []
         try:
             runs = _family_runs(scenario, fam, gains, seeds, steps, seed, trials, engines,
-                                trace, families, keep_trials, progress, on_trace, runs)
+                                trace, families, keep_trials, progress, on_trace, runs,
+                                trace_options)
         except TraceWriteError as exc:
             if runs:  # the trials that finished before the trace failed
                 reported = None if fam.reported is None else list(fam.reported(scenario))
@@ -671,7 +677,7 @@ def run_monte_carlo(
 
 
 def _family_runs(scenario, fam, gains, seeds, steps, seed, trials, engines, trace, families,
-                 keep_trials, progress, on_trace, runs):
+                 keep_trials, progress, on_trace, runs, trace_options=None):
     """One family's trials (appended to ``runs`` as they finish, traced or not)."""
     family = fam.name
     if trace is None:
@@ -693,14 +699,15 @@ def _family_runs(scenario, fam, gains, seeds, steps, seed, trials, engines, trac
                 for index in range(len(batch.results)):
                     runs.append(_traced_trial(scenario, fam, gains, seed, first + index,
                                               steps, trace, single, on_trace, batch=batch,
-                                              batch_trial=index))
+                                              batch_trial=index,
+                                              trace_options=trace_options))
                     if progress is not None:
                         progress(1)
                 del batch
         else:
             for t in range(trials):
                 runs.append(_traced_trial(scenario, fam, gains, seed, t, steps, trace,
-                                          single, on_trace))
+                                          single, on_trace, trace_options=trace_options))
                 if progress is not None:
                     progress(1)
     return runs

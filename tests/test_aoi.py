@@ -677,7 +677,7 @@ def test_netsim_run_traces_aoi_with_freshness_topics(tmp_path, capsys):
     from netsim.traces.reader import read_trace
 
     aoi = read_trace(tmp_path / "aoi.aoi.trial0.mcap")
-    assert "/agent/1/freshness" in aoi.counts
+    assert "/agent_1/freshness" in aoi.counts
     assert aoi.freshness()[:4, 1].tolist() == [OMEGA, 1, 2, 1]
     tree = read_trace(tmp_path / "aoi.naive-tree.trial0.mcap")
     assert not any(t.endswith("/freshness") for t in tree.counts)

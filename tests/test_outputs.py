@@ -290,7 +290,11 @@ def test_inspect_reports_the_lost_chunk_of_a_damaged_trace(geometric, tmp_path, 
     [lost] = info["lost_chunks"]
     assert lost["chunk"] == len(chunks) // 2 and lost["offset"] == middle.chunk_start_offset
     assert info["damaged"] and info["recovered_messages"] + lost["messages"] == total
-    first, last = (middle.message_start_time // 10**9, middle.message_end_time // 10**9)
+    with open(path, "rb") as f:  # log_time = time origin + simulation time (format 2)
+        run = {m.name: m.metadata for m in make_reader(f).iter_metadata()}["run"]
+    origin = int(run["time_origin_ns"])
+    first, last = ((middle.message_start_time - origin) // 10**9,
+                   (middle.message_end_time - origin) // 10**9)
     assert lost["steps"] == [first, last]
     assert info["steps"]["first"] == 0 and info["steps"]["last"] == 120  # chunks after it
     assert main(["inspect", str(bad)]) == 0

@@ -24,7 +24,8 @@ from netsim.traces.inspect import delay_statistics, inspect_trace
 from netsim.traces.reader import NOT_USED as TRACE_NOT_USED
 from netsim.traces.reader import TraceError, read_trace
 from netsim.traces.recorder import TRACE_FORMAT, TraceRecorder, to_ns, trace_path
-from netsim.traces.schemas import FORMAT1_PACKAGE as PACKAGE
+from netsim.traces.schemas import DEFAULT_TIME_ORIGIN_NS
+from netsim.traces.schemas import PACKAGE as PACKAGE2
 from netsim.traces.schemas import MESSAGE_TYPES, file_descriptor_set, message_class
 
 from netsim.kernel import NOT_USED
@@ -84,10 +85,10 @@ def test_read_back_matches_trial_result(setup, recorded):
     np.testing.assert_allclose(trace.squared_errors(), result.squared_errors, rtol=1e-13, atol=0)
     assert TRACE_NOT_USED == NOT_USED
     np.testing.assert_array_equal(trace.effective_delays(), result.effective_delays)
-    for msg in trace.topic("/agent/2/update"):
+    for msg in trace.topic("/agent_2/update"):
         for r, s in zip(msg.effective_delay, msg.used_timestamp, strict=True):
             assert s == (msg.step - 1 - r if r >= 0 else -1)
-    for msg in trace.topic("/agent/1/estimate"):
+    for msg in trace.topic("/agent_1/estimate"):
         assert msg.error_norm == pytest.approx(np.sqrt(msg.squared_error), rel=1e-15)
 
     sent = sum(len(trace.link_events(j, i, "sent")) for j, i in trace.links)
@@ -112,7 +113,7 @@ def test_link_events_match_kernel_messages(recorded):
     trace = read_trace(path)
     # Deliveries, in delivery order, are exactly the kernel's recorded messages.
     by_time = [r.message for r in trace.messages
-               if r.topic.startswith("/link/") and r.message.event == "delivered"]
+               if r.topic.startswith("/link_") and r.topic.endswith("/delivered")]
     assert len(by_time) == len(result.messages)
     for got, want in zip(by_time, result.messages, strict=True):
         assert (got.sender, got.receiver, got.sent_step, got.sequence, got.delay_steps) == (
@@ -120,10 +121,10 @@ def test_link_events_match_kernel_messages(recorded):
         assert got.send_time == want.send_time and got.arrival_time == want.arrival_time
         assert got.usable_step == want.sent_step + 1 + want.delay_steps
     # Each sent event carries the payload that was transmitted.
-    for record in trace.records["/link/0/1"]:
-        if record.message.event == "sent":
-            np.testing.assert_array_equal(record.message.payload,
-                                          result.estimates[record.message.sent_step, 0])
+    assert trace.records["/link_0_1/sent"]
+    for record in trace.records["/link_0_1/sent"]:
+        np.testing.assert_array_equal(record.message.payload,
+                                      result.estimates[record.message.sent_step, 0])
 
 
 def test_plain_mcap_reader_reads_the_file(recorded):
@@ -134,7 +135,7 @@ def test_plain_mcap_reader_reads_the_file(recorded):
         assert summary is not None and summary.statistics is not None
         assert summary.statistics.message_count == recorder.messages_written
         assert len(summary.chunk_indexes) > 5  # flushed regularly
-        assert all(s.encoding == "protobuf" and s.name.startswith(PACKAGE + ".")
+        assert all(s.encoding == "protobuf" and s.name.startswith(PACKAGE2 + ".")
                    for s in summary.schemas.values())
         metadata = {m.name: m.metadata for m in reader.iter_metadata()}
         assert set(metadata) == {"scenario", "run", "run_status"}
@@ -144,23 +145,27 @@ def test_plain_mcap_reader_reads_the_file(recorded):
         last = -1
         estimates = np.full_like(result.estimates, np.nan)
         ts = 1.0  # sample period of the scenario
+        origin = DEFAULT_TIME_ORIGIN_NS
         for schema, channel, message, decoded in reader.iter_decoded_messages(
             log_time_order=False
         ):
             assert message.log_time >= last, "messages must be in non-decreasing log_time"
             last = message.log_time
-            if schema.name == f"{PACKAGE}.Estimate":
-                assert channel.topic == f"/agent/{decoded.agent}/estimate"
+            if schema.name == f"{PACKAGE2}.Estimate":
+                assert channel.topic == f"/agent_{decoded.agent}/estimate"
                 estimates[decoded.step, decoded.agent] = decoded.estimate
-                assert message.log_time == message.publish_time == to_ns(decoded.step * ts)
-            elif schema.name == f"{PACKAGE}.MessageEvent":
-                assert channel.topic == f"/link/{decoded.sender}/{decoded.receiver}"
-                assert message.publish_time == to_ns(decoded.send_time)
+                assert message.log_time == message.publish_time == origin + to_ns(
+                    decoded.step * ts)
+            elif schema.name.startswith(f"{PACKAGE2}.Link"):
+                event = {"LinkSent": "sent", "LinkDelivered": "delivered",
+                         "LinkDropped": "dropped"}[schema.name.rsplit(".", 1)[1]]
+                assert channel.topic == f"/link_{decoded.sender}_{decoded.receiver}/{event}"
+                assert message.publish_time == origin + to_ns(decoded.send_time)
                 assert message.sequence == decoded.sequence
-                if decoded.event == "delivered":
-                    assert message.log_time == to_ns(decoded.arrival_time)
-                else:
-                    assert message.log_time == to_ns(decoded.send_time)
+                if event == "delivered":
+                    assert message.log_time == origin + to_ns(decoded.arrival_time)
+                elif event == "sent":
+                    assert message.log_time == origin + to_ns(decoded.send_time)
         np.testing.assert_array_equal(estimates, result.estimates)
 
     # A non-seeking (streaming) MCAP reader sees the same messages.
@@ -334,7 +339,7 @@ def test_keyboard_interrupt_leaves_finished_file(setup, tmp_path):
     trace = read_trace(path)
     assert not trace.truncated
     assert trace.steps == list(range(21))
-    assert max(m.step for m in trace.topic("/agent/0/estimate")) == 19
+    assert max(m.step for m in trace.topic("/agent_0/estimate")) == 19
     report = inspect_trace(trace)
     assert report.status == "interrupted" and "interrupted_at 20" in report.format_text()
 
@@ -538,8 +543,6 @@ def test_trace_path_convention():
 
 
 def test_schemas_are_self_describing():
-    from netsim.traces.schemas import PACKAGE as PACKAGE2
-
     fds = file_descriptor_set()
     assert [f.package for f in fds.file] == [PACKAGE2]
     assert {m.name for m in fds.file[0].message_type} == set(MESSAGE_TYPES)
@@ -577,7 +580,8 @@ def test_continuous_latencies_with_sample_period(setup, tmp_path):
     times = [r.log_time for r in trace.messages]
     assert times == sorted(times)
     assert trace.sample_period == 0.1
-    assert trace.records["/plant/state"][3].log_time == 300_000_000
+    assert trace.records["/plant/state"][3].log_time == trace.time_origin_ns + 300_000_000
+    assert trace.sim_time_ns(trace.records["/plant/state"][3].log_time) == 300_000_000
     arrivals = {to_ns(m.arrival_time) for m in result.messages}
     assert any(t % 100_000_000 for t in arrivals)  # some arrive between instants
     np.testing.assert_array_equal(trace.estimates(), result.estimates)

@@ -11,7 +11,7 @@ Definitions
 - A *reordering* is a delivery whose time-stamp (``sent_step``) is smaller than that
   of a message already delivered on the same link.
 - ``in_flight``: sent but neither delivered nor dropped when the trace ends.
-- Effective delays are the r_ij[k] the receiver's updates used (``/agent/<i>/update``),
+- Effective delays are the r_ij[k] the receiver's updates used (``/agent_<i>/update``),
   excluding steps where it substituted its own estimate (counted as ``substituted``).
 - Per-agent MSE: the mean over recorded steps of ||x-hat^i_k - x_k||^2; ``final`` is
   the value at the last recorded update; ``tail_mse`` the mean over the last quarter.
@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 from netsim.models.jsonsafe import json_number as _num
 from netsim.traces.reader import Trace
+from netsim.traces.schemas import format_time_origin
 
 __all__ = ["LinkStats", "AgentStats", "InspectReport", "inspect_trace", "delay_statistics"]
 
@@ -132,6 +133,9 @@ class InspectReport:
     orphaned_messages: int = 0
     #: How the file was read, when its summary was unusable.
     read_note: str = ""
+    #: Trace format (1 or 2) and time origin of log_time (ISO 8601 UTC).
+    trace_format: int = 1
+    time_origin: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -140,6 +144,8 @@ class InspectReport:
                 for i, v in self.freshness.items()
             },
             "path": self.path,
+            "trace_format": self.trace_format,
+            "time_origin": self.time_origin,
             "scenario": self.scenario,
             "family": self.family,
             "trial": self.trial,
@@ -169,7 +175,8 @@ class InspectReport:
         }
 
     def format_text(self) -> str:
-        lines = [f"trace {self.path}"]
+        lines = [f"trace {self.path}   (format {self.trace_format}, log_time origin "
+                 f"{self.time_origin})"]
         lines.append(
             f"  scenario {self.scenario or '?'}   family {self.family or '?'}   "
             f"trial {self.trial if self.trial is not None else '?'}   seed {self.seed or '?'}"
@@ -312,13 +319,14 @@ def inspect_trace(trace: Trace) -> InspectReport:
     effective: dict[tuple[int, int], list[int]] = {}
     agents: dict[int, AgentStats] = {}
     for i in trace.agents:
-        for msg in trace.topic(f"/agent/{i}/update"):
+        for msg in trace.topic(trace.update_topic(i)):
             for j, r in zip(msg.neighbours, msg.effective_delay, strict=True):
+                r = int(r)
                 if r < 0:
                     link(int(j), i).substituted += 1
                 else:
                     effective.setdefault((int(j), i), []).append(int(r))
-        estimates = trace.topic(f"/agent/{i}/estimate")
+        estimates = trace.topic(trace.estimate_topic(i))
         sq = np.array([m.squared_error for m in estimates], dtype=float)
         if len(sq):
             tail = sq[-max(1, len(sq) // 4):]
@@ -380,6 +388,8 @@ def inspect_trace(trace: Trace) -> InspectReport:
         lost_messages=trace.lost_messages,
         orphaned_messages=trace.orphaned_messages,
         read_note=trace.note,
+        trace_format=trace.format,
+        time_origin=format_time_origin(trace.time_origin_ns),
     )
 
 

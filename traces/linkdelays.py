@@ -74,5 +74,5 @@ def load_trace_replay(path: str | Path) -> TraceReplay:
         records[link] = LinkRecord(steps, lat, d, boundary,
                                    {q: r for q, r in dropped.items() if q < count})
     if not records:
-        raise ValueError(f"trace {path} has no link topics (/link/<j>/<i>) to replay")
+        raise ValueError(f"trace {path} has no link topics (/link_<j>_<i>/...) to replay")
     return TraceReplay(records, ts, str(path))

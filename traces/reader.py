@@ -25,7 +25,6 @@ from __future__ import annotations
 import io
 import mmap
 import os
-import re
 import struct
 import zlib
 from dataclasses import dataclass, field
@@ -50,10 +49,16 @@ from mcap.records import (
 from mcap.stream_reader import breakup_chunk
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
+from netsim.traces.schemas import DROP_REASONS_METADATA, LINK_EVENTS, parse_topic
 from netsim.traces.schemas import PACKAGE_PREFIX as PACKAGE
+from netsim.traces.schemas import estimate_topic as _estimate_topic
+from netsim.traces.schemas import freshness_topic as _freshness_topic
+from netsim.traces.schemas import link_topic as _link_topic
+from netsim.traces.schemas import sensor_topic as _sensor_topic
+from netsim.traces.schemas import update_topic as _update_topic
 
-__all__ = ["NOT_USED", "TraceError", "TraceRecord", "LostChunk", "Trace", "read_trace",
-           "read_status"]
+__all__ = ["NOT_USED", "TraceError", "TraceRecord", "LinkEvent", "LostChunk", "Trace",
+           "read_trace", "read_status"]
 
 #: Entry of :meth:`Trace.effective_delays` where agent i did not use j's estimate
 #: (equal to ``netsim.kernel.NOT_USED``).
@@ -62,9 +67,6 @@ NOT_USED = -2
 _MAGIC = bytes([137, 77, 67, 65, 80, 48, 13, 10])
 _FOOTER_SIZE = 1 + 8 + 8 + 8 + 4  # opcode, length, summary_start, summary_offset_start, crc
 _FOOTER_OPCODE = 0x02
-_TOPIC_AGENT = re.compile(r"^/agent/(\d+)/(estimate|update)$")
-_TOPIC_LINK = re.compile(r"^/link/(\d+)/(\d+)$")
-_TOPIC_SENSOR = re.compile(r"^/sensor/(\d+)/measurement$")
 _OPCODES = frozenset(int(op) for op in Opcode)
 
 
@@ -73,13 +75,39 @@ class TraceError(ValueError):
 
 
 class TraceRecord(NamedTuple):
-    """One decoded message."""
+    """One decoded message (``log_time``, ``publish_time``: as in the file, ns; subtract
+    :attr:`Trace.time_origin_ns` for simulation time)."""
 
     topic: str
     log_time: int
     publish_time: int
     sequence: int
     message: Any
+
+
+class LinkEvent(NamedTuple):
+    """One message event of a link, the same for formats 1 and 2.
+
+    ``event`` is ``sent``, ``delivered`` or ``dropped``; ``accepted`` is meaningful for
+    a delivery, ``reason`` (text) for a drop and ``payload`` for a sent message (empty
+    when not recorded); ``event_time`` is the event's simulation time (send, arrival or
+    drop) and ``log_time`` the record's log_time in the file (ns).
+    """
+
+    event: str
+    sender: int
+    receiver: int
+    sent_step: int
+    usable_step: int
+    sequence: int
+    send_time: float
+    arrival_time: float
+    delay_steps: int
+    accepted: bool
+    reason: str
+    event_time: float
+    payload: list[float]
+    log_time: int
 
 
 @dataclass
@@ -108,13 +136,16 @@ class LostChunk:
     end_time: int | None
     messages: int | None
     reason: str
+    #: The trace's time origin (ns) subtracted from start_time/end_time for steps.
+    origin: int = 0
 
     def steps(self, sample_period: float = 1.0) -> tuple[int, int] | None:
         """The plant steps its log_time range covers (None if unknown)."""
         if self.start_time is None or self.end_time is None:
             return None
         ts = sample_period * 1e9
-        return int(self.start_time // ts), int(self.end_time // ts)
+        return (int(max(0, self.start_time - self.origin) // ts),
+                int(max(0, self.end_time - self.origin) // ts))
 
     def to_dict(self, sample_period: float = 1.0) -> dict[str, Any]:
         steps = self.steps(sample_period)
@@ -178,6 +209,46 @@ class Trace:
     lost_chunks: list[LostChunk] = field(default_factory=list)
     orphaned_messages: int = 0
     note: str = ""
+    #: Drop reason codes (format 2's LinkDropped.reason) -> text.
+    drop_reasons: dict[int, str] = field(default_factory=dict)
+    _link_cache: dict[tuple[int, int], list[LinkEvent]] | None = field(
+        default=None, repr=False, compare=False)
+
+    @property
+    def format(self) -> int:
+        """Trace format: 1 or 2 (from ``run.trace_format`` ``netsim-trace/<n>``)."""
+        fmt = self.run.get("trace_format", "netsim-trace/1").rsplit("/", 1)[-1]
+        return int(fmt) if fmt.isdigit() else 1
+
+    @property
+    def time_origin_ns(self) -> int:
+        """log_time of simulation time 0 (ns since the Unix epoch; 0 in format 1)."""
+        value = self.run.get("time_origin_ns", "0")
+        return int(value) if value.isdigit() else 0
+
+    def sim_time_ns(self, log_time: int) -> int:
+        """Simulation time (ns) of a record's log_time."""
+        return int(log_time) - self.time_origin_ns
+
+    # -- topic names of this trace's format ------------------------------------------
+
+    def sensor_topic(self, i: int) -> str:
+        return _sensor_topic(i, self.format)
+
+    def estimate_topic(self, i: int) -> str:
+        return _estimate_topic(i, self.format)
+
+    def update_topic(self, i: int) -> str:
+        return _update_topic(i, self.format)
+
+    def freshness_topic(self, i: int) -> str:
+        return _freshness_topic(i, self.format)
+
+    def link_topics(self, sender: int, receiver: int) -> list[str]:
+        """The topic(s) of a link: one in format 1, one per event in format 2."""
+        if self.format == 1:
+            return [_link_topic(sender, receiver, fmt=1)]
+        return [_link_topic(sender, receiver, e) for e in LINK_EVENTS]
 
     @property
     def damaged(self) -> bool:
@@ -268,21 +339,24 @@ class Trace:
 
     # -- structure -----------------------------------------------------------------
 
+    def _parsed(self) -> list[tuple[str, Any]]:
+        return [(t, info) for t in self.topics if (info := parse_topic(t)) is not None]
+
     @property
     def agents(self) -> list[int]:
         """Agents with an estimate or update topic."""
-        return sorted({int(m.group(1)) for t in self.topics
-                       if (m := _TOPIC_AGENT.match(t))})
+        return sorted({info.index for _, info in self._parsed()
+                       if info.kind in ("estimate", "update")})
 
     @property
     def sensors(self) -> list[int]:
-        return sorted({int(m.group(1)) for t in self.topics if (m := _TOPIC_SENSOR.match(t))})
+        return sorted({info.index for _, info in self._parsed() if info.kind == "sensor"})
 
     @property
     def links(self) -> list[tuple[int, int]]:
         """Links (sender, receiver) with a topic, sorted."""
-        return sorted((int(m.group(1)), int(m.group(2))) for t in self.topics
-                      if (m := _TOPIC_LINK.match(t)))
+        return sorted({(info.index, info.receiver) for _, info in self._parsed()
+                       if info.kind == "link"})
 
     @property
     def n_agents(self) -> int:
@@ -316,7 +390,9 @@ class Trace:
     def _length(self) -> int:
         last = -1
         for topic, recs in self.records.items():
-            if topic == "/plant/state" or _TOPIC_AGENT.match(topic):
+            info = parse_topic(topic)
+            if info is not None and info.kind in ("plant", "estimate", "update",
+                                                  "freshness"):
                 for r in recs:
                     last = max(last, int(r.message.step))
         return last + 1
@@ -330,7 +406,7 @@ class Trace:
 
     def measurements(self, sensor: int) -> np.ndarray:
         """Sensor i's measurements, shape (K+1, m_i) (NaN where not recorded)."""
-        msgs = self.topic(f"/sensor/{sensor}/measurement")
+        msgs = self.topic(self.sensor_topic(sensor))
         width = len(msgs[0].values) if msgs else 0
         out = np.full((self._length(), width), np.nan)
         for msg in msgs:
@@ -341,7 +417,7 @@ class Trace:
         """Estimates, shape (K+1, N, n): [k, i] = x-hat^i_{k|k} (NaN where not recorded)."""
         out = np.full((self._length(), self.n_agents, self.n_states), np.nan)
         for i in self.agents:
-            for msg in self.topic(f"/agent/{i}/estimate"):
+            for msg in self.topic(self.estimate_topic(i)):
                 out[msg.step, i] = msg.estimate
         return out
 
@@ -349,7 +425,7 @@ class Trace:
         """||x-hat^i_k - x_k||^2, shape (K+1, N) (NaN where not recorded)."""
         out = np.full((self._length(), self.n_agents), np.nan)
         for i in self.agents:
-            for msg in self.topic(f"/agent/{i}/estimate"):
+            for msg in self.topic(self.estimate_topic(i)):
                 out[msg.step, i] = msg.squared_error
         return out
 
@@ -359,9 +435,9 @@ class Trace:
         n = self.n_agents
         out = np.full((self._length(), n, n), NOT_USED, dtype=np.int32)
         for i in self.agents:
-            for msg in self.topic(f"/agent/{i}/update"):
+            for msg in self.topic(self.update_topic(i)):
                 for j, r in zip(msg.neighbours, msg.effective_delay, strict=True):
-                    out[msg.step, i, j] = r
+                    out[msg.step, i, int(j)] = int(r)
         return out
 
     def freshness(self) -> np.ndarray:
@@ -371,14 +447,48 @@ class Trace:
         omega, -2 where nothing was recorded (not an AoI trace)."""
         out = np.full((self._length(), self.n_agents), -2, dtype=np.int32)
         for i in self.agents:
-            for msg in self.topic(f"/agent/{i}/freshness"):
+            for msg in self.topic(self.freshness_topic(i)):
                 out[msg.step, i] = msg.max_index
         return out
 
-    def link_events(self, sender: int, receiver: int, event: str | None = None) -> list[Any]:
-        """MessageEvents of link sender -> receiver, optionally of one kind."""
-        msgs = self.topic(f"/link/{sender}/{receiver}")
-        return [m for m in msgs if event is None or m.event == event]
+    def link_events(self, sender: int, receiver: int,
+                    event: str | None = None) -> list[LinkEvent]:
+        """Message events of link sender -> receiver in log_time order (file order on
+        ties), optionally of one kind (``sent``, ``delivered``, ``dropped``)."""
+        if self._link_cache is None:
+            self._link_cache = self._collect_link_events()
+        events = self._link_cache.get((int(sender), int(receiver)), [])
+        return [e for e in events if event is None or e.event == event]
+
+    def _collect_link_events(self) -> dict[tuple[int, int], list[LinkEvent]]:
+        out: dict[tuple[int, int], list[LinkEvent]] = {}
+        reasons = self.drop_reasons
+        for record in self.messages:
+            info = parse_topic(record.topic)
+            if info is None or info.kind != "link" or record.topic in self.foreign_topics:
+                continue
+            m = record.message
+            if info.format == 1:
+                event = str(m.event)
+                accepted, reason, when = bool(m.accepted), str(m.reason), float(m.event_time)
+            else:
+                event = info.event
+                accepted = event == "delivered" and bool(m.accepted)
+                reason = ""
+                when = float(m.send_time)
+                if event == "dropped":
+                    code = int(m.reason)
+                    reason = reasons.get(code, f"reason {code}")
+                    when = float(m.drop_time)
+                elif event == "delivered":
+                    when = float(m.arrival_time)
+            payload = list(m.payload) if event == "sent" or info.format == 1 else []
+            out.setdefault((info.index, info.receiver), []).append(LinkEvent(
+                event, int(m.sender), int(m.receiver), int(m.sent_step),
+                int(m.usable_step), int(m.sequence), float(m.send_time),
+                float(m.arrival_time), int(m.delay_steps), accepted, reason, when, payload,
+                int(record.log_time)))
+        return out
 
 
 # -- reading -------------------------------------------------------------------------
@@ -450,6 +560,9 @@ class _Collector:
         self._decoders: dict[int, Any] = {}
 
     def metadata_record(self, record: Metadata) -> None:
+        if record.name == DROP_REASONS_METADATA:  # written again per new reason: union
+            self.metadata.setdefault(record.name, {}).update(record.metadata)
+            return
         self.metadata[record.name] = dict(record.metadata)
 
     def attachment(self, record: Attachment) -> None:
@@ -550,7 +663,14 @@ class _Collector:
                 f"{where}: not a netsim trace (no {PACKAGE} schemas; found "
                 f"{', '.join(sorted(set(self.topics.values())))})"
             )
+        run = self.metadata.get("run", {})
+        origin = run.get("time_origin_ns", "0")
+        for chunk in lost:
+            chunk.origin = int(origin) if origin.isdigit() else 0
+        reasons = {int(c): r for c, r in self.metadata.get(DROP_REASONS_METADATA, {}).items()
+                   if c.isdigit()}
         return Trace(
+            drop_reasons=reasons,
             path=where,
             metadata=self.metadata,
             matrices=self.matrices,

@@ -17,9 +17,12 @@ Contents
 Metadata records (written first, so even a file whose writer was killed has them):
 
 - ``scenario``: the scenario configuration, string values (JSON for structured ones).
-- ``run``: ``trace_format`` (:data:`TRACE_FORMAT`), ``family``, ``trial``, ``seed``,
-  ``sample_period``, ``steps`` (expected, if known), ``time_unit`` and the list of
+- ``run``: ``trace_format`` (:data:`TRACE_FORMAT`, ``netsim-trace/2``), ``family``,
+  ``trial``, ``seed``, ``sample_period``, ``steps`` (expected, if known),
+  ``time_origin_ns`` and ``time_origin`` (ISO 8601), ``time_unit`` and the list of
   matrix attachments.
+- ``drop_reasons`` (written when a link first drops a message for a new reason, with
+  the table so far): ``LinkDropped.reason`` code -> reason text.
 - ``run_status`` (written by :meth:`TraceRecorder.close`): ``status`` =
   ``complete`` | ``interrupted`` (KeyboardInterrupt) | ``failed`` (other exception)
   | anything given to :meth:`TraceRecorder.set_status` (e.g. ``diverged``),
@@ -33,30 +36,21 @@ Attachments: each matrix as ``<name>.npy`` (numpy ``.npy`` bytes, media type
 ``application/x-npy``): ``A``, ``C_<i>``, ``Q``, ``R_<i>``, ``x0_mean``, ``x0_cov``,
 ``P`` (consensus weights), ``K_<i>``, ``L_<i>`` (gains), as given.
 
-Topics (schemas in :mod:`netsim.traces.schemas`, package ``netsim.trace``):
+Topics and messages: format 2, see :mod:`netsim.traces.schemas` and the checked-in
+``traces/netsim_trace_v2.proto`` (``/plant/state``, ``/sensor_<i>/measurement``,
+``/agent_<i>/estimate`` with ``error_norm``, ``/agent_<i>/update``,
+``/agent_<i>/freshness``, ``/link_<j>_<i>/sent``, ``.../delivered``, ``.../dropped``).
+Every field of every message is set, so protobuf writes it even when zero and the
+messages of a topic have equal lengths.
 
-====================================  ===================  =============================
-topic                                 type                 one message per
-====================================  ===================  =============================
-``/plant/state``                      ``PlantStep``        step: x_k
-``/sensor/<i>/measurement``           ``Measurement``      step and sensor: y^i_k
-``/link/<j>/<i>``                     ``MessageEvent``     message j -> i sent, delivered
-                                                           or dropped
-``/agent/<i>/estimate``               ``Estimate``         update: estimate, error,
-                                                           ``squared_error``,
-                                                           ``error_norm`` (plottable)
-``/agent/<i>/update``                 ``EstimatorUpdate``  update: per in-neighbour j the
-                                                           effective delay r_ij[k] and
-                                                           the time-stamp s_j it used
-====================================  ===================  =============================
-
-Times: ``log_time`` is the event's simulation time (plant/update at k * Ts; a sent
-message at its send time; a delivered one at its arrival time; a drop at the drop
-time), ``publish_time`` is the send time for link events and equals ``log_time``
-otherwise; both are integer nanoseconds of simulation time, ``round(t * 1e9)``.
-Messages are written in non-decreasing ``log_time`` order (the kernel calls the
-hooks in time order; the recorder checks). The MCAP ``sequence`` is the per-link
-sequence number for link events and the step otherwise.
+Times: ``log_time`` is ``time_origin_ns`` (default 2000-01-01T00:00:00Z, see
+:data:`netsim.traces.schemas.DEFAULT_TIME_ORIGIN_NS`) plus the event's simulation time
+(plant/update at k * Ts; a sent message at its send time; a delivered one at its
+arrival time; a drop at the drop time) in integer ns, ``round(t * 1e9)``;
+``publish_time`` is the origin plus the send time for link events and equals
+``log_time`` otherwise. Messages are written in non-decreasing ``log_time`` order (the
+kernel calls the hooks in time order; the recorder checks). The MCAP ``sequence`` is
+the per-link sequence number for link events and the step otherwise.
 
 Crash safety: the chunk in progress is closed and flushed to the OS every
 ``flush_every`` steps (and every ``flush_seconds`` of wall-clock time), so a killed
@@ -81,26 +75,25 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from google.protobuf import descriptor_pb2
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType
 from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.models.jsonsafe import json_default
-from netsim.traces.schemas import format1_file_descriptor_proto, format1_message_classes
-
-
-def message_classes():  # format 1 until the recorder writes format 2
-    return format1_message_classes()
-
-
-def schema_name(name):
-    return f"netsim.trace.{name}"
-
-
-def file_descriptor_set():
-    fds = descriptor_pb2.FileDescriptorSet()
-    fds.file.append(format1_file_descriptor_proto())
-    return fds
+from netsim.traces.schemas import (
+    DEFAULT_TIME_ORIGIN_NS,
+    DROP_REASONS_METADATA,
+    TRACE_FORMAT,
+    estimate_topic,
+    file_descriptor_set,
+    format_time_origin,
+    freshness_topic,
+    link_topic,
+    message_classes,
+    plant_topic,
+    schema_name,
+    sensor_topic,
+    update_topic,
+)
 
 __all__ = [
     "TRACE_FORMAT",
@@ -120,9 +113,6 @@ __all__ = [
     "freshness_topic",
 ]
 
-#: Value of ``run.trace_format``; the reader accepts files whose format starts with
-#: ``netsim-trace/``.
-TRACE_FORMAT = "netsim-trace/1"
 #: Media type of the ``.npy`` matrix attachments.
 NPY_MEDIA_TYPE = "application/x-npy"
 #: Largest backwards step in log_time (ns) silently absorbed (float rounding).
@@ -136,31 +126,6 @@ class TraceOrderError(RuntimeError):
 def to_ns(t: float) -> int:
     """Return simulation time ``t`` (in time units of Ts) as integer nanoseconds."""
     return int(round(float(t) * 1e9))
-
-
-def plant_topic() -> str:
-    return "/plant/state"
-
-
-def sensor_topic(i: int) -> str:
-    return f"/sensor/{int(i)}/measurement"
-
-
-def link_topic(sender: int, receiver: int) -> str:
-    """Topic of link sender -> receiver: ``/link/<sender>/<receiver>``."""
-    return f"/link/{int(sender)}/{int(receiver)}"
-
-
-def estimate_topic(agent: int) -> str:
-    return f"/agent/{int(agent)}/estimate"
-
-
-def update_topic(agent: int) -> str:
-    return f"/agent/{int(agent)}/update"
-
-
-def freshness_topic(agent: int) -> str:
-    return f"/agent/{int(agent)}/freshness"
 
 
 def trace_path(base: str | os.PathLike[str], family: str | None = None,
@@ -300,6 +265,9 @@ class TraceRecorder:
         Store each sent message's payload (the transmitted estimate).
     run_metadata : mapping str -> str, optional
         Extra entries of the ``run`` metadata record.
+    time_origin_ns : int
+        log_time of simulation time 0, ns since the Unix epoch (default
+        2000-01-01T00:00:00Z; 0 gives log_time = simulation time).
     """
 
     def __init__(
@@ -319,11 +287,18 @@ class TraceRecorder:
         compression: str = "zstd",
         record_payloads: bool = True,
         run_metadata: Mapping[str, str] | None = None,
+        time_origin_ns: int = DEFAULT_TIME_ORIGIN_NS,
     ) -> None:
         if flush_every < 1:
             raise ValueError(f"flush_every must be >= 1, got {flush_every}")
         if not sample_period > 0:
             raise ValueError(f"sample_period must be > 0, got {sample_period}")
+        if not 0 <= int(time_origin_ns) < 2**63:
+            raise ValueError(f"time_origin_ns must be in 0 .. 2**63 - 1, got {time_origin_ns}")
+        #: log_time of simulation time 0 (ns since the Unix epoch).
+        self.time_origin_ns = int(time_origin_ns)
+        #: Drop reason -> code of ``LinkDropped.reason`` (metadata ``drop_reasons``).
+        self.drop_reasons: dict[str, int] = {}
         self.path = Path(path)
         self.family = str(family)
         self.trial = int(trial)
@@ -362,8 +337,10 @@ class TraceRecorder:
                 "seed": "" if seed is None else str(seed),
                 "sample_period": repr(self.sample_period),
                 "steps": "" if steps is None else str(int(steps)),
-                "time_unit": "log_time/publish_time: integer ns of simulation time, "
-                             "round(t * 1e9), t = k * Ts",
+                "time_origin_ns": str(self.time_origin_ns),
+                "time_origin": format_time_origin(self.time_origin_ns),
+                "time_unit": "log_time/publish_time: time_origin_ns + integer ns of "
+                             "simulation time, round(t * 1e9), t = k * Ts",
                 "matrices": ",".join(matrices),
             }
             run.update({str(k): str(v) for k, v in (run_metadata or {}).items()})
@@ -386,7 +363,7 @@ class TraceRecorder:
             self._stream.close()
             raise
         self._channels: dict[str, int] = {}
-        self._last_log_time = 0
+        self._last_log_time = self.time_origin_ns
         self._last_flush = time.monotonic()
         self._state: np.ndarray | None = None
         self._state_step = -1
@@ -441,7 +418,7 @@ class TraceRecorder:
     # -- kernel observer hooks ----------------------------------------------------
 
     def on_plant(self, k: int, state: np.ndarray, measurements: Sequence[np.ndarray]) -> None:
-        """Record x_k on ``/plant/state`` and each y^i_k on ``/sensor/<i>/measurement``."""
+        """Record x_k on ``/plant/state`` and each y^i_k on ``/sensor_<i>/measurement``."""
         self._check_open()
         k = int(k)
         if k > 0 and (
@@ -451,13 +428,13 @@ class TraceRecorder:
         ):
             self.flush()
         t = k * self.sample_period
-        ns = to_ns(t)
-        self._state = np.array(state, dtype=float)
+        ns = self._ns(t)
+        self._state = np.array(state, dtype=float).ravel()
         self._state_step = k
         self.last_step = k
         c = self._classes
-        self._write(plant_topic(), "PlantStep",
-                    c["PlantStep"](step=k, time=t, state=self._state.tolist()), ns, ns, k)
+        self._write(plant_topic(), "PlantState",
+                    c["PlantState"](step=k, time=t, state=self._state.tolist()), ns, ns, k)
         for i, y in enumerate(measurements):
             msg = c["Measurement"](step=k, time=t, sensor=i,
                                    values=np.asarray(y, dtype=float).ravel().tolist())
@@ -465,14 +442,14 @@ class TraceRecorder:
 
     def on_update(self, agent: int, k: int, estimate: np.ndarray,
                   delays: Mapping[int, int]) -> None:
-        """Record agent i's estimate (``/agent/<i>/estimate``) and the effective
+        """Record agent i's estimate (``/agent_<i>/estimate``) and the effective
         delays r_ij[k] and time-stamps s_j = k - 1 - r_ij[k] it used
-        (``/agent/<i>/update``; r = -1 means i substituted its own estimate)."""
+        (``/agent_<i>/update``; r = -1 means i substituted its own estimate)."""
         self._check_open()
         agent, k = int(agent), int(k)
         t = k * self.sample_period
-        ns = to_ns(t)
-        x_hat = np.asarray(estimate, dtype=float)
+        ns = self._ns(t)
+        x_hat = np.asarray(estimate, dtype=float).ravel()
         c = self._classes
         if self._state is not None and self._state_step == k:
             error = x_hat - self._state
@@ -482,20 +459,22 @@ class TraceRecorder:
                 "error_norm": math.sqrt(sq) if sq >= 0 else math.nan,
             }
         else:  # no true state for this step (never in the kernel's event order)
-            fields = {"squared_error": math.nan, "error_norm": math.nan}
+            fields = {"error": [math.nan] * x_hat.size, "squared_error": math.nan,
+                      "error_norm": math.nan}
         self._write(estimate_topic(agent), "Estimate",
                     c["Estimate"](step=k, time=t, agent=agent, estimate=x_hat.tolist(),
                                   **fields), ns, ns, k)
         neighbours = sorted(int(j) for j in delays)
         r = [int(delays[j]) for j in neighbours]
-        used = [k - 1 - d if d >= 0 else -1 for d in r]
+        used = [float(k - 1 - d) if d >= 0 else -1.0 for d in r]
+        r = [float(d) for d in r]
         self._write(update_topic(agent), "EstimatorUpdate",
                     c["EstimatorUpdate"](step=k, time=t, agent=agent, neighbours=neighbours,
                                          effective_delay=r, used_timestamp=used), ns, ns, k)
 
     def on_freshness(self, agent: int, k: int, freshness: Any, adopted_from: Any,
                      substate_dims: Any) -> None:
-        """Record an AoI agent's freshness indices (``/agent/<i>/freshness``).
+        """Record an AoI agent's freshness indices (``/agent_<i>/freshness``).
 
         ``freshness[j]`` is the age of agent i's information on substate j relative
         to its source (-1 for the dummy value omega), ``adopted_from[j]`` the
@@ -503,16 +482,16 @@ class TraceRecorder:
         self._check_open()
         agent, k = int(agent), int(k)
         t = k * self.sample_period
-        ns = to_ns(t)
+        ns = self._ns(t)
         index = [int(v) for v in freshness]
         dims = [int(d) for d in substate_dims]
         live = [v for v, d in zip(index, dims, strict=False) if d > 0]
         max_index = -1 if any(v < 0 for v in live) or not live else max(live)
         self._write(freshness_topic(agent), "Freshness",
                     self._classes["Freshness"](
-                        step=k, time=t, agent=agent, index=index,
-                        adopted_from=[int(v) for v in adopted_from], substate_dim=dims,
-                        max_index=max_index), ns, ns, k)
+                        step=k, time=t, agent=agent, index=[float(v) for v in index],
+                        adopted_from=[float(int(v)) for v in adopted_from],
+                        substate_dim=[float(d) for d in dims], max_index=max_index), ns, ns, k)
 
     def on_sent(self, message: Any) -> None:
         """Record a message leaving its sender (log_time = send time)."""
@@ -605,12 +584,22 @@ class TraceRecorder:
         if self.closed:
             raise RuntimeError(f"trace recorder for {self.path} is closed")
 
+    def _ns(self, t: float) -> int:
+        return self.time_origin_ns + to_ns(t)
+
+    def _drop_code(self, reason: str) -> int:
+        code = self.drop_reasons.get(reason)
+        if code is None:  # a new reason: write the table so far (readers take the union)
+            code = self.drop_reasons[reason] = len(self.drop_reasons) + 1
+            self._writer.add_metadata(DROP_REASONS_METADATA, {
+                str(c): r for r, c in self.drop_reasons.items()})
+        return code
+
     def _link_event(self, message: Any, event: str, when: float, *, payload: bool = False,
                     accepted: bool = False, reason: str = "") -> None:
         sent_step = int(message.sent_step)
         d = int(message.delay_steps)
         fields: dict[str, Any] = {
-            "event": event,
             "sender": int(message.sender),
             "receiver": int(message.receiver),
             "sent_step": sent_step,
@@ -619,15 +608,21 @@ class TraceRecorder:
             "send_time": float(message.send_time),
             "arrival_time": float(message.arrival_time),
             "delay_steps": d,
-            "accepted": accepted,
-            "reason": reason,
-            "event_time": float(when),
         }
-        if payload and message.payload is not None:
-            fields["payload"] = np.asarray(message.payload, dtype=float).ravel().tolist()
-        msg = self._classes["MessageEvent"](**fields)
-        self._write(link_topic(message.sender, message.receiver), "MessageEvent", msg,
-                    to_ns(when), to_ns(message.send_time), int(message.sequence))
+        if event == "sent":
+            type_name = "LinkSent"
+            fields["payload"] = ([] if not payload or message.payload is None else
+                                 np.asarray(message.payload, dtype=float).ravel().tolist())
+        elif event == "delivered":
+            type_name = "LinkDelivered"
+            fields["accepted"] = int(bool(accepted))
+        else:
+            type_name = "LinkDropped"
+            fields["reason"] = self._drop_code(reason)
+            fields["drop_time"] = float(when)
+        msg = self._classes[type_name](**fields)
+        self._write(link_topic(message.sender, message.receiver, event), type_name, msg,
+                    self._ns(when), self._ns(message.send_time), int(message.sequence))
 
     def _write(self, topic: str, type_name: str, msg: Any, log_time: int,
                publish_time: int, sequence: int) -> None:
@@ -648,7 +643,8 @@ class TraceRecorder:
             self._channels[topic] = channel
         self._writer.add_message(
             channel_id=channel, log_time=log_time, data=msg.SerializeToString(),
-            publish_time=max(0, publish_time), sequence=sequence & 0xFFFFFFFF,
+            publish_time=max(self.time_origin_ns, publish_time),
+            sequence=sequence & 0xFFFFFFFF,
         )
         self.counts[topic] = self.counts.get(topic, 0) + 1
         self.messages_written += 1

@@ -11,7 +11,7 @@ reruns
 
 from the recorded e_0, with the noise recorded in the trace: process noise
 nu_k = x_k - A x_{k-1} (from ``/plant/state``) and measurement noise
-zeta^i_k = y^i_k - C_i x_k (from ``/sensor/<i>/measurement``). The augmentation depth
+zeta^i_k = y^i_k - C_i x_k (from ``/sensor_<i>/measurement``). The augmentation depth
 tau is the largest effective delay in the trace. Where agent i substituted its own
 estimate for j's (r_ij[k] = -1: nothing had arrived from j yet), the weight p_ij goes
 on agent i's own delay-0 term, as the estimator does.

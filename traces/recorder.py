@@ -77,8 +77,8 @@ from typing import Any
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType
-from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.models.jsonsafe import json_default
+from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.traces.schemas import (
     DEFAULT_TIME_ORIGIN_NS,
     DROP_REASONS_METADATA,
@@ -623,6 +623,38 @@ class TraceRecorder:
         msg = self._classes[type_name](**fields)
         self._write(link_topic(message.sender, message.receiver, event), type_name, msg,
                     self._ns(when), self._ns(message.send_time), int(message.sequence))
+
+    def add_bulk(self, type_name: str, topics: Sequence[str], topic_index: np.ndarray,
+                 log_time: np.ndarray, publish_time: np.ndarray, sequence: np.ndarray,
+                 rows: np.ndarray) -> None:
+        """Write many messages of one type at once (the vectorised engine's path,
+        :func:`netsim.vectrace.write_trial`): message m on ``topics[topic_index[m]]``,
+        payload ``rows[m]`` (shape (m, L) uint8, e.g. from
+        :class:`netsim.traces.bulkproto.BulkEncoder`), absolute ns times. Channels are
+        registered on first use; counts are kept as for single messages."""
+        self._check_open()
+        if not len(log_time):
+            return
+        ids = np.empty(len(topics), dtype=np.uint16)
+        used = np.bincount(topic_index, minlength=len(topics))
+        for t, topic in enumerate(topics):
+            if used[t]:
+                ids[t] = self._channel(topic, type_name)
+                self.counts[topic] = self.counts.get(topic, 0) + int(used[t])
+        self._writer.add_messages(ids[topic_index], log_time, rows,
+                                  publish_time=publish_time, sequence=sequence)
+        self.messages_written += len(log_time)
+        self._last_log_time = max(self._last_log_time, int(np.max(log_time)))
+
+    def _channel(self, topic: str, type_name: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf,
+                schema_id=self._schema_ids[type_name],
+            )
+            self._channels[topic] = channel
+        return channel
 
     def _write(self, topic: str, type_name: str, msg: Any, log_time: int,
                publish_time: int, sequence: int) -> None:

@@ -25,6 +25,20 @@ Then it writes that same message set, in one process, with:
   compressed with the same zstd compressor and level and written to a file: the cost
   no MCAP writer with this compression can go below.
 
+A second table, **traced run**, measures what tracing adds to a run of one trial
+(``compensated`` estimator, ``--run-steps`` steps, vectorised engine): the untraced
+trial (``netsim.runner.run_trials``, what ``netsim run`` does without ``--trace``)
+against the traced one (``run_batch(record_estimates=True)`` and the runner's
+``_traced_trial``, i.e. the recorder's metadata and attachments plus
+:func:`netsim.vectrace.write_trial`, what ``netsim run --trace`` does), and the traced
+trial through the per-event observer replay (:func:`netsim.vectrace.replay_trial`, the
+path before the bulk writer) for comparison. N = 4 is the built-in
+``lcsys2022-heterogeneous`` scenario; other N a synthetic one (random digraph, mean
+in-degree about 3, n = 6, asynchronous delays tau = 3, given gains K_i = 0.1 I). The
+delay analytics ``netsim run`` also computes (tau*, exact spectral radius) are left
+out of both sides: at N = 32 they take seconds and would hide the ratio. Goal: traced
+/ untraced <= 1.5.
+
 Every writer uses 1 MiB chunks (``--chunk-size``) and zstd at ``--level``; times are the
 best of ``--repeat`` runs (``time.perf_counter``, file closed and flushed to the OS
 inside the timed region); messages/s = messages / time. Ratios are against the other
@@ -322,13 +336,17 @@ def write_floor(path: str, chunks: list[np.ndarray], level: int) -> None:
             f.write(cctx.compress(chunk))
 
 
-def best(fn: Callable[[], None], repeat: int) -> float:
-    times = []
+def best(fn: Callable[[], None], repeat: int, cpu: list[float] | None = None) -> float:
+    """Best wall time of ``repeat`` calls (the best process CPU time goes to ``cpu``)."""
+    times, cpus = [], []
     for _ in range(repeat):
         gc.collect()
-        start = time.perf_counter()
+        start, start_cpu = time.perf_counter(), time.process_time()
         fn()
         times.append(time.perf_counter() - start)
+        cpus.append(time.process_time() - start_cpu)
+    if cpu is not None:
+        cpu.append(min(cpus))
     return min(times)
 
 
@@ -392,6 +410,89 @@ def _check_same(a: str, b: str) -> bool:
     return read(a) == read(b)
 
 
+def run_scenario(n_agents: int, seed: int = 1):
+    """The scenario of the traced-run table (see the module docstring)."""
+    from netsim.models.scenario import parse_scenario, resolve_scenario
+
+    if n_agents == 4:
+        return resolve_scenario("lcsys2022-heterogeneous")
+    n = 6
+    rng = np.random.default_rng([seed, n_agents, n])
+    A = rng.normal(size=(n, n))
+    A /= np.max(np.abs(np.linalg.eigvals(A)))
+    C = rng.normal(size=(n_agents, n))
+    C /= np.linalg.norm(C, axis=1, keepdims=True)
+    return parse_scenario({
+        "name": f"trace-N{n_agents}", "run": {"seed": seed, "divergence_threshold": 1e12},
+        "plant": {"A": A.tolist(), "C": [[row.tolist()] for row in C], "Q": 0.004,
+                  "R": 0.004, "x0_cov": 1.0},
+        "network": {"topology": "random", "agents": n_agents, "seed": seed,
+                    "weights": "random", "edge_probability": min(1.0, 3.1 / (n_agents - 1))},
+        "delays": {"model": "asynchronous", "tau": 3, "seed": seed},
+        "gains": {"method": "given", "K": [(0.1 * np.eye(n)).tolist()] * n_agents},
+    }, "trace_throughput")
+
+
+def measure_run(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str, Any]:
+    """Untraced vs traced (bulk; per-event replay) trial of the vectorised engine."""
+    import warnings
+
+    from netsim.models.seeding import child_sequence
+    from netsim.traces.recorder import TraceRecorder
+
+    from netsim.runner import _traced_trial, family_of, run_trials, scenario_gains
+    from netsim.vectorised import run_batch
+    from netsim.vectrace import replay_trial
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scenario = run_scenario(n_agents)
+        gains = scenario_gains(scenario)
+    fam = family_of("compensated")
+    seed = scenario.seed
+    seeds = [child_sequence(seed, "trial", 0)]
+    path = os.path.join(folder, f"run{n_agents}.mcap")
+
+    def untraced() -> None:
+        run_trials(scenario, fam, gains, seeds, steps, engine="vectorised",
+                   record_estimates=False, record_delays=False)
+
+    def traced() -> None:
+        if os.path.exists(path):
+            os.remove(path)
+        batch = run_batch(scenario, fam.name, gains, seeds, steps, record_estimates=True)
+        _traced_trial(scenario, fam, gains, seed, 0, steps, path, True, None, batch=batch,
+                      batch_trial=0)
+
+    def replayed() -> None:
+        if os.path.exists(path):
+            os.remove(path)
+        batch = run_batch(scenario, fam.name, gains, seeds, steps, record_estimates=True)
+        with TraceRecorder.for_run(path, scenario, gains, fam.name, 0, seed=seed,
+                                   steps=steps) as recorder:
+            replay_trial(batch, 0, scenario, fam.name, recorder)
+
+    seconds, cpu = {}, {}
+    untraced()  # warm up (imports, caches)
+    for name, fn in [("untraced", untraced), ("traced", traced), ("traced_replay", replayed)]:
+        spent: list[float] = []
+        seconds[name] = best(fn, repeat, spent)
+        cpu[name] = spent[0]
+    traced()
+    from mcap.reader import make_reader
+
+    with open(path, "rb") as f:
+        messages = make_reader(f, validate_crcs=True).get_summary().statistics.message_count
+    print(f"  run N = {n_agents}: " + ", ".join(f"{k} {v:.3f} s" for k, v in seconds.items()),
+          file=sys.stderr)
+    return {"n_agents": n_agents, "steps": steps, "messages": messages,
+            "seconds": seconds, "cpu_seconds": cpu,
+            "traced_over_untraced": seconds["traced"] / seconds["untraced"],
+            "traced_over_untraced_cpu": cpu["traced"] / cpu["untraced"],
+            "replay_over_untraced": seconds["traced_replay"] / seconds["untraced"],
+            "goal_traced_at_most_1_5x": seconds["traced"] <= 1.5 * seconds["untraced"]}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--sizes", default="4,32", help="network sizes N (default 4,32)")
@@ -403,6 +504,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--level", type=int, default=3, help="zstd level (default 3)")
     parser.add_argument("--repeat", type=int, default=3, help="best of (default 3)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--run-steps", type=int, default=500,
+                        help="steps of the traced-run table (default 500; 0 skips it)")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = parser.parse_args(argv)
     try:
@@ -416,9 +519,11 @@ def main(argv: list[str] | None = None) -> int:
     classes, fds, source = message_types()
     with tempfile.TemporaryDirectory() as folder:
         results = [measure(n, args, classes, fds, folder) for n in sizes]
+        runs = ([measure_run(n, args.run_steps, args.repeat, folder) for n in sizes]
+                if args.run_steps > 0 else [])
     out = {"benchmark": "trace_throughput", "python": platform.python_version(),
            "schemas": source, "chunk_size": args.chunk_size, "zstd_level": args.level,
-           "repeat": args.repeat, "sizes": results}
+           "repeat": args.repeat, "sizes": results, "traced_run": runs}
     if args.json:
         print(json.dumps(out))
         return 0
@@ -434,10 +539,24 @@ def main(argv: list[str] | None = None) -> int:
               + " ".join(f"{rate[n]:>14,.0f}" for n in names)
               + f" {q['bulk_over_mcap_protobuf']:>8.1f} {q['bulk_over_raw_mcap']:>8.1f}"
               f" {q['floor_over_bulk']:>10.2f}")
+    if runs:
+        print(f"\ntraced run of one trial ({args.run_steps} steps, compensated, vectorised; "
+              "seconds, best of {args.repeat})".replace("{args.repeat}", str(args.repeat)))
+        print(f"{'N':>4} {'messages':>9} {'untraced':>9} {'traced':>9} {'ratio':>6} "
+              f"{'replay':>9} {'ratio':>6} {'cpu ratio':>9}")
+        for r in runs:
+            sec = r["seconds"]
+            print(f"{r['n_agents']:>4} {r['messages']:>9} {sec['untraced']:>9.3f} "
+                  f"{sec['traced']:>9.3f} {r['traced_over_untraced']:>6.2f} "
+                  f"{sec['traced_replay']:>9.3f} {r['replay_over_untraced']:>6.2f} "
+                  f"{r['traced_over_untraced_cpu']:>9.2f}")
     for r in results:
         goals = ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in r["goals"].items())
         print(f"N = {r['n_agents']}: {goals}; bulk file holds the raw writer's messages: "
               f"{'yes' if r['same_messages_as_raw_mcap'] else 'NO'}")
+    for r in runs:
+        print(f"N = {r['n_agents']}: traced run at most 1.5x the untraced: "
+              f"{'yes' if r['goal_traced_at_most_1_5x'] else 'NO'}")
     return 0
 
 

@@ -238,6 +238,8 @@ def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
 
 # -- bulk trace writing -----------------------------------------------------------------
 
+#: Least chunk size (uncompressed bytes) of the bulk path.
+_BULK_CHUNK = 1 << 20
 _ENCODERS: dict[tuple[str, tuple[tuple[str, int], ...]], Any] = {}
 
 
@@ -253,23 +255,25 @@ def _encoder(type_name: str, lengths: dict[str, int]) -> Any:
 
 
 class _Group:
-    """Messages of one type and one payload length, in their topics' order."""
+    """Messages of one type and one payload length, in their topics' order (``when``
+    non-decreasing); encoded when written."""
 
     __slots__ = ("type_name", "topics", "topic", "when", "log_time", "publish_time",
-                 "sequence", "rows")
+                 "sequence", "columns", "lengths")
 
     def __init__(self, type_name: str, topics: list[str], topic: np.ndarray, when: np.ndarray,
                  log_time: np.ndarray, publish_time: np.ndarray, sequence: np.ndarray,
                  columns: dict[str, Any], lengths: dict[str, int],
                  order: np.ndarray | None = None) -> None:
-        rows = _encoder(type_name, lengths).encode(columns, n=len(when))
         if order is not None:
-            topic, when, log_time, publish_time, sequence, rows = (
+            topic, when, log_time, publish_time, sequence = (
                 topic[order], when[order], log_time[order], publish_time[order],
-                sequence[order], rows[order])
+                sequence[order])
+            columns = {key: v[order] if np.ndim(v) and np.shape(v)[0] == len(order) else v
+                       for key, v in columns.items()}
         self.type_name, self.topics, self.topic, self.when = type_name, topics, topic, when
-        self.log_time, self.publish_time, self.sequence, self.rows = (
-            log_time, publish_time, sequence, rows)
+        self.log_time, self.publish_time, self.sequence = log_time, publish_time, sequence
+        self.columns, self.lengths = columns, lengths
 
 
 def _ns(origin: int, t: np.ndarray) -> np.ndarray:
@@ -278,14 +282,18 @@ def _ns(origin: int, t: np.ndarray) -> np.ndarray:
             + np.int64(origin)).astype(np.uint64)
 
 
+_NO_DELAYS = {"neighbours": 0, "effective_delay": 0, "used_timestamp": 0}
+
+
 def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
                 recorder: Any) -> None:
     """Write one trial's trace from the batch arrays, in bulk (no observer calls).
 
     The messages are those :func:`replay_trial` makes the recorder write, with the same
-    topics, fields, times and per-topic order; they are encoded per type at once
-    (:class:`netsim.traces.bulkproto.BulkEncoder`) and written per window of steps (one
-    chunk each) through :meth:`netsim.traces.recorder.TraceRecorder.add_bulk`. Within a
+    topics, fields, times and per-topic order; each type's messages are encoded at once
+    straight into MCAP Message records (:meth:`netsim.traces.bulkproto.BulkEncoder.records`)
+    and written per window of steps (one chunk each, flushed) through the recorder's
+    bulk writer (:meth:`netsim.traces.recorder.TraceRecorder.bulk_channels`). Within a
     window the file holds the messages grouped by type, so messages of different topics
     at the same log_time may be in another order than the kernel's (each topic's are
     not); the message indexes list every topic in log_time order.
@@ -334,18 +342,30 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     t_k = k * ts
     ns_k = _ns(origin, t_k)
     u_k = k.astype(np.uint32)
-    zeros = np.zeros(end + 1, dtype=np.int64)
     x = states[:end + 1].reshape(end + 1, -1)
-    groups.append(_Group("PlantState", [plant_topic()], zeros, k.astype(float), ns_k, ns_k,
-                         u_k, {"step": k, "time": t_k, "state": x}, {"state": x.shape[1]}))
+    groups.append(_Group("PlantState", [plant_topic()], np.zeros(end + 1, dtype=np.int64),
+                         k.astype(float), ns_k, ns_k, u_k,
+                         {"step": k, "time": t_k, "state": x}, {"state": x.shape[1]}))
+
+    def per_step(members: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (k, member) for every step, k major: step and member index arrays."""
+        return np.repeat(k, len(members)), np.tile(np.asarray(members, dtype=np.int64),
+                                                   end + 1)
+
+    # measurements: sensors with the same output count together
+    widths: dict[int, list[int]] = {}
     for i, y in enumerate(ys):
-        values = np.asarray(y[:end + 1], dtype=float).reshape(end + 1, -1)
-        groups.append(_Group("Measurement", [sensor_topic(i)], zeros, k.astype(float), ns_k,
-                             ns_k, u_k, {"step": k, "time": t_k, "sensor": i,
-                                         "values": values}, {"values": values.shape[1]}))
+        widths.setdefault(int(np.prod(np.shape(y)[1:], dtype=np.int64)), []).append(i)
+    sensor_topics = [sensor_topic(i) for i in range(len(ys))]
+    for m, members in widths.items():
+        kk, ii = per_step(members)
+        values = np.stack([np.asarray(ys[i][:end + 1], dtype=float).reshape(end + 1, m)
+                           for i in members], axis=1).reshape(-1, m)
+        groups.append(_Group("Measurement", sensor_topics, ii, kk.astype(float), ns_k[kk],
+                             ns_k[kk], u_k[kk], {"step": kk, "time": t_k[kk], "sensor": ii,
+                                                 "values": values}, {"values": m}))
     # estimates: rows (k, i), k major
-    kk = np.repeat(k, n_agents)
-    ii = np.tile(np.arange(n_agents), end + 1)
+    kk, ii = per_step(list(range(n_agents)))
     est = estimates[:end + 1].reshape(-1, n)
     error = est - x[kk]
     sq = np.einsum("ij,ij->i", error, error)
@@ -361,55 +381,54 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     if schedule is None:  # centralised filter: no links, no delays
         groups.append(_Group("EstimatorUpdate", update_topics, ii, kk.astype(float), ns_kk,
                              ns_kk, u_kk, {"step": kk, "time": t_kk, "agent": ii},
-                             {"neighbours": 0, "effective_delay": 0, "used_timestamp": 0}))
+                             _NO_DELAYS))
         _write_groups(recorder, groups, end)
         return
     t = trial
-    links = schedule.links
-    link_index = {link: q for q, link in enumerate(links)}
+    link_index = {link: q for q, link in enumerate(schedule.links)}
     send = np.asarray(schedule.send_steps)
     n_sends = int(np.searchsorted(send, end, side="right"))
     neighbours = _neighbours(np.asarray(scenario.weights))
     is_update = np.zeros(end + 1, dtype=bool)
     up = np.asarray(batch.updated, dtype=np.int64)
     is_update[up[up <= end]] = True
-    # updates without delays (steps where the estimators did not update)
-    rest = ~is_update[kk]
+    # updates without delays: steps where the estimators did not update, agents
+    # without in-neighbours
+    lonely = [i for i in range(n_agents) if not neighbours[i]]
+    rest = ~is_update[kk] | np.isin(ii, lonely)
     if rest.any():
         groups.append(_Group("EstimatorUpdate", update_topics, ii[rest],
                              kk[rest].astype(float), ns_kk[rest], ns_kk[rest], u_kk[rest],
                              {"step": kk[rest], "time": t_kk[rest], "agent": ii[rest]},
-                             {"neighbours": 0, "effective_delay": 0, "used_timestamp": 0}))
+                             _NO_DELAYS))
     ku = np.flatnonzero(is_update)
     chosen = selection.chosen
+    degrees: dict[int, list[int]] = {}
     for i in range(n_agents):
-        nb = neighbours[i]
-        if not ku.size:
-            break
-        if not nb:
-            groups.append(_Group("EstimatorUpdate", update_topics, np.full(ku.size, i),
-                                 ku.astype(float), ns_k[ku], ns_k[ku], u_k[ku],
-                                 {"step": ku, "time": t_k[ku], "agent": i},
-                                 {"neighbours": 0, "effective_delay": 0, "used_timestamp": 0}))
-            continue
-        r = np.full((ku.size, len(nb)), -1, dtype=np.int64)
-        for c, j in enumerate(nb):
-            l_ = link_index.get((j, i), -1)
-            if l_ < 0:
-                continue
-            held = np.asarray(chosen[ku, l_, t], dtype=np.int64)
-            held = np.where(ku > 0, held, -1)
-            ok = held >= 0
-            r[ok, c] = ku[ok] - 1 - send[held[ok]]
-        used = np.where(r >= 0, ku[:, None] - 1 - r, -1)
-        groups.append(_Group("EstimatorUpdate", update_topics, np.full(ku.size, i),
-                             ku.astype(float), ns_k[ku], ns_k[ku], u_k[ku],
-                             {"step": ku, "time": t_k[ku], "agent": i,
-                              "neighbours": np.asarray(nb, dtype=float),
-                              "effective_delay": r.astype(float),
-                              "used_timestamp": used.astype(float)},
-                             {"neighbours": len(nb), "effective_delay": len(nb),
-                              "used_timestamp": len(nb)}))
+        if neighbours[i]:
+            degrees.setdefault(len(neighbours[i]), []).append(i)
+    for d, members in degrees.items() if ku.size else ():
+        # r[u, a, c]: effective delay of agent members[a] on its c-th in-neighbour
+        r = np.full((ku.size, len(members), d), -1, dtype=np.int64)
+        for a, i in enumerate(members):
+            for c, j in enumerate(neighbours[i]):
+                l_ = link_index.get((j, i), -1)
+                if l_ < 0:
+                    continue
+                held = np.where(ku > 0, np.asarray(chosen[ku, l_, t], dtype=np.int64), -1)
+                ok = held >= 0
+                r[ok, a, c] = ku[ok] - 1 - send[held[ok]]
+        used = np.where(r >= 0, ku[:, None, None] - 1 - r, -1)
+        kr = np.repeat(ku, len(members))
+        ir = np.tile(np.asarray(members, dtype=np.int64), ku.size)
+        nb = np.asarray([neighbours[i] for i in members], dtype=float)
+        groups.append(_Group("EstimatorUpdate", update_topics, ir, kr.astype(float), ns_k[kr],
+                             ns_k[kr], u_k[kr],
+                             {"step": kr, "time": t_k[kr], "agent": ir,
+                              "neighbours": np.tile(nb, (ku.size, 1)),
+                              "effective_delay": r.reshape(-1, d).astype(float),
+                              "used_timestamp": used.reshape(-1, d).astype(float)},
+                             {"neighbours": d, "effective_delay": d, "used_timestamp": d}))
     if n_sends:
         _link_groups(groups, recorder, schedule, selection, t, n_sends, end, estimates, ts,
                      origin, link_topic)
@@ -503,22 +522,40 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
 
 
 def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
-    """Write the groups window by window (about one chunk each), flushing each."""
-    writer = recorder._writer
-    chunk = int(getattr(writer, "chunk_size", 1 << 20))
-    total = sum(g.rows.nbytes + 31 * len(g.when) for g in groups)
+    """Write the groups window by window (about one chunk each), flushing each: every
+    group is encoded once into Message records, each window adds a slice of them."""
+    writer = recorder.writer
+    # windows of about one chunk, at least _BULK_CHUNK bytes (the whole trial is
+    # written in well under a second, so larger chunks cost no crash safety; fewer
+    # windows, fewer writes)
+    chunk = max(int(writer.chunk_size), _BULK_CHUNK)
+    writer.chunk_size = chunk
+    encoders = [_encoder(g.type_name, g.lengths) for g in groups]
+    total = sum((e.payload_length + 31) * len(g.when) for g, e in zip(groups, encoders,
+                                                                       strict=True))
     per_step = max(1.0, total / (end + 1))
     window = max(1, int(chunk // per_step))
     edges = np.arange(0, end + 1 + window, window, dtype=float)
     edges[-1] = np.inf
-    cuts = [np.searchsorted(g.when, edges, side="left") for g in groups]
+    packed = []
+    for g, encoder in zip(groups, encoders, strict=True):
+        if not len(g.when):
+            continue
+        ids = recorder.bulk_channels(g.type_name, g.topics, g.topic)[g.topic]
+        records, _ = encoder.records(g.columns, ids, g.sequence, g.log_time, g.publish_time,
+                                     n=len(g.when))
+        size = 31 + encoder.payload_length
+        cuts = np.searchsorted(g.when, edges, side="left")
+        packed.append((ids, g.log_time, records, size, cuts))
+        recorder._last_log_time = max(recorder._last_log_time, int(g.log_time.max()))
     for w in range(len(edges) - 1):
         if w:
             interrupt.check()
-        for g, c in zip(groups, cuts, strict=True):
-            lo, hi = int(c[w]), int(c[w + 1])
+        for ids, log_time, records, size, cuts in packed:
+            lo, hi = int(cuts[w]), int(cuts[w + 1])
             if hi > lo:
-                recorder.add_bulk(g.type_name, g.topics, g.topic[lo:hi], g.log_time[lo:hi],
-                                  g.publish_time[lo:hi], g.sequence[lo:hi], g.rows[lo:hi])
+                writer.add_records(records[lo * size:hi * size],
+                                   np.arange(hi - lo, dtype=np.int64) * size,
+                                   ids[lo:hi], log_time[lo:hi])
         recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 2 < len(edges) else end
         recorder.flush()

@@ -119,3 +119,19 @@ def test_missing_columns_are_zero_and_unsupported_fields_are_named():
         BulkEncoder(pool.FindMessageTypeByName("bad.Bad"))
     with pytest.raises(ValueError, match="element count"):
         BulkEncoder(_message_class("proto3", [], REPEATED, "NoLen").DESCRIPTOR)
+
+
+def test_records_equal_message_records_of_the_rows():
+    from netsim.traces.bulkmcap import message_records
+
+    rng = np.random.default_rng(3)
+    cls = _message_class("proto2", FIXED, REPEATED, "Records")
+    encoder = BulkEncoder(cls.DESCRIPTOR, {name: c for name, _, c in REPEATED})
+    n = 50
+    cols = _columns(rng, n, FIXED, REPEATED)
+    head = (rng.integers(0, 9, n), rng.integers(0, 2**32, n, dtype=np.uint64),
+            rng.integers(0, 2**63, n, dtype=np.uint64), rng.integers(0, 2**63, n, dtype=np.uint64))
+    records, starts = encoder.records(cols, *head)
+    expected, expected_starts = message_records(*head, encoder.encode(cols))
+    assert records.tobytes() == expected.tobytes()
+    assert np.array_equal(starts, expected_starts)

@@ -33,6 +33,7 @@ registers itself with :mod:`atexit` for an interpreter that exits without closin
 from __future__ import annotations
 
 import atexit
+import functools
 import os
 import struct
 import weakref
@@ -118,6 +119,11 @@ def _column(value: Any, n: int, dtype: str, name: str) -> np.ndarray:
     return array.astype(dtype, copy=False)
 
 
+@functools.cache
+def _record_dtype(width: int) -> np.dtype:
+    return np.dtype(MESSAGE_HEADER_DTYPE.descr + [("data", "u1", (width,))])
+
+
 def message_records(
     channel_id: Any,
     sequence: Any,
@@ -150,7 +156,7 @@ def message_records(
         if rows.ndim != 2:
             raise ValueError(f"payloads: expected a 2-D uint8 array, got shape {rows.shape}")
         n, width = rows.shape
-        dtype = np.dtype(MESSAGE_HEADER_DTYPE.descr + [("data", "u1", (width,))])
+        dtype = _record_dtype(width)
         out = np.empty(n, dtype=dtype)
         out["opcode"] = OP_MESSAGE
         out["length"] = _FIXED + width
@@ -501,6 +507,30 @@ class BulkMcapWriter:
         publish = log_time if publish_time is None else publish_time
         records, starts = message_records(channel, sequence, log_time, publish, payloads,
                                           offsets)
+        self.add_records(records, starts, channel, log_time)
+
+    def add_records(self, records: np.ndarray, starts: np.ndarray, channel_id: np.ndarray,
+                    log_time: np.ndarray) -> None:
+        """Append Message records packed beforehand by :func:`message_records`.
+
+        Parameters
+        ----------
+        records : numpy.ndarray, shape (total_bytes,), uint8
+        starts : numpy.ndarray, shape (n,), int64
+            Offset of each record in ``records`` (``starts[0] == 0``).
+        channel_id : numpy.ndarray, shape (n,), uint16
+            The records' channels (as written in them).
+        log_time : numpy.ndarray, shape (n,), uint64
+            The records' log times (as written in them).
+        """
+        self._check_open()
+        channel = np.asarray(channel_id, dtype=np.uint16)
+        log_time = np.asarray(log_time, dtype=np.uint64)
+        n = starts.shape[0]
+        if n == 0:
+            return
+        if int(channel.max()) >= len(self._channels):
+            raise ValueError(f"channel_id: {int(channel.max())} was never added")
         counts = np.bincount(channel)
         for ch in np.flatnonzero(counts).tolist():
             self._counts[ch] += int(counts[ch])
@@ -570,11 +600,21 @@ class BulkMcapWriter:
         chunk = self._chunk
         if chunk.count == 0:
             return
-        content = chunk.content()
-        crc = zlib.crc32(content)
-        compressed = self._cctx.compress(content) if self._cctx is not None else content
+        # a few large pieces (bulk) are compressed as a stream, without joining them
+        # first; many small ones (per-event messages) are joined
+        pieces = chunk.pieces if len(chunk.pieces) <= 64 else [chunk.content()]
+        pieces = [p if isinstance(p, bytes) else memoryview(p) for p in pieces]
+        size = chunk.size
+        crc = 0
+        for piece in pieces:
+            crc = zlib.crc32(piece, crc)
+        if self._cctx is not None:
+            stream = self._cctx.compressobj(size=size)
+            compressed = b"".join([stream.compress(p) for p in pieces] + [stream.flush()])
+        else:
+            compressed = b"".join(pieces)
         start, end = int(chunk.start_time), int(chunk.end_time)
-        body = (struct.pack("<QQQI", start, end, len(content), crc) + _string(self.compression)
+        body = (struct.pack("<QQQI", start, end, size, crc) + _string(self.compression)
                 + struct.pack("<Q", len(compressed)))
         head = struct.pack("<BQ", OP_CHUNK, len(body) + len(compressed))
         chunk_start = self._position
@@ -588,7 +628,7 @@ class BulkMcapWriter:
             "<QQQQ", start, end, chunk_start, chunk_length)
             + struct.pack("<I", len(offsets_map)) + offsets_map
             + struct.pack("<Q", self._position - index_start) + _string(self.compression)
-            + struct.pack("<QQ", len(compressed), len(content))))
+            + struct.pack("<QQ", len(compressed), size)))
         self.message_count += chunk.count
         self.chunk_count += 1
         if self._start_time is None or start < self._start_time:

@@ -624,27 +624,27 @@ class TraceRecorder:
         self._write(link_topic(message.sender, message.receiver, event), type_name, msg,
                     self._ns(when), self._ns(message.send_time), int(message.sequence))
 
-    def add_bulk(self, type_name: str, topics: Sequence[str], topic_index: np.ndarray,
-                 log_time: np.ndarray, publish_time: np.ndarray, sequence: np.ndarray,
-                 rows: np.ndarray) -> None:
-        """Write many messages of one type at once (the vectorised engine's path,
-        :func:`netsim.vectrace.write_trial`): message m on ``topics[topic_index[m]]``,
-        payload ``rows[m]`` (shape (m, L) uint8, e.g. from
-        :class:`netsim.traces.bulkproto.BulkEncoder`), absolute ns times. Channels are
-        registered on first use; counts are kept as for single messages."""
+    @property
+    def writer(self) -> Writer:
+        """The MCAP writer (:class:`netsim.traces.bulkmcap.BulkMcapWriter`)."""
+        return self._writer
+
+    def bulk_channels(self, type_name: str, topics: Sequence[str],
+                      topic_index: np.ndarray) -> np.ndarray:
+        """Channel ids of ``topics`` (shape (len(topics),), uint16), for messages of one
+        type about to be written in bulk through :attr:`writer` (the vectorised engine's
+        path, :func:`netsim.vectrace.write_trial`) on ``topics[topic_index]``: the
+        channels in use are registered, and the messages counted as :meth:`_write`
+        counts single ones."""
         self._check_open()
-        if not len(log_time):
-            return
-        ids = np.empty(len(topics), dtype=np.uint16)
-        used = np.bincount(topic_index, minlength=len(topics))
-        for t, topic in enumerate(topics):
-            if used[t]:
-                ids[t] = self._channel(topic, type_name)
-                self.counts[topic] = self.counts.get(topic, 0) + int(used[t])
-        self._writer.add_messages(ids[topic_index], log_time, rows,
-                                  publish_time=publish_time, sequence=sequence)
-        self.messages_written += len(log_time)
-        self._last_log_time = max(self._last_log_time, int(np.max(log_time)))
+        ids = np.zeros(len(topics), dtype=np.uint16)
+        used = np.bincount(np.asarray(topic_index, dtype=np.int64), minlength=len(topics))
+        for t in np.flatnonzero(used).tolist():
+            topic = topics[t]
+            ids[t] = self._channel(topic, type_name)
+            self.counts[topic] = self.counts.get(topic, 0) + int(used[t])
+        self.messages_written += int(used.sum())
+        return ids
 
     def _channel(self, topic: str, type_name: str) -> int:
         channel = self._channels.get(topic)

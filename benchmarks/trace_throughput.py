@@ -11,10 +11,11 @@ sensor); values are random, sizes and topics are the trace's (format 2 types of
 Then it writes that same message set, in one process, with:
 
 * **bulk**: :class:`netsim.traces.bulkmcap.BulkMcapWriter` fed from column arrays:
-  every type's columns encoded at once by :class:`netsim.traces.bulkproto.BulkEncoder`
-  (timed), then one ``add_messages`` call per type and window of steps (a window
-  holds about one chunk of records), the chunk closed at the window's end: what the
-  vectorised engine's trace path does;
+  every type's columns encoded at once straight into Message records by
+  :meth:`netsim.traces.bulkproto.BulkEncoder.records` (timed), then one
+  ``add_records`` call per type and window of steps (a window holds about one chunk
+  of records), the chunk closed at the window's end: what the vectorised engine's
+  trace path (:func:`netsim.vectrace.write_trial`) does;
 * **per-event**: the same writer's ``add_message``, one call per message in time
   order, payloads pre-serialised (the event kernel's path without the protobuf
   construction);
@@ -265,18 +266,23 @@ def write_bulk(path: str, prep: Prepared, fds: bytes, chunk_size: int, level: in
         ids = {name: w.add_schema(name, "protobuf", fds) for name in prep.classes}
         for topic, type_name in zip(prep.topics, prep.topic_type, strict=True):
             w.add_channel(topic, "protobuf", ids[type_name])
-        rows = {g.type_name: prep.encoders[g.type_name].encode(g.columns) for g in groups}
-        channel = {g.type_name: (g.topic + prep.base[g.type_name]).astype(np.uint16)
-                   for g in groups}
-        per_step = sum(rows[g.type_name].nbytes + 31 * len(g.log_time) for g in groups) / steps
+        packed = []
+        for g in groups:
+            encoder = prep.encoders[g.type_name]
+            channel = (g.topic + prep.base[g.type_name]).astype(np.uint16)
+            records, _ = encoder.records(g.columns, channel, g.sequence, g.log_time,
+                                         g.log_time)
+            packed.append((channel, g.log_time, records, 31 + encoder.payload_length))
+        per_step = sum(r.nbytes for _, _, r, _ in packed) / steps
         _, cuts = windows(groups, steps, per_step, chunk_size)
         n_windows = len(next(iter(cuts.values()))) - 1
         for wi in range(n_windows):
-            for g in groups:
+            for g, (channel, log_time, records, size) in zip(groups, packed, strict=True):
                 a, b = cuts[g.type_name][wi], cuts[g.type_name][wi + 1]
                 if b > a:
-                    w.add_messages(channel[g.type_name][a:b], g.log_time[a:b],
-                                   rows[g.type_name][a:b], sequence=g.sequence[a:b])
+                    w.add_records(records[a * size:b * size],
+                                  np.arange(b - a, dtype=np.int64) * size, channel[a:b],
+                                  log_time[a:b])
             w.flush()
 
 

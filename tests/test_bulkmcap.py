@@ -255,33 +255,33 @@ JS = REPO / "benchmarks" / "js"
 @pytest.mark.skipif(shutil.which("node") is None or not (JS / "node_modules" / "@mcap"
                                                          / "core").is_dir(),
                     reason="node or benchmarks/js/node_modules (npm install) not present")
-def test_typescript_reader_validates_and_decodes_a_bulk_file(tmp_path):
-    """@mcap/core (CRCs validated) and protobufjs read a bulk-written trace."""
-    from netsim.traces.bulkproto import BulkEncoder
-    from netsim.traces.schemas import file_descriptor_set, message_classes, schema_name
+def test_typescript_reader_validates_and_decodes_a_traced_run(tmp_path):
+    """@mcap/core (CRCs validated) and protobufjs read a trace the vectorised engine
+    wrote in bulk: every message, the same counts and values as the Python reader."""
+    import warnings
 
-    cls = message_classes()["Estimate"]
-    encoder = BulkEncoder(cls.DESCRIPTOR, {"estimate": 3, "error": 3})
-    rng = np.random.default_rng(6)
-    n = 3000
-    k = np.arange(n)
-    estimate = rng.normal(size=(n, 3))
-    rows = encoder.encode({"step": k, "time": k * 0.5, "agent": k % 2, "estimate": estimate,
-                           "error": estimate, "squared_error": (estimate ** 2).sum(1)})
-    path = tmp_path / "js.mcap"
-    with BulkMcapWriter(path, chunk_size=32 * 1024) as w:
-        sid = w.add_schema(schema_name("Estimate"), "protobuf",
-                           file_descriptor_set().SerializeToString())
-        chans = np.array([w.add_channel(f"/agent/a{i}/estimate", "protobuf", sid)
-                          for i in range(2)])
-        w.add_messages(chans[k % 2], k * 500_000_000, rows, sequence=k)
+    from netsim.models.scenario import resolve_scenario
+    from netsim.traces.reader import read_trace
+
+    from netsim.runner import run_monte_carlo, scenario_gains
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        scenario = resolve_scenario("lcsys2022-heterogeneous")
+        gains = scenario_gains(scenario)
+    path = tmp_path / "run.mcap"
+    run_monte_carlo(scenario, steps=60, trials=1, families=["compensated"], gains=gains,
+                    trace=str(path), engine="vectorised")
     out = subprocess.run(["node", str(JS / "check_mcap.mjs"), str(path), "--json"],
                          capture_output=True, text=True, timeout=120)
     report = json.loads(out.stdout)
     assert out.returncode == 0 and not report["errors"], report["errors"]
-    assert report["messages"] == n and report["data_section_crc"] == "ok"
-    assert report["chunks"] > 1
-    first = report["topics"]["/agent/a1/estimate"]
-    assert first["count"] == n // 2
-    assert first["first"]["estimate"] == pytest.approx(estimate[1].tolist(), abs=0)
-    assert int(first["first"]["step"]) == 1
+    assert report["data_section_crc"] == "ok"
+    trace = read_trace(path)
+    assert report["messages"] == sum(trace.counts.values()) == report["statistics_messages"]
+    assert {t: e["count"] for t, e in report["topics"].items()} == trace.counts
+    first = report["topics"]["/agent_1/estimate"]["first"]
+    ours = trace.records["/agent_1/estimate"][0].message
+    assert first["estimate"] == list(ours.estimate)
+    assert first["error_norm"] == ours.error_norm
+    assert int(first["step"]) == ours.step == 0

@@ -47,6 +47,7 @@ import zstandard
 
 __all__ = [
     "MAGIC",
+    "LIBRARY_IDENTIFIER",
     "MESSAGE_HEADER_DTYPE",
     "BulkMcapWriter",
     "message_records",
@@ -67,6 +68,8 @@ __all__ = [
     "OP_DATA_END",
 ]
 
+#: Library identifier of this writer (for an MCAP Header's library string).
+LIBRARY_IDENTIFIER = "netsim-bulkmcap/1"
 #: Leading and trailing magic of MCAP major version 0.
 MAGIC = b"\x89MCAP0\r\n"
 
@@ -386,7 +389,7 @@ class BulkMcapWriter:
                 raise
         _LIVE.add(self)
 
-    def start(self, profile: str = "", library: str = "netsim-bulkmcap") -> None:
+    def start(self, profile: str = "", library: str = LIBRARY_IDENTIFIER) -> None:
         """Write the magic and the Header (done by the constructor unless it was given
         ``library=None``; as ``mcap.writer.Writer.start``)."""
         if self._started:

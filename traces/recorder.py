@@ -683,6 +683,6 @@ class TraceRecorder:
 
 
 def _mcap_library() -> str:
-    from mcap.writer import LIBRARY_IDENTIFIER
+    from netsim.traces.bulkmcap import LIBRARY_IDENTIFIER
 
     return LIBRARY_IDENTIFIER

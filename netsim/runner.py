@@ -558,10 +558,10 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
                     record_delays=False, observer=recorder,
                 )
             else:
-                from netsim.vectrace import replay_trial
+                from netsim.vectrace import write_trial
 
                 index = t if batch_trial is None else batch_trial
-                replay_trial(batch, index, scenario, family, recorder)
+                write_trial(batch, index, scenario, family, recorder)
                 result = batch.results[index]
             if result.diverged_at is not None:
                 recorder.set_status("diverged", diverged_at=result.diverged_at)

@@ -41,7 +41,7 @@ from netsim.linkschedule import DELIVERED
 from netsim.models.scenario import Scenario
 from netsim.vectorised import VectorisedBatch
 
-__all__ = ["replay_trial", "trial_events"]
+__all__ = ["replay_trial", "trial_events", "write_trial"]
 
 # phases of the events at one time (the kernel's order within an instant)
 _EARLY = 0  # deliveries scheduled before this instant (URGENT)
@@ -234,3 +234,326 @@ def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
                     call("on_dropped", message(l_, victim), REASON_DROP_OLDEST, k * ts)
                     del messages[(l_, victim)]
         flush_until((float(k), _LATE + 1))
+
+
+# -- bulk trace writing -----------------------------------------------------------------
+
+_ENCODERS: dict[tuple[str, tuple[tuple[str, int], ...]], Any] = {}
+
+
+def _encoder(type_name: str, lengths: dict[str, int]) -> Any:
+    from netsim.traces.bulkproto import BulkEncoder
+    from netsim.traces.schemas import message_classes
+
+    key = (type_name, tuple(sorted(lengths.items())))
+    found = _ENCODERS.get(key)
+    if found is None:
+        found = _ENCODERS[key] = BulkEncoder(message_classes()[type_name].DESCRIPTOR, lengths)
+    return found
+
+
+class _Group:
+    """Messages of one type and one payload length, in their topics' order (``when``
+    non-decreasing); encoded when written."""
+
+    __slots__ = ("type_name", "topics", "topic", "when", "log_time", "publish_time",
+                 "sequence", "columns", "lengths")
+
+    def __init__(self, type_name: str, topics: list[str], topic: np.ndarray, when: np.ndarray,
+                 log_time: np.ndarray, publish_time: np.ndarray, sequence: np.ndarray,
+                 columns: dict[str, Any], lengths: dict[str, int],
+                 order: np.ndarray | None = None) -> None:
+        if order is not None:
+            topic, when, log_time, publish_time, sequence = (
+                topic[order], when[order], log_time[order], publish_time[order],
+                sequence[order])
+            columns = {key: v[order] if np.ndim(v) and np.shape(v)[0] == len(order) else v
+                       for key, v in columns.items()}
+        self.type_name, self.topics, self.topic, self.when = type_name, topics, topic, when
+        self.log_time, self.publish_time, self.sequence = log_time, publish_time, sequence
+        self.columns, self.lengths = columns, lengths
+
+
+def _ns(origin: int, t: np.ndarray) -> np.ndarray:
+    """origin + round(t * 1e9) ns, as the recorder's ``_ns`` (round half to even)."""
+    return (np.round(np.asarray(t, dtype=float) * 1e9).astype(np.int64)
+            + np.int64(origin)).astype(np.uint64)
+
+
+_NO_DELAYS = {"neighbours": 0, "effective_delay": 0, "used_timestamp": 0}
+
+
+def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
+                recorder: Any) -> None:
+    """Write one trial's trace from the batch arrays, in bulk (no observer calls).
+
+    The messages are those :func:`replay_trial` makes the recorder write, with the same
+    topics, fields, times and per-topic order; each type's messages are encoded at once
+    straight into MCAP Message records (:meth:`netsim.traces.bulkproto.BulkEncoder.records`)
+    and written per window of steps (one chunk each, flushed: ``flush_every`` steps, or
+    fewer if a chunk would exceed ``chunk_size``, as the recorder closes chunks for the
+    event kernel) through the recorder's
+    bulk writer (:meth:`netsim.traces.recorder.TraceRecorder.bulk_channels`). Within a
+    window the file holds the messages grouped by type, so messages of different topics
+    at the same log_time may be in another order than the kernel's (each topic's are
+    not); the message indexes list every topic in log_time order.
+
+    Parameters
+    ----------
+    batch : VectorisedBatch
+        From :func:`netsim.vectorised.run_batch` with ``record_estimates=True``.
+    trial : int
+        Index of the trial in the batch.
+    scenario : Scenario
+        The scenario the batch ran.
+    family : str
+        The estimator family the batch ran.
+    recorder : netsim.traces.recorder.TraceRecorder
+        An open recorder writing format 2 through the bulk writer.
+
+    Notes
+    -----
+    A graceful Ctrl-C (:mod:`netsim.interrupt`) is honoured between windows: the trace
+    then ends with the last complete window.
+    """
+    from netsim.traces.schemas import (
+        estimate_topic,
+        link_topic,
+        plant_topic,
+        sensor_topic,
+        update_topic,
+    )
+
+    result = batch.results[trial]
+    estimates = result.estimates
+    if estimates.shape[0] == 0:
+        raise ValueError("the batch kept no estimates; run it with record_estimates=True")
+    states = result.states
+    K = states.shape[0] - 1
+    end = K if result.diverged_at is None else int(result.diverged_at)
+    ys = result.measurements
+    ts = float(scenario.sample_period)
+    origin = int(getattr(recorder, "time_origin_ns", 0))
+    n_agents, n = estimates.shape[1], estimates.shape[2]
+    schedule, selection = batch.schedule, batch.selection
+    groups: list[_Group] = []
+
+    k = np.arange(end + 1)
+    t_k = k * ts
+    ns_k = _ns(origin, t_k)
+    u_k = k.astype(np.uint32)
+    x = states[:end + 1].reshape(end + 1, -1)
+    groups.append(_Group("PlantState", [plant_topic()], np.zeros(end + 1, dtype=np.int64),
+                         k.astype(float), ns_k, ns_k, u_k,
+                         {"step": k, "time": t_k, "state": x}, {"state": x.shape[1]}))
+
+    def per_step(members: list[int]) -> tuple[np.ndarray, np.ndarray]:
+        """Rows (k, member) for every step, k major: step and member index arrays."""
+        return np.repeat(k, len(members)), np.tile(np.asarray(members, dtype=np.int64),
+                                                   end + 1)
+
+    # measurements: sensors with the same output count together
+    widths: dict[int, list[int]] = {}
+    for i, y in enumerate(ys):
+        widths.setdefault(int(np.prod(np.shape(y)[1:], dtype=np.int64)), []).append(i)
+    sensor_topics = [sensor_topic(i) for i in range(len(ys))]
+    for m, members in widths.items():
+        kk, ii = per_step(members)
+        values = np.stack([np.asarray(ys[i][:end + 1], dtype=float).reshape(end + 1, m)
+                           for i in members], axis=1).reshape(-1, m)
+        groups.append(_Group("Measurement", sensor_topics, ii, kk.astype(float), ns_k[kk],
+                             ns_k[kk], u_k[kk], {"step": kk, "time": t_k[kk], "sensor": ii,
+                                                 "values": values}, {"values": m}))
+    # estimates: rows (k, i), k major
+    kk, ii = per_step(list(range(n_agents)))
+    est = estimates[:end + 1].reshape(-1, n)
+    error = est - x[kk]
+    sq = np.einsum("ij,ij->i", error, error)
+    with np.errstate(invalid="ignore"):
+        norm = np.sqrt(sq)
+    ns_kk, t_kk, u_kk = ns_k[kk], t_k[kk], u_k[kk]
+    groups.append(_Group("Estimate", [estimate_topic(i) for i in range(n_agents)], ii,
+                         kk.astype(float), ns_kk, ns_kk, u_kk,
+                         {"step": kk, "time": t_kk, "agent": ii, "estimate": est,
+                          "error": error, "squared_error": sq, "error_norm": norm},
+                         {"estimate": n, "error": n}))
+    update_topics = [update_topic(i) for i in range(n_agents)]
+    if schedule is None:  # centralised filter: no links, no delays
+        groups.append(_Group("EstimatorUpdate", update_topics, ii, kk.astype(float), ns_kk,
+                             ns_kk, u_kk, {"step": kk, "time": t_kk, "agent": ii},
+                             _NO_DELAYS))
+        _write_groups(recorder, groups, end)
+        return
+    t = trial
+    link_index = {link: q for q, link in enumerate(schedule.links)}
+    send = np.asarray(schedule.send_steps)
+    n_sends = int(np.searchsorted(send, end, side="right"))
+    neighbours = _neighbours(np.asarray(scenario.weights))
+    is_update = np.zeros(end + 1, dtype=bool)
+    up = np.asarray(batch.updated, dtype=np.int64)
+    is_update[up[up <= end]] = True
+    # updates without delays: steps where the estimators did not update, agents
+    # without in-neighbours
+    lonely = [i for i in range(n_agents) if not neighbours[i]]
+    rest = ~is_update[kk] | np.isin(ii, lonely)
+    if rest.any():
+        groups.append(_Group("EstimatorUpdate", update_topics, ii[rest],
+                             kk[rest].astype(float), ns_kk[rest], ns_kk[rest], u_kk[rest],
+                             {"step": kk[rest], "time": t_kk[rest], "agent": ii[rest]},
+                             _NO_DELAYS))
+    ku = np.flatnonzero(is_update)
+    chosen = selection.chosen
+    degrees: dict[int, list[int]] = {}
+    for i in range(n_agents):
+        if neighbours[i]:
+            degrees.setdefault(len(neighbours[i]), []).append(i)
+    for d, members in degrees.items() if ku.size else ():
+        # r[u, a, c]: effective delay of agent members[a] on its c-th in-neighbour
+        r = np.full((ku.size, len(members), d), -1, dtype=np.int64)
+        for a, i in enumerate(members):
+            for c, j in enumerate(neighbours[i]):
+                l_ = link_index.get((j, i), -1)
+                if l_ < 0:
+                    continue
+                held = np.where(ku > 0, np.asarray(chosen[ku, l_, t], dtype=np.int64), -1)
+                ok = held >= 0
+                r[ok, a, c] = ku[ok] - 1 - send[held[ok]]
+        used = np.where(r >= 0, ku[:, None, None] - 1 - r, -1)
+        kr = np.repeat(ku, len(members))
+        ir = np.tile(np.asarray(members, dtype=np.int64), ku.size)
+        nb = np.asarray([neighbours[i] for i in members], dtype=float)
+        groups.append(_Group("EstimatorUpdate", update_topics, ir, kr.astype(float), ns_k[kr],
+                             ns_k[kr], u_k[kr],
+                             {"step": kr, "time": t_k[kr], "agent": ir,
+                              "neighbours": np.tile(nb, (ku.size, 1)),
+                              "effective_delay": r.reshape(-1, d).astype(float),
+                              "used_timestamp": used.reshape(-1, d).astype(float)},
+                             {"neighbours": d, "effective_delay": d, "used_timestamp": d}))
+    if n_sends:
+        _link_groups(groups, recorder, schedule, selection, t, n_sends, end, estimates, ts,
+                     origin, link_topic)
+    _write_groups(recorder, groups, end)
+
+
+def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: Any,
+                 t: int, n_sends: int, end: int, estimates: np.ndarray, ts: float,
+                 origin: int, link_topic: Any) -> None:
+    """The sent, delivered and dropped messages of every link (see :func:`_replay`)."""
+    links = schedule.links
+    L = len(links)
+    send = np.asarray(schedule.send_steps)[:n_sends]
+    fate = np.asarray(schedule.fate[t, :, :n_sends])
+    wait = np.asarray(schedule.wait[t, :, :n_sends], dtype=float)
+    delay = np.asarray(schedule.delay_steps[t, :, :n_sends], dtype=np.int64)
+    drop_step = np.asarray(schedule.drop_time[t, :, :n_sends])
+    discarded = np.asarray(selection.discarded[t, :, :n_sends])
+    reasons = schedule.reasons
+    code_oldest = reasons.index(REASON_DROP_OLDEST) + 1 if REASON_DROP_OLDEST in reasons else -1
+    code_superseded = (reasons.index(REASON_SUPERSEDED) + 1
+                       if REASON_SUPERSEDED in reasons else -1)
+    sender = np.array([j for j, _ in links], dtype=np.int64)
+    receiver = np.array([i for _, i in links], dtype=np.int64)
+    s_f = send.astype(float)
+    send_time = s_f * ts  # (S,)
+    arrival = s_f[None, :] + wait  # (L, S) in steps
+    arrival_time = arrival * ts
+    # every (link, message) as flat arrays, link major
+    ll, qq = np.meshgrid(np.arange(L), np.arange(n_sends), indexing="ij")
+    ll, qq = ll.ravel(), qq.ravel()
+    ss = send[qq]
+    dd = delay.ravel()
+    common = {"sender": sender[ll], "receiver": receiver[ll], "sent_step": ss,
+              "usable_step": ss + 1 + dd, "sequence": qq, "send_time": send_time[qq],
+              "arrival_time": arrival_time.ravel(), "delay_steps": dd}
+    publish = _ns(origin, send_time)[qq]
+    seq = qq.astype(np.uint32)
+    payload = bool(getattr(recorder, "record_payloads", True))
+    n = estimates.shape[2]
+    columns = dict(common)
+    if payload:
+        columns["payload"] = estimates[ss, sender[ll]]
+    order = np.lexsort((ll, qq))  # by send step, then link (the kernel's order)
+    groups.append(_Group("LinkSent", [link_topic(j, i, "sent") for j, i in links], ll,
+                         ss.astype(float), publish, publish, seq, columns,
+                         {"payload": n if payload else 0}, order))
+    flat_fate = fate.ravel()
+    a = arrival.ravel()
+    phase = np.where(a <= ss, _LATE, _EARLY)
+    delivered = (flat_fate == DELIVERED) & (a <= end)
+    if delivered.any():
+        m = np.flatnonzero(delivered)
+        order = np.lexsort((ll[m], qq[m], phase[m], a[m]))
+        log_time = _ns(origin, arrival_time.ravel()[m])
+        columns = {key: v[m] for key, v in common.items()}
+        columns["accepted"] = (~discarded.ravel()[m].astype(bool)).astype(np.uint32)
+        groups.append(_Group("LinkDelivered", [link_topic(j, i, "delivered") for j, i in links],
+                             ll[m], a[m], log_time, publish[m], seq[m], columns, {}, order))
+        recorder.max_delay_steps = max(recorder.max_delay_steps, int(dd[m].max()))
+    # drops: at sending, drop-oldest victims (at the cancelling send), superseded
+    at_send = ~np.isin(flat_fate, [DELIVERED, code_superseded, code_oldest])
+    victim = (flat_fate == code_oldest) & (drop_step.ravel() <= end)
+    superseded = (flat_fate == code_superseded) & (a <= end)
+    m = np.flatnonzero(at_send | victim | superseded)
+    if not m.size:
+        return
+    when = np.where(superseded[m], a[m], np.where(victim[m], drop_step.ravel()[m], ss[m]))
+    when = when.astype(float)
+    ph = np.where(superseded[m], phase[m], _STEP)
+    sub = victim[m].astype(np.int64)
+    # global kernel order (for the reason codes' first appearance): at a send step, by
+    # sender, its out-links in order, at-send drop before the victim; timed ones by q, l
+    x = np.where(ph == _STEP, sender[ll[m]], qq[m])
+    order = np.lexsort((sub, ll[m], x, ph, when))
+    codes = flat_fate[m]
+    reason_text = np.array([REASON_SUPERSEDED if s_ else REASON_DROP_OLDEST if v else
+                            reasons[c - 1] for s_, v, c in zip(
+                                superseded[m].tolist(), victim[m].tolist(), codes.tolist(),
+                                strict=True)], dtype=object)
+    seen: dict[str, int] = {}
+    for text in reason_text[order].tolist():
+        if text not in seen:
+            seen[text] = recorder._drop_code(text)  # writes the drop_reasons table
+    columns = {key: v[m] for key, v in common.items()}
+    columns["reason"] = np.array([seen[r] for r in reason_text.tolist()], dtype=np.uint32)
+    columns["drop_time"] = when * ts
+    log_time = _ns(origin, when * ts)
+    groups.append(_Group("LinkDropped", [link_topic(j, i, "dropped") for j, i in links],
+                         ll[m], when, log_time, publish[m], seq[m], columns, {}, order))
+
+
+def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
+    """Write the groups window by window (about one chunk each), flushing each: every
+    group is encoded once into Message records, each window adds a slice of them."""
+    writer = recorder.writer
+    # windows as the recorder closes chunks for the event kernel: every flush_every
+    # steps, or sooner when a chunk would exceed chunk_size
+    chunk = int(writer.chunk_size)
+    encoders = [_encoder(g.type_name, g.lengths) for g in groups]
+    total = sum((e.payload_length + 31) * len(g.when) for g, e in zip(groups, encoders,
+                                                                       strict=True))
+    per_step = max(1.0, total / (end + 1))
+    window = max(1, min(int(getattr(recorder, "flush_every", 25)), int(chunk // per_step)))
+    edges = np.arange(0, end + 1 + window, window, dtype=float)
+    edges[-1] = np.inf
+    packed = []
+    for g, encoder in zip(groups, encoders, strict=True):
+        if not len(g.when):
+            continue
+        ids = recorder.bulk_channels(g.type_name, g.topics, g.topic)[g.topic]
+        records, _ = encoder.records(g.columns, ids, g.sequence, g.log_time, g.publish_time,
+                                     n=len(g.when))
+        size = 31 + encoder.payload_length
+        cuts = np.searchsorted(g.when, edges, side="left")
+        packed.append((ids, g.log_time, records, size, cuts))
+        recorder._last_log_time = max(recorder._last_log_time, int(g.log_time.max()))
+    for w in range(len(edges) - 1):
+        if w:
+            interrupt.check()
+        for ids, log_time, records, size, cuts in packed:
+            lo, hi = int(cuts[w]), int(cuts[w + 1])
+            if hi > lo:
+                writer.add_records(records[lo * size:hi * size],
+                                   np.arange(hi - lo, dtype=np.int64) * size,
+                                   ids[lo:hi], log_time[lo:hi])
+        recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 2 < len(edges) else end
+        recorder.flush()

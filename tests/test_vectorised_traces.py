@@ -24,7 +24,7 @@ from netsim.traces.recorder import TraceRecorder
 from netsim import interrupt
 from netsim.runner import choose_engine, run_monte_carlo, run_trial
 from netsim.vectorised import run_batch
-from netsim.vectrace import replay_trial, trial_events
+from netsim.vectrace import replay_trial, trial_events, write_trial
 from tests.helpers import lcsys, with_delays
 from tests.test_vectorised import random_case
 
@@ -276,37 +276,55 @@ def _fields(message) -> dict:
     return {f.name: v for f, v in message.ListFields()}
 
 
-def assert_same_files(path_a, path_b) -> None:
+def assert_same_files(path_a, path_b, *more) -> None:
+    """Both files hold the same trace: metadata, attachments, topics, counts, and per
+    topic the same messages in the same order (times, sequence, every field; floats to
+    round-off). Files of the bulk path (``write_trial``) group a window's messages by
+    type, so messages of different topics at one log_time may be in another order in
+    the file: the order across topics is compared as the multiset of (log_time,
+    topic) per instant."""
+    for other in more:
+        assert_same_files(path_a, other)
     a, b = read_trace(path_a), read_trace(path_b)
     assert not a.truncated and not b.truncated
+    assert not a.damaged and not b.damaged
     assert a.metadata == b.metadata
     assert a.attachments == b.attachments
     assert a.topics == b.topics
     assert a.counts == b.counts
-    ka = [(r.topic, r.log_time, r.publish_time, r.sequence) for r in a.messages]
-    kb = [(r.topic, r.log_time, r.publish_time, r.sequence) for r in b.messages]
+    ka = sorted((r.log_time, r.topic, r.publish_time, r.sequence) for r in a.messages)
+    kb = sorted((r.log_time, r.topic, r.publish_time, r.sequence) for r in b.messages)
     assert ka == kb
     scale = 1.0 + np.nanmax(np.abs(np.nan_to_num(a.states(), posinf=0, neginf=0)))
-    for ra, rb in zip(a.messages, b.messages, strict=True):
-        fa, fb = _fields(ra.message), _fields(rb.message)
-        assert fa.keys() == fb.keys(), ra.topic
-        for name, va in fa.items():
-            vb = fb[name]
-            if isinstance(va, float) or (hasattr(va, "__len__") and len(va)
-                                          and isinstance(va[0], float)):
-                _close(np.asarray(va), np.asarray(vb),
-                       scale * (1e3 if name == "squared_error" else 1.0),
-                       f"{ra.topic} {name}")
-            else:
-                assert list(va) == list(vb) if hasattr(va, "__len__") and not isinstance(
-                    va, str) else va == vb, (ra.topic, name, va, vb)
+    assert a.records.keys() == b.records.keys()
+    for topic, records in a.records.items():
+        assert len(records) == len(b.records[topic]), topic
+        for ra, rb in zip(records, b.records[topic], strict=True):
+            assert (ra.log_time, ra.publish_time, ra.sequence) == (
+                rb.log_time, rb.publish_time, rb.sequence), topic
+            _same_message(ra, rb, scale)
+
+
+def _same_message(ra, rb, scale) -> None:
+    fa, fb = _fields(ra.message), _fields(rb.message)
+    assert fa.keys() == fb.keys(), ra.topic
+    for name, va in fa.items():
+        vb = fb[name]
+        if isinstance(va, float) or (hasattr(va, "__len__") and len(va)
+                                      and isinstance(va[0], float)):
+            _close(np.asarray(va), np.asarray(vb),
+                   scale * (1e3 if name == "squared_error" else 1.0),
+                   f"{ra.topic} {name}")
+        else:
+            assert list(va) == list(vb) if hasattr(va, "__len__") and not isinstance(
+                va, str) else va == vb, (ra.topic, name, va, vb)
 
 
 def _write_both(tmp_path, scenario, family, gains, steps, trial=0, seed=0):
     seeds = [child_sequence(seed, "trial", t) for t in range(trial + 1)]
     batch = run_batch(scenario, family, gains, seeds, steps, record_estimates=True)
     paths = []
-    for engine in ("events", "vectorised"):
+    for engine in ("events", "vectorised", "bulk"):
         path = tmp_path / f"{engine}.mcap"
         recorder = TraceRecorder.for_run(path, scenario, gains if hasattr(gains, "K") else None,
                                          family, trial, seed=seed, steps=steps)
@@ -314,8 +332,11 @@ def _write_both(tmp_path, scenario, family, gains, steps, trial=0, seed=0):
             if engine == "events":
                 result = run_trial(scenario, family, gains, seeds[trial], steps,
                                    record_delays=False, observer=recorder)
-            else:
+            elif engine == "vectorised":
                 replay_trial(batch, trial, scenario, family, recorder)
+                result = batch.results[trial]
+            else:  # the bulk path the runner uses
+                write_trial(batch, trial, scenario, family, recorder)
                 result = batch.results[trial]
             if result.diverged_at is not None:
                 recorder.set_status("diverged", diverged_at=result.diverged_at)
@@ -341,6 +362,7 @@ def test_mcap_files_of_a_diverged_run_read_back_the_same(tmp_path):
                        divergence_threshold=50.0)
     paths = _write_both(tmp_path, scenario, "uncompensated", lcsys_gains(), 300)
     assert read_trace(paths[1]).status["status"] == "diverged"
+    assert read_trace(paths[2]).status["status"] == "diverged"
     assert_same_files(*paths)
 
 

@@ -76,8 +76,9 @@ from typing import Any
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from mcap.writer import CompressionType, Writer
+from mcap.writer import CompressionType
 from netsim.models.jsonsafe import json_default
+from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.traces.schemas import (
     DEFAULT_TIME_ORIGIN_NS,
     DROP_REASONS_METADATA,
@@ -623,6 +624,38 @@ class TraceRecorder:
         self._write(link_topic(message.sender, message.receiver, event), type_name, msg,
                     self._ns(when), self._ns(message.send_time), int(message.sequence))
 
+    @property
+    def writer(self) -> Writer:
+        """The MCAP writer (:class:`netsim.traces.bulkmcap.BulkMcapWriter`)."""
+        return self._writer
+
+    def bulk_channels(self, type_name: str, topics: Sequence[str],
+                      topic_index: np.ndarray) -> np.ndarray:
+        """Channel ids of ``topics`` (shape (len(topics),), uint16), for messages of one
+        type about to be written in bulk through :attr:`writer` (the vectorised engine's
+        path, :func:`netsim.vectrace.write_trial`) on ``topics[topic_index]``: the
+        channels in use are registered, and the messages counted as :meth:`_write`
+        counts single ones."""
+        self._check_open()
+        ids = np.zeros(len(topics), dtype=np.uint16)
+        used = np.bincount(np.asarray(topic_index, dtype=np.int64), minlength=len(topics))
+        for t in np.flatnonzero(used).tolist():
+            topic = topics[t]
+            ids[t] = self._channel(topic, type_name)
+            self.counts[topic] = self.counts.get(topic, 0) + int(used[t])
+        self.messages_written += int(used.sum())
+        return ids
+
+    def _channel(self, topic: str, type_name: str) -> int:
+        channel = self._channels.get(topic)
+        if channel is None:
+            channel = self._writer.register_channel(
+                topic=topic, message_encoding=MessageEncoding.Protobuf,
+                schema_id=self._schema_ids[type_name],
+            )
+            self._channels[topic] = channel
+        return channel
+
     def _write(self, topic: str, type_name: str, msg: Any, log_time: int,
                publish_time: int, sequence: int) -> None:
         if log_time < self._last_log_time:
@@ -650,6 +683,6 @@ class TraceRecorder:
 
 
 def _mcap_library() -> str:
-    from mcap.writer import LIBRARY_IDENTIFIER
+    from netsim.traces.bulkmcap import LIBRARY_IDENTIFIER
 
     return LIBRARY_IDENTIFIER

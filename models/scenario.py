@@ -35,6 +35,7 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+import scipy.sparse as sp
 from netsim.models.delays import (
     AsynchronousRandomDelays,
     DelayModel,
@@ -66,12 +67,19 @@ from netsim.models.linkmodels import (
 from netsim.models.network import (
     NetworkError,
     check_consensus_matrix,
+    check_sparse_consensus_matrix,
     directed_cycle,
     geometric,
+    geometric_links,
     graph_from_weights,
     lazy_metropolis_weights,
+    links_from_weights,
+    random_links,
     random_strongly_connected,
     random_weights,
+    sparse_lazy_metropolis_weights,
+    sparse_random_weights,
+    sparse_uniform_weights,
     uniform_weights,
 )
 from netsim.models.plant import LinearPlant
@@ -89,6 +97,9 @@ __all__ = [
     "REFINE_FROM",
     "DEFAULTS",
     "DEFAULT_ESTIMATORS",
+    "SPARSE_MIN_AGENTS",
+    "DENSE_WEIGHTS_MAX_AGENTS",
+    "LinkTable",
     "load_scenario",
     "parse_scenario",
     "read_scenario_data",
@@ -100,13 +111,22 @@ __all__ = [
 #: of the registry, :mod:`netsim.estimators.registry`, which checks them: models know
 #: no families).
 DEFAULT_ESTIMATORS = ("compensated", "uncompensated", "block", "centralized-kf")
+#: From this many agents on, a generated network (``network.topology`` cycle, random,
+#: geometric or edges) is built sparse end to end: link arrays, CSR weights
+#: (``Scenario.weights`` is then a ``scipy.sparse.csr_array``), sparse consensus
+#: checks; no N x N array and no networkx graph. Below it the historic dense path runs
+#: (the same numbers as before for every existing scenario).
+SPARSE_MIN_AGENTS = 2048
+#: Largest N for which :meth:`Scenario.dense_weights` densifies sparse weights
+#: (8 N^2 bytes: 128 MiB at 4096).
+DENSE_WEIGHTS_MAX_AGENTS = 4096
 #: Delay models a scenario may name under ``delays.model``.
 DELAY_MODELS = (
     "none", "homogeneous", "heterogeneous", "fixed", "synchronous", "asynchronous", "latency",
 )
 #: Values of ``gains.method``: the designs ``netsim design`` offers (``refined`` is its
 #: ``--refine``) and ``given`` (explicit ``gains.K``).
-GAIN_METHODS = ("lmi", "ccl", "auto", "refined", "given")
+GAIN_METHODS = ("lmi", "ccl", "auto", "local", "refined", "given")
 #: Values of ``gains.refine_from``: the design a ``refined`` gain starts from.
 REFINE_FROM = ("lmi", "ccl", "auto", "given")
 #: Defaults of every optional key, in one place.
@@ -143,7 +163,7 @@ _SCHEMA: dict[str, set[str]] = {
         "steps", "trials", "seed", "sample_period", "divergence_threshold",
         "steady_state_fraction", "estimators",
     },
-    "plant": {"A", "C", "Q", "R", "x0_mean", "x0_cov"},
+    "plant": {"A", "C", "Q", "R", "x0_mean", "x0_cov", "sensors"},
     "network": {"topology", "agents", "edges", "weights", "P", "seed", "edge_probability",
                 "radius"},
     "delays": {"model", "tau", "links", "default", "seed"},
@@ -229,7 +249,8 @@ class GainSpec:
     method : str
         One of :data:`GAIN_METHODS`: ``lmi`` (block-diagonal LMI with rate bisection),
         ``ccl`` (cone-complementarity, full Lyapunov matrix), ``auto`` (CCL up to
-        ``N n = 60``, LMI above), ``refined`` (the ``refine_from`` design, then a direct
+        ``N n = 60``, LMI up to 1500, ``local`` above), ``local`` (L_i = gamma C_i^T
+        (C_i C_i^T)^+, exact rho by the structured method; any N), ``refined`` (the ``refine_from`` design, then a direct
         minimisation of the spectral radius, as ``netsim design --refine``) or
         ``given`` (the matrices ``K``).
     K : tuple of numpy.ndarray or None
@@ -246,6 +267,26 @@ class GainSpec:
     K: tuple[np.ndarray, ...] | None = None
     tau1: int = 0
     refine_from: str | None = None
+
+
+@dataclass(frozen=True)
+class LinkTable:
+    """The links of a scenario as arrays, sorted by sender then receiver.
+
+    Attributes
+    ----------
+    src, dst : numpy.ndarray, shape (L,), int64
+        Sender j and receiver i of every link (j, i).
+    weight : numpy.ndarray, shape (L,)
+        Consensus weight p_ij = P[i, j] of each link (LCSYS2022 eq. 4).
+    """
+
+    src: np.ndarray
+    dst: np.ndarray
+    weight: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.src)
 
 
 @dataclass(frozen=True)
@@ -298,18 +339,64 @@ class Scenario:
     @cached_property
     def graph(self) -> nx.DiGraph:
         """Communication graph, edge (j, i): i receives from j (built once; do not
-        modify it). With a time-varying ``topology``: the union of its graphs."""
+        modify it). With a time-varying ``topology``: the union of its graphs. (A
+        networkx graph costs about 1 kB per link: large-N code reads
+        :attr:`link_table` instead.)"""
         if self.topology is not None:
             graph = nx.DiGraph()
             graph.add_nodes_from(range(self.topology.n_agents))
             graph.add_edges_from(self.topology.links())
             return graph
+        if sp.issparse(self.weights):
+            graph = nx.DiGraph()
+            graph.add_nodes_from(range(self.n_agents))
+            table = self.link_table
+            graph.add_edges_from(zip(table.src.tolist(), table.dst.tolist(), strict=True))
+            return graph
         return graph_from_weights(self.weights)
 
-    @property
+    @cached_property
+    def link_table(self) -> LinkTable:
+        """The links as arrays, sorted by sender then receiver (the order of
+        :attr:`links`), with their consensus weights p_ij; built once."""
+        if self.topology is not None:
+            links = sorted(self.topology.links())
+            arr = np.array(links, dtype=np.int64).reshape(-1, 2)
+            src, dst = arr[:, 0], arr[:, 1]
+            W = self.weights_sparse
+            return LinkTable(src, dst, np.asarray(W[dst, src]).ravel() if len(src)
+                             else np.zeros(0))
+        coo = self.weights_sparse.tocoo()
+        keep = (coo.row != coo.col) & (coo.data != 0)
+        i, j, w = coo.row[keep], coo.col[keep], coo.data[keep]
+        order = np.lexsort((i, j))
+        return LinkTable(j[order].astype(np.int64), i[order].astype(np.int64), w[order])
+
+    @cached_property
+    def weights_sparse(self) -> sp.csr_array:
+        """The consensus matrix P as CSR (shape (N, N), sorted indices); built once."""
+        P = sp.csr_array(self.weights, dtype=float)
+        P.sort_indices()
+        return P
+
+    def dense_weights(self) -> np.ndarray:
+        """P as a dense (N, N) array; ScenarioError (one line) above
+        :data:`DENSE_WEIGHTS_MAX_AGENTS` agents when P is stored sparse."""
+        if not sp.issparse(self.weights):
+            return np.asarray(self.weights, dtype=float)
+        N = self.n_agents
+        if N > DENSE_WEIGHTS_MAX_AGENTS:
+            raise ScenarioError("network", f"this needs the dense N x N consensus matrix, "
+                                f"{8 * N * N / 2**30:.1f} GiB at N = {N} agents (sparse "
+                                f"paths go up to any N; dense ones to "
+                                f"{DENSE_WEIGHTS_MAX_AGENTS})")
+        return self.weights.toarray()
+
+    @cached_property
     def links(self) -> list[tuple[int, int]]:
-        """Sorted links (sender, receiver)."""
-        return sorted(self.graph.edges)
+        """Sorted links (sender, receiver); built once."""
+        table = self.link_table
+        return list(zip(table.src.tolist(), table.dst.tolist(), strict=True))
 
     @property
     def n_agents(self) -> int:
@@ -574,6 +661,12 @@ def _parse_plant(table: dict[str, Any]) -> LinearPlant:
         R = [_covariance(r, f"plant.R[{i}]", C[i].shape[0]) for i, r in enumerate(R_raw)]
     else:
         R = [_covariance(R_raw, "plant.R", Ci.shape[0]) for Ci in C]
+    if "sensors" in table:
+        # N sensors cycling through the listed ones: sensor i is C[i mod len(C)]
+        # (with its R); the same matrices are shared, not copied
+        sensors = _int(table["sensors"], "plant.sensors", len(C))
+        C = [C[i % len(C)] for i in range(sensors)]
+        R = [R[i % len(R)] for i in range(sensors)]
     x0_mean = (
         _vector(table["x0_mean"], "plant.x0_mean", n) if "x0_mean" in table else np.zeros(n)
     )
@@ -604,6 +697,8 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     topology = table.get("topology")
     if topology is None:
         raise ScenarioError("network.topology", "is missing (or give the matrix network.P)")
+    if agents >= SPARSE_MIN_AGENTS:
+        return _parse_sparse_network(table, agents, topology, weights_spec, seed)
     if topology == "cycle":
         graph = directed_cycle(agents)
     elif topology == "random":
@@ -648,9 +743,69 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     return P
 
 
-def _check_weights(P: np.ndarray, key: str) -> None:
+def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
+                          weights_spec: Any, seed: int) -> sp.csr_array:
+    """:func:`_parse_network` from :data:`SPARSE_MIN_AGENTS` agents on: the same
+    graphs (k-d tree for geometric, geometric skips for random) and weights as arrays
+    and CSR, O(L log N) time, O(N + L) memory."""
+    if topology == "cycle":
+        src = np.arange(agents, dtype=np.int64)
+        dst = (src + 1) % agents
+        order = np.lexsort((dst, src))
+        src, dst = src[order], dst[order]
+    elif topology == "random":
+        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
+                       "network.edge_probability")
+        if not 0 <= prob <= 1:
+            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
+        if prob * agents * agents > 5e7:
+            raise ScenarioError("network.edge_probability", f"= {prob:g} gives about "
+                                f"{prob * agents * agents:.3g} links at N = {agents}; "
+                                "at most 5e7 are supported (lower it)")
+        src, dst = random_links(agents, prob, seed)
+    elif topology == "geometric":
+        radius = table.get("radius")
+        if radius is not None:
+            radius = _number(radius, "network.radius")
+            if radius <= 0:
+                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+            if math.pi * radius * radius * agents * agents > 1e8:
+                raise ScenarioError("network.radius", f"= {radius:g} gives about "
+                                    f"{math.pi * radius * radius * agents * agents:.3g} "
+                                    f"links at N = {agents}; at most 1e8 are supported")
+        src, dst, _ = geometric_links(agents, radius, seed)
+    elif topology == "edges":
+        edges = _parse_edge_list(_require(table, "edges", "network"), "network.edges", agents)
+        arr = np.array(edges, dtype=np.int64).reshape(-1, 2)
+        order = np.lexsort((arr[:, 1], arr[:, 0]))
+        src, dst = arr[order, 0], arr[order, 1]
+    else:
+        raise ScenarioError(
+            "network.topology",
+            f"unknown topology {topology!r}; expected cycle, random, geometric or edges",
+        )
+    if weights_spec == "random":
+        P = sparse_random_weights(agents, src, dst, seed)
+    elif weights_spec == "uniform":
+        P = sparse_uniform_weights(agents, src, dst)
+    elif weights_spec == "lazy-metropolis":
+        P = sparse_lazy_metropolis_weights(agents, src, dst)
+    else:
+        raise ScenarioError(
+            "network.weights",
+            f"unknown scheme {weights_spec!r}; expected random, uniform or lazy-metropolis "
+            "(or give the matrix network.P)",
+        )
+    _check_weights(P, "network.edges" if topology == "edges" else "network")
+    return P
+
+
+def _check_weights(P: np.ndarray | sp.sparray, key: str) -> None:
     try:
-        check_consensus_matrix(P, key)
+        if sp.issparse(P):
+            check_sparse_consensus_matrix(P, key)
+        else:
+            check_consensus_matrix(P, key)
     except NetworkError as exc:
         error = ScenarioError("", str(exc))  # the message already starts with the key
         error.key = key
@@ -974,7 +1129,8 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         links = sorted(union.edges)
     else:
         P = _parse_network(_section(data, "network"), plant.n_sensors)
-        links = sorted(graph_from_weights(P).edges)
+        src, dst = links_from_weights(P)
+        links = list(zip(src.tolist(), dst.tolist(), strict=True))
         if topology is not None and set(topology.links()) - set(links):
             extra = sorted(set(topology.links()) - set(links))[0]
             raise ScenarioError("topology.graphs", f"link {list(extra)} is not an edge of "

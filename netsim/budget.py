@@ -448,8 +448,24 @@ def check_gain_design(scenario: Any, method: str | None = None,
     N = int(scenario.n_agents)
     Nn = n * N
     what = f"gain design for n = {n} states x N = {N} agents (N n = {Nn})"
+    from netsim.estimators.gains import LARGE_LMI_STATES, LOCAL_AUTO_MIN_STATES
+
+    spec = getattr(scenario, "gains", None)
+    chosen = method or getattr(spec, "method", "lmi")
+    if chosen == "refined":
+        chosen = getattr(spec, "refine_from", None) or "auto"
+    if chosen == "local" or (chosen == "auto" and Nn > LOCAL_AUTO_MIN_STATES):
+        # the local design: the structured spectral radius (ARPACK, Krylov basis of
+        # about 40 vectors of N n, the block-sparse operator of nnz(P) n x n blocks,
+        # stored twice) per gain scale tried; no SDP, no N n eigendecomposition
+        L = len(scenario.link_table) if hasattr(scenario, "link_table") else N * N
+        memory = 8.0 * Nn * 60 + 2 * 8.0 * (L + N) * n * n
+        check_memory(memory, parameter, what + " (local design)", f"{n} x {n}",
+                     "use fewer agents N")
+        return
+    hint = ("use fewer states n or agents N, or [gains] method = 'local' (or 'auto') "
+            "for large networks")
     mem_obs, t_obs = exact_observability_cost(n, N)
-    from netsim.estimators.gains import LARGE_LMI_STATES
 
     # up to LARGE_LMI_STATES an interior-point solve of the 2 N n cone; above it the
     # split form (one N n cone) with SCS
@@ -458,7 +474,6 @@ def check_gain_design(scenario: Any, method: str | None = None,
     # about 2000 first-order iterations over the bisection's solves, each a symmetric
     # eigendecomposition (9 d^3 flops, at about four times the non-symmetric rate)
     t_sdp = 2000 * 9.0 * float(cone) ** 3 / (4 * FLOPS)
-    hint = "use fewer states n or agents N"
     check_memory(max(mem_obs, mem_sdp), parameter, what, f"{n} x {n}", hint)
     check_time(t_obs + t_sdp, parameter, what, f"{n} x {n}", hint)
 

@@ -112,8 +112,9 @@ def child_netsim(n_agents: int) -> dict:
         out.write(scenario_toml(n_agents))
     os.environ["NETSIM_CACHE_DIR"] = os.path.join(folder, "cache")
     import_start = time.perf_counter()
-    from netsim import runner
     from netsim.models.scenario import load_scenario
+
+    from netsim import runner
 
     imports = time.perf_counter() - import_start
     start = time.perf_counter()

@@ -1227,11 +1227,18 @@ def design_local(
             "no gains can stabilise (P kron A, D_C-bar)")
     checks.append("PBH (A, C stacked)")
     if dense_rho:
-        reason = _observability_reason(np.asarray(P, dtype=float), A_arr, C_list,
-                                       DEFAULT_OBSERVABILITY_RTOL, "P kron A")
-        if reason:
-            raise GainDesignError(reason)
-        checks.append("PBH (P kron A, D_C-bar)")
+        # detectability is what the gains need: only modes of modulus >= 1 are fatal
+        lost = unobservable_modes(np.kron(np.asarray(P, dtype=float), A_arr),
+                                  output_gain_matrix(C_list), DEFAULT_OBSERVABILITY_RTOL,
+                                  distinct=True)
+        fatal = [lam for lam in lost if abs(lam) >= 1.0]
+        if fatal:
+            raise GainDesignError(
+                f"(P kron A, D_C-bar) is not detectable: the PBH rank test fails for "
+                f"{len(fatal)} distinct eigenvalue(s) of modulus >= 1 (largest "
+                f"{max(abs(lam) for lam in fatal):.4g})")
+        checks.append("PBH (P kron A, D_C-bar)" + (
+            f" ({len(lost)} stable unobservable mode(s))" if lost else ""))
     else:
         checks.append(f"not the N n = {Nn} PBH test of (P kron A, D_C-bar) (too large)")
     # the unit gain per distinct output matrix (agents often share one C_i object)

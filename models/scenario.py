@@ -250,8 +250,9 @@ class GainSpec:
         One of :data:`GAIN_METHODS`: ``lmi`` (block-diagonal LMI with rate bisection),
         ``ccl`` (cone-complementarity, full Lyapunov matrix), ``auto`` (CCL up to
         ``N n = 60``, LMI up to 1500, ``local`` above), ``local`` (L_i = gamma C_i^T
-        (C_i C_i^T)^+, exact rho by the structured method; any N), ``refined`` (the ``refine_from`` design, then a direct
-        minimisation of the spectral radius, as ``netsim design --refine``) or
+        (C_i C_i^T)^+, exact rho by the structured method; any N), ``refined`` (the
+        ``refine_from`` design, then a direct minimisation of the spectral radius, as
+        ``netsim design --refine``) or
         ``given`` (the matrices ``K``).
     K : tuple of numpy.ndarray or None
         The given per-agent gains ``K_i`` (n x n) for ``given``, or for ``refined``

@@ -14,6 +14,7 @@ from netsim.estimators.gains import design_gains, design_local
 from netsim.models import network as nw
 from netsim.models import scenario as scn
 from netsim.models.seeding import stream
+
 from netsim.runner import fixed_delay_matrix, run_trial
 from netsim.vectorised import (
     _consensus_terms,

@@ -176,15 +176,15 @@ def child_anchor(n_agents: int) -> dict:
     agents = np.arange(n_agents)
     sq = np.empty(STEPS + 1)
     for k in range(STEPS + 1):
-        if k:
+        if k == 0:
+            prior = est
+        elif k <= TAU:  # nothing arrived yet: the own prediction stands in
+            x = Amat @ x + 0.063 * rng.standard_normal(n)
+            prior = est @ Amat.T
+        else:  # eq. (4): neighbours' estimates of step k - 1 - tau, A^(tau + 1)
             x = Amat @ x + 0.063 * rng.standard_normal(n)
             prior = own[:, None] * (est @ Amat.T)
-            lag = min(k, TAU + 1)
-            prior += (off @ history[(k - lag) % (TAU + 2)]) @ powers[lag].T
-            if k <= TAU:  # nothing arrived yet: own prediction stands in
-                prior += (1.0 - own)[:, None] * (est @ Amat.T) * 0
-        else:
-            prior = est
+            prior += (off @ history[(k - 1 - TAU) % (TAU + 2)]) @ powers[TAU + 1].T
         y = x[sensor] + 0.063 * rng.standard_normal(n_agents)
         innovation = y - prior[agents, sensor]
         est = prior.copy()

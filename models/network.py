@@ -137,8 +137,17 @@ def geometric(n_agents: int, radius: float | None = None, seed: SeedLike = None)
 
 
 def _sorted_links(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    order = np.lexsort((dst, src))
-    return src[order].astype(np.int64), dst[order].astype(np.int64)
+    """Links sorted by sender, then receiver (one argsort of an int64 key)."""
+    src = np.asarray(src, dtype=np.int64)
+    dst = np.asarray(dst, dtype=np.int64)
+    if not len(src):
+        return src, dst
+    base = int(max(src.max(), dst.max())) + 1
+    # a counting sort by sender (CSR construction), then receivers within each row
+    M = sp.csr_array((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(base, base))
+    M.sum_duplicates()
+    rows = np.repeat(np.arange(base, dtype=np.int64), np.diff(M.indptr))
+    return rows, M.indices.astype(np.int64)
 
 
 def strongly_connected(n_agents: int, src: np.ndarray, dst: np.ndarray) -> tuple[bool, int]:
@@ -257,13 +266,18 @@ def _row_support(n_agents: int, src: np.ndarray, dst: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Rows (receivers) and columns (self, then in-neighbours ascending) of every
     nonzero of P, in the order :func:`random_weights` draws them, and the row starts."""
-    rows = np.concatenate([np.arange(n_agents), np.asarray(dst)])
-    cols = np.concatenate([np.arange(n_agents), np.asarray(src)])
-    is_self = np.concatenate([np.zeros(n_agents, dtype=np.int8),
-                              np.ones(len(src), dtype=np.int8)])
-    order = np.lexsort((cols, is_self, rows))
-    rows, cols = rows[order], cols[order]
-    starts = np.searchsorted(rows, np.arange(n_agents + 1))
+    # in-neighbours of each receiver ascending (CSR: a counting sort), then the self
+    # entry put in front of every row
+    M = sp.csr_array((np.ones(len(src), dtype=np.int8), (np.asarray(dst), np.asarray(src))),
+                     shape=(n_agents, n_agents))
+    M.sum_duplicates()
+    degree = np.diff(M.indptr)
+    starts = np.concatenate([[0], np.cumsum(degree + 1)]).astype(np.int64)
+    rows = np.repeat(np.arange(n_agents, dtype=np.int64), degree + 1)
+    cols = np.empty(len(rows), dtype=np.int64)
+    cols[starts[:-1]] = np.arange(n_agents)
+    neighbour_rows = np.repeat(np.arange(n_agents, dtype=np.int64), degree)
+    cols[np.arange(len(M.indices)) + neighbour_rows + 1] = M.indices
     return rows, cols, starts
 
 
@@ -318,10 +332,13 @@ def links_from_weights(weights: sp.sparray | np.ndarray) -> tuple[np.ndarray, np
     """Sorted links (sender j, receiver i) of the off-diagonal nonzeros ``P[i, j]``,
     dense or sparse, without building a graph."""
     if sp.issparse(weights):
-        coo = sp.coo_array(weights)
-        i, j, v = coo.row, coo.col, coo.data
-        keep = (i != j) & (v != 0)
-        i, j = i[keep], j[keep]
+        # column-major (CSC, a counting sort) is sender-major: already in link order
+        csc = sp.csc_array(weights)
+        csc.sum_duplicates()
+        j = np.repeat(np.arange(csc.shape[1], dtype=np.int64), np.diff(csc.indptr))
+        i = csc.indices.astype(np.int64)
+        keep = (i != j) & (csc.data != 0)
+        return j[keep], i[keep]
     else:
         i, j = np.nonzero(weights)
         keep = i != j

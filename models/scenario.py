@@ -98,6 +98,7 @@ __all__ = [
     "DEFAULTS",
     "DEFAULT_ESTIMATORS",
     "SPARSE_MIN_AGENTS",
+    "SUMMARY_MAX_LINKS",
     "DENSE_WEIGHTS_MAX_AGENTS",
     "LinkTable",
     "load_scenario",
@@ -120,6 +121,8 @@ SPARSE_MIN_AGENTS = 2048
 #: Largest N for which :meth:`Scenario.dense_weights` densifies sparse weights
 #: (8 N^2 bytes: 128 MiB at 4096).
 DENSE_WEIGHTS_MAX_AGENTS = 4096
+#: Largest number of links :meth:`Scenario.summary` lists one by one.
+SUMMARY_MAX_LINKS = 20_000
 #: Delay models a scenario may name under ``delays.model``.
 DELAY_MODELS = (
     "none", "homogeneous", "heterogeneous", "fixed", "synchronous", "asynchronous", "latency",
@@ -367,11 +370,13 @@ class Scenario:
             W = self.weights_sparse
             return LinkTable(src, dst, np.asarray(W[dst, src]).ravel() if len(src)
                              else np.zeros(0))
-        coo = self.weights_sparse.tocoo()
-        keep = (coo.row != coo.col) & (coo.data != 0)
-        i, j, w = coo.row[keep], coo.col[keep], coo.data[keep]
-        order = np.lexsort((i, j))
-        return LinkTable(j[order].astype(np.int64), i[order].astype(np.int64), w[order])
+        # column-major (CSC, a counting sort) is sender-major: the link order
+        csc = sp.csc_array(self.weights_sparse)
+        csc.sum_duplicates()
+        j = np.repeat(np.arange(self.n_agents, dtype=np.int64), np.diff(csc.indptr))
+        i = csc.indices.astype(np.int64)
+        keep = (i != j) & (csc.data != 0)
+        return LinkTable(j[keep], i[keep], csc.data[keep])
 
     @cached_property
     def weights_sparse(self) -> sp.csr_array:
@@ -514,7 +519,11 @@ class Scenario:
             "source": self.source,
             "n_states": self.plant.n_states,
             "n_agents": self.n_agents,
-            "links": [list(link) for link in self.links],
+            "n_links": len(self.link_table),
+            # the list itself only for networks up to SUMMARY_MAX_LINKS links (a
+            # 100,000-agent geometric graph has 1.5 million)
+            **({"links": [list(link) for link in self.links]}
+               if len(self.link_table) <= SUMMARY_MAX_LINKS else {}),
             "delays": {
                 "model": self.delays.model,
                 "tau": self.delays.tau,
@@ -1130,8 +1139,13 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         links = sorted(union.edges)
     else:
         P = _parse_network(_section(data, "network"), plant.n_sensors)
-        src, dst = links_from_weights(P)
-        links = list(zip(src.tolist(), dst.tolist(), strict=True))
+        delays_raw = data.get("delays", {})
+        if ("links" in data or topology is not None
+                or (isinstance(delays_raw, dict) and "links" in delays_raw)):
+            src, dst = links_from_weights(P)
+            links = list(zip(src.tolist(), dst.tolist(), strict=True))
+        else:
+            links = []  # only per-link tables need them (Scenario.links builds them once)
         if topology is not None and set(topology.links()) - set(links):
             extra = sorted(set(topology.links()) - set(links))[0]
             raise ScenarioError("topology.graphs", f"link {list(extra)} is not an edge of "

@@ -1155,6 +1155,38 @@ def _sparse(P: Any) -> bool:
     return bool(sp.issparse(P))
 
 
+def _lemma1_structural(P: Any, A: np.ndarray, stacked: np.ndarray) -> str:
+    """The sufficient conditions of LCSYS2022 Lemma 1 for structural observability of
+    (P kron A, D_C-bar), checked in O(N + nnz(P)): A structurally full rank, (A, C)
+    structurally observable (C: the distinct output rows, each at most n times), P
+    irreducible (strongly connected, scipy.sparse.csgraph) and self-damped."""
+    import scipy.sparse as sp
+    from netsim.models.network import links_from_weights, strongly_connected
+    from netsim.models.observability import (
+        is_structurally_full_rank,
+        is_structurally_observable,
+        sparsity_pattern,
+    )
+
+    n = A.shape[0]
+    A_pat = sparsity_pattern(A)
+    rows, counts = np.unique(sparsity_pattern(stacked), axis=0, return_counts=True)
+    C_pat = np.repeat(rows, np.minimum(counts, n), axis=0)
+    N = P.shape[0]
+    diag = P.diagonal() if sp.issparse(P) else np.diag(np.asarray(P))
+    conditions = {
+        "A structurally full rank": is_structurally_full_rank(A_pat),
+        "(A, C) structurally observable": is_structurally_observable(A_pat, C_pat),
+        "P irreducible": N < 2 or strongly_connected(N, *links_from_weights(P))[0],
+        "P self-damped": bool(np.all(diag != 0)),
+    }
+    failed = [name for name, ok in conditions.items() if not ok]
+    if not failed:
+        return ("structural: the LCSYS2022 Lemma 1 conditions hold (" +
+                ", ".join(conditions) + ")")
+    return f"structural: Lemma 1 not applicable ({', '.join(failed)} fails)"
+
+
 def design_local(
     P: Any,
     A: ArrayLike,
@@ -1181,7 +1213,10 @@ def design_local(
     Observability: the numeric PBH test of ``(A, C stacked)`` (necessary for the
     network pair; n-dimensional), always; the ``N n``-dimensional PBH test of
     ``(P kron A, D_C-bar)`` only where it is affordable (``N n <= 1500``, dense P).
-    The message says which ran.
+    Above that, the sufficient conditions of LCSYS2022 Lemma 1 for structural
+    observability are checked instead (A structurally full rank, (A, C) structurally
+    observable, P irreducible and self-damped; O(N + nnz(P))). The message says which
+    ran.
 
     Parameters
     ----------
@@ -1241,6 +1276,7 @@ def design_local(
             f" ({len(lost)} stable unobservable mode(s))" if lost else ""))
     else:
         checks.append(f"not the N n = {Nn} PBH test of (P kron A, D_C-bar) (too large)")
+        checks.append(_lemma1_structural(P, A_arr, stacked))
     # the unit gain per distinct output matrix (agents often share one C_i object)
     unit: dict[int, tuple[np.ndarray, np.ndarray]] = {}
     for Ci in C_list:

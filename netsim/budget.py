@@ -253,7 +253,8 @@ def _sizes(scenario: Any) -> tuple[int, int, int, int, int, int]:
     plant = scenario.plant
     n = int(plant.n_states)
     N = int(scenario.n_agents)
-    L = len(scenario.links)
+    table = getattr(scenario, "link_table", None)
+    L = len(table) if table is not None else len(scenario.links)
     ms = [int(c.shape[0]) for c in plant.C] or [0]
     width = int(getattr(plant, "noise_width", n + sum(ms)))
     return n, N, L, sum(ms), max(ms), width

@@ -185,7 +185,7 @@ def test_local_design_structured_rho_equals_dense_eigvals(gamma):
     C = scenario.plant.C
     design = design_local(P_sparse, scenario.plant.A, C, gamma=gamma)
     assert design.status == "structured-arpack"
-    assert "structured" in design.message
+    assert "structured" in design.message and "Lemma 1 conditions hold" in design.message
     # independent: the dense closed loop (I - blockdiag(L_i C_i)) (P kron A), eigvals
     G = sp.block_diag([np.eye(6) - L @ Ci for L, Ci in zip(design.L, C, strict=True)]).toarray()
     M = G @ np.kron(scenario.weights, np.asarray(A6))

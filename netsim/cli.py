@@ -522,7 +522,7 @@ def _format_run(data: dict[str, Any]) -> str:
     s = data["scenario"]
     lines = [
         f"scenario {s['name']} ({s['source']}): n = {s['n_states']} states, "
-        f"N = {s['n_agents']} agents, {len(s['links'])} links",
+        f"N = {s['n_agents']} agents, {s.get('n_links', len(s.get('links', ())))} links",
         _format_delays(s, data.get("delay_bound")),
         f"run: {data['steps']} steps x {data['trials']} trials, seed {data['seed']}, "
         f"{data.get('engine', 'events')} engine",
@@ -544,6 +544,8 @@ def _format_run(data: dict[str, Any]) -> str:
             f"eq. (26) bound = {_fmt(a['bound_lcsys_eq26'])}, delay-tolerant bound "
             f"rho^(1/(tau+1)) = {_fmt(a['bound_delay_tolerant'])}"
         )
+        if a.get("note"):
+            lines.append(f"analytics: {a['note']}")
         if a.get("rho_exact_compensated") is not None:
             lines.append(
                 f"exact rho of the augmented closed loop for the realised delays: "

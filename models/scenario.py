@@ -398,6 +398,24 @@ class Scenario:
                                 f"{DENSE_WEIGHTS_MAX_AGENTS})")
         return self.weights.toarray()
 
+    def densified(self, what: str = "this command") -> Scenario:
+        """This scenario with dense weights (itself if they are dense already).
+
+        Sparse weights are densified up to :data:`DENSE_WEIGHTS_MAX_AGENTS` agents;
+        above, ScenarioError in one line saying that ``what`` needs the dense N x N
+        matrix and what runs at that size instead.
+        """
+        if not sp.issparse(self.weights):
+            return self
+        N = self.n_agents
+        if N > DENSE_WEIGHTS_MAX_AGENTS:
+            raise ScenarioError("network.agents", f"{what} needs the dense N x N consensus "
+                                f"matrix ({8 * N * N / 2**30:.1f} GiB at N = {N}; dense "
+                                f"paths go up to {DENSE_WEIGHTS_MAX_AGENTS} agents); at this "
+                                "size `netsim run` (vectorised engine, [gains] method = "
+                                "'local' or 'auto') is supported")
+        return replace(self, weights=self.weights.toarray())
+
     @cached_property
     def links(self) -> list[tuple[int, int]]:
         """Sorted links (sender, receiver); built once."""

@@ -321,6 +321,8 @@ def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,
     n, N, L, m, _, _ = _sizes(scenario)
     K1 = int(steps) + 1
     kept = 8 * K1 * (n + m + N + (N * n if keep_estimates or engine != "vectorised" else 0))
+    if keep_estimates:
+        kept += 4 * K1 * N * N  # the kept trials' (K+1, N, N) effective-delay records
     if engine == "vectorised":
         from netsim.vectorised import BATCH_ELEMENTS
 

@@ -590,13 +590,15 @@ def _format_run(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _load(name: str, tau: int | None = None):
+def _load(name: str, tau: int | None = None, what: str | None = None):
     from netsim.models.scenario import ScenarioError, resolve_scenario
 
     try:
         scenario = resolve_scenario(name)
         if tau is not None:
             scenario = scenario.with_tau(tau)
+        if what is not None:  # the command's analytics need the dense P
+            scenario = scenario.densified(what)
     except ScenarioError as exc:
         raise CommandError(f"scenario {name}: {exc}") from None
     return scenario
@@ -632,7 +634,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     if args.tau1 is not None and args.tau1 < 0:
         raise CommandError(f"--tau1 must be a non-negative integer, got {args.tau1}")
-    scenario = _load(args.scenario)
+    scenario = _load(args.scenario, what="netsim design")
     P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
     overrides = {"method": args.method, "tau1": args.tau1, "refine": args.refine}
     try:
@@ -713,7 +715,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
         report = analyze_trace(_read(args.scenario))
         return _emit(args, report.to_dict(), report.format_text())
-    scenario = _load(args.scenario)
+    scenario = _load(args.scenario, what="netsim analyze")
     try:
         gains = scenario_gains(scenario)
     except (GainDesignError, ValueError) as exc:

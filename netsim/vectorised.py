@@ -440,6 +440,11 @@ def _kalman_run(scenario: Scenario, batch: PlantBatch, steps: int,
     from netsim.estimators.kalman import kalman_gain
 
     plant = scenario.plant
+    M = sum(Ci.shape[0] for Ci in plant.C)
+    # the filter's dense M x M innovation covariance (and R, the gain's solve)
+    budget.check_memory(4 * 8.0 * M * M, "plant.C", "the centralised Kalman filter of "
+                        f"M = {M} stacked outputs", f"{len(plant.C)} sensors",
+                        "drop centralized-kf from run.estimators for large networks")
     A, C, Q, R = plant.A, plant.C_stacked, plant.Q, plant.R_stacked
     K = int(steps)
     T = batch.states.shape[1]

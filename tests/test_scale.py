@@ -224,3 +224,22 @@ def test_links_cached_and_gain_cache_fingerprints_sparse(monkeypatch):
     moved = replace(scenario, weights=sp.csr_array(scenario.weights * 0.5))
     assert fingerprint(moved, request) != key
     assert fingerprint(replace(scenario), request) == key
+
+
+def test_densified_and_plant_sensors(monkeypatch):
+    monkeypatch.setattr(scn, "SPARSE_MIN_AGENTS", 2)
+    scenario = scn.parse_scenario(_toml(12, "geometric", "random", "homogeneous"))
+    C = scenario.plant.C
+    assert len(C) == 12 and all(C[i] is C[i % 4] for i in range(12))  # shared, cycling
+    assert [int(np.argmax(Ci)) for Ci in C] == [0, 2, 4, 5] * 3
+    dense = scenario.densified("netsim analyze")
+    assert not sp.issparse(dense.weights)
+    np.testing.assert_array_equal(dense.weights, scenario.weights.toarray())
+    assert dense.links == scenario.links
+    monkeypatch.setattr(scn, "DENSE_WEIGHTS_MAX_AGENTS", 8)
+    with pytest.raises(scn.ScenarioError) as exc:
+        scenario.densified("netsim analyze")
+    assert "\n" not in str(exc.value) and "netsim analyze" in str(exc.value)
+    monkeypatch.setattr(scn, "SUMMARY_MAX_LINKS", 3)
+    summary = scenario.summary()
+    assert "links" not in summary and summary["n_links"] == len(scenario.links)

@@ -20,6 +20,7 @@ Links whose model has no loss, outage or buffer are computed with array operatio
 from __future__ import annotations
 
 import heapq
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -258,7 +259,8 @@ def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[i
             # plain fixed delays (homogeneous, heterogeneous, fixed): one vectorised
             # lookup for every link (no per-link Python)
             if arrays is None:
-                arr = np.array(links, dtype=np.int64).reshape(-1, 2)
+                arr = np.fromiter(itertools.chain.from_iterable(links), dtype=np.int64,
+                                  count=2 * L).reshape(-1, 2)
                 arrays = arr[:, 0], arr[:, 1]
             d[t, :, 0] = model.link_delays(*arrays)
             continue

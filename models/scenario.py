@@ -99,6 +99,8 @@ __all__ = [
     "DEFAULT_ESTIMATORS",
     "SPARSE_MIN_AGENTS",
     "SUMMARY_MAX_LINKS",
+    "MAX_SPARSE_LINKS",
+    "MAX_AGENTS",
     "DENSE_WEIGHTS_MAX_AGENTS",
     "LinkTable",
     "load_scenario",
@@ -121,6 +123,11 @@ SPARSE_MIN_AGENTS = 2048
 #: Largest N for which :meth:`Scenario.dense_weights` densifies sparse weights
 #: (8 N^2 bytes: 128 MiB at 4096).
 DENSE_WEIGHTS_MAX_AGENTS = 4096
+#: Largest number of links (estimated before anything is drawn) and of agents a
+#: generated sparse network may have: building takes about 200 bytes per link and a
+#: run several times that, so larger requests are refused in one line at parse time.
+MAX_SPARSE_LINKS = 20_000_000
+MAX_AGENTS = 10_000_000
 #: Largest number of links :meth:`Scenario.summary` lists one by one.
 SUMMARY_MAX_LINKS = 20_000
 #: Delay models a scenario may name under ``delays.model``.
@@ -693,6 +700,9 @@ def _parse_plant(table: dict[str, Any]) -> LinearPlant:
         # N sensors cycling through the listed ones: sensor i is C[i mod len(C)]
         # (with its R); the same matrices are shared, not copied
         sensors = _int(table["sensors"], "plant.sensors", len(C))
+        if sensors > MAX_AGENTS:
+            raise ScenarioError("plant.sensors", f"= {sensors}: at most {MAX_AGENTS} sensors "
+                                "(one per agent) are supported")
         C = [C[i % len(C)] for i in range(sensors)]
         R = [R[i % len(R)] for i in range(sensors)]
     x0_mean = (
@@ -776,6 +786,9 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
     """:func:`_parse_network` from :data:`SPARSE_MIN_AGENTS` agents on: the same
     graphs (k-d tree for geometric, geometric skips for random) and weights as arrays
     and CSR, O(L log N) time, O(N + L) memory."""
+    if agents > MAX_AGENTS:
+        raise ScenarioError("network.agents", f"= {agents}: at most {MAX_AGENTS} agents are "
+                            "supported (the arrays per agent alone would not fit)")
     if topology == "cycle":
         src = np.arange(agents, dtype=np.int64)
         dst = (src + 1) % agents
@@ -786,10 +799,10 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
                        "network.edge_probability")
         if not 0 <= prob <= 1:
             raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
-        if prob * agents * agents > 5e7:
+        if prob * agents * agents > MAX_SPARSE_LINKS:
             raise ScenarioError("network.edge_probability", f"= {prob:g} gives about "
                                 f"{prob * agents * agents:.3g} links at N = {agents}; "
-                                "at most 5e7 are supported (lower it)")
+                                f"at most {MAX_SPARSE_LINKS:.0e} are supported (lower it)")
         src, dst = random_links(agents, prob, seed)
     elif topology == "geometric":
         radius = table.get("radius")
@@ -797,10 +810,13 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
             radius = _number(radius, "network.radius")
             if radius <= 0:
                 raise ScenarioError("network.radius", f"must be > 0, got {radius}")
-            if math.pi * radius * radius * agents * agents > 1e8:
-                raise ScenarioError("network.radius", f"= {radius:g} gives about "
-                                    f"{math.pi * radius * radius * agents * agents:.3g} "
-                                    f"links at N = {agents}; at most 1e8 are supported")
+        r = radius if radius is not None else math.sqrt(2.0 * math.log(agents) / agents)
+        expected = min(math.pi * r * r, 1.0) * agents * (agents - 1)
+        if expected > MAX_SPARSE_LINKS:
+            raise ScenarioError("network.radius", f"= {r:g}{'' if radius else ' (default)'} "
+                                f"gives about {expected:.3g} links at N = {agents}; at most "
+                                f"{MAX_SPARSE_LINKS:.0e} are supported (lower the radius or "
+                                "the agents)")
         src, dst, _ = geometric_links(agents, radius, seed)
     elif topology == "edges":
         edges = _parse_edge_list(_require(table, "edges", "network"), "network.edges", agents)

@@ -243,3 +243,17 @@ def test_densified_and_plant_sensors(monkeypatch):
     monkeypatch.setattr(scn, "SUMMARY_MAX_LINKS", 3)
     summary = scenario.summary()
     assert "links" not in summary and summary["n_links"] == len(scenario.links)
+
+
+def test_huge_sparse_requests_refused_in_one_line(monkeypatch):
+    monkeypatch.setattr(scn, "SPARSE_MIN_AGENTS", 2)
+    monkeypatch.setattr(scn, "MAX_SPARSE_LINKS", 100)
+    for topology, key in (("geometric", "network.radius"),
+                          ("random", "network.edge_probability")):
+        with pytest.raises(scn.ScenarioError) as exc:
+            scn.parse_scenario(_toml(60, topology, "random", "homogeneous"))
+        assert exc.value.key == key and "\n" not in str(exc.value)
+    monkeypatch.setattr(scn, "MAX_AGENTS", 50)
+    with pytest.raises(scn.ScenarioError) as exc:
+        scn.parse_scenario(_toml(60, "cycle", "random", "homogeneous"))
+    assert exc.value.key == "plant.sensors"

@@ -428,7 +428,7 @@ def graph_from_weights(weights: np.ndarray) -> nx.DiGraph:
 
     Parameters
     ----------
-    weights : numpy.ndarray, shape (N, N)
+    weights : numpy.ndarray or scipy.sparse matrix, shape (N, N)
         Consensus matrix; ``weights[i, j] != 0`` gives the edge (j, i).
 
     Returns
@@ -438,6 +438,10 @@ def graph_from_weights(weights: np.ndarray) -> nx.DiGraph:
     n_agents = weights.shape[0]
     graph = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
+    if sp.issparse(weights):  # no N x N array (a networkx graph still costs ~1 kB a link)
+        src, dst = links_from_weights(weights)
+        graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
+        return graph
     rows, cols = np.nonzero(weights)
     graph.add_edges_from((int(j), int(i)) for i, j in zip(rows, cols, strict=True) if i != j)
     return graph

@@ -82,6 +82,8 @@ def test_strong_connectivity_agrees_with_networkx():
         g.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
         ok, count = nw.strongly_connected(N, src, dst)
         assert ok == nx.is_strongly_connected(g)
+        W = sp.csr_array(np.eye(N) + mask.T)  # P[i, j] != 0 iff j -> i
+        assert sorted(nw.graph_from_weights(W).edges) == sorted(g.edges)
         assert count == nx.number_strongly_connected_components(g)
         seen.add(ok)
         if not ok:  # the sparse consensus check refuses it, as the dense one does

@@ -118,7 +118,9 @@ DEFAULT_REFINE_MAX_ITER: int = 200
 #: Accepted values of ``method`` (aliases: ``"block-diagonal"``, ``"block-diagonal-lmi"``).
 METHODS: tuple[str, ...] = ("lmi", "ccl", "auto", "local")
 #: ``method="auto"`` runs the local design (:func:`design_local`) above this ``N n``
-#: (the LMI's SDP has an ``N n`` cone; at 1,500 rows it takes minutes and gigabytes).
+#: (the LMI's SDP has an ``N n`` cone; at 1,500 rows it takes minutes and gigabytes);
+#: a scenario without ``gains.method`` uses the same rule
+#: (``netsim.models.scenario.LOCAL_DEFAULT_MIN_STATES``).
 LOCAL_AUTO_MIN_STATES: int = 1500
 #: Gain scales ``gamma`` the local design tries when ``N n`` is at most
 #: :data:`LOCAL_SEARCH_MAX_STATES` (one exact structured spectral radius each).

@@ -128,6 +128,9 @@ DENSE_WEIGHTS_MAX_AGENTS = 4096
 #: run several times that, so larger requests are refused in one line at parse time.
 MAX_SPARSE_LINKS = 20_000_000
 MAX_AGENTS = 10_000_000
+#: Above this N n a scenario without ``gains.method`` uses the local design (the
+#: same size rule as ``method = "auto"``, ``netsim.estimators.gains.LOCAL_AUTO_MIN_STATES``).
+LOCAL_DEFAULT_MIN_STATES = 1500
 #: Largest number of links :meth:`Scenario.summary` lists one by one.
 SUMMARY_MAX_LINKS = 20_000
 #: Delay models a scenario may name under ``delays.model``.
@@ -157,6 +160,7 @@ DEFAULTS: dict[str, Any] = {
     "delays.seed": 0,
     "delays.default": 0,
     "gains.method": "lmi",
+    "gains.method (N n > 1500)": "local",
     "gains.tau1": 0,
     "gains.refine_from": "auto",
     "links.delay.mode": "asynchronous",
@@ -1111,7 +1115,10 @@ def _parse_links(table: dict[str, Any], links: list[tuple[int, int]], delays: De
 
 
 def _parse_gains(table: dict[str, Any], plant: LinearPlant) -> GainSpec:
-    method = table.get("method", DEFAULTS["gains.method"])
+    default = DEFAULTS["gains.method"]
+    if plant.n_sensors * plant.n_states > LOCAL_DEFAULT_MIN_STATES:
+        default = "local"  # the LMI is not affordable at this size
+    method = table.get("method", default)
     if not isinstance(method, str) or method not in GAIN_METHODS:
         raise ScenarioError(
             "gains.method", f"unknown method {method!r}; expected one of {', '.join(GAIN_METHODS)}"

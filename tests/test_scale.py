@@ -259,3 +259,12 @@ def test_huge_sparse_requests_refused_in_one_line(monkeypatch):
     with pytest.raises(scn.ScenarioError) as exc:
         scn.parse_scenario(_toml(60, "cycle", "random", "homogeneous"))
     assert exc.value.key == "plant.sensors"
+
+
+def test_default_gain_method_by_size():
+    data = _toml(300, "geometric", "random", "homogeneous")  # N n = 1800
+    del data["gains"]
+    assert scn.parse_scenario(data).gains.method == "local"
+    small = _toml(40, "geometric", "random", "homogeneous")  # N n = 240
+    del small["gains"]
+    assert scn.parse_scenario(small).gains.method == "lmi"

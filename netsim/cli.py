@@ -107,10 +107,12 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     design.add_argument("scenario", help="built-in scenario name or TOML file")
-    design.add_argument("--method", default=None, choices=["auto", "lmi", "ccl"],
+    design.add_argument("--method", default=None, choices=["auto", "lmi", "ccl", "local"],
                         help="override the scenario's [gains] method (default: the "
                         "scenario's, which netsim run uses); auto: cone-complementarity "
-                        "for small networks, block-diagonal LMI otherwise")
+                        "for small networks, block-diagonal LMI up to N n = 1500, the local "
+                        "design above; local: L_i = gamma C_i^T (C_i C_i^T)^+ with the "
+                        "exact rho (any size)")
     design.add_argument("--tau1", type=int, default=None,
                         help="design to tolerate delays up to tau1 (default: the scenario's "
                         "gains.tau1, 0 if unset: delay-free)")

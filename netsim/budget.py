@@ -270,6 +270,17 @@ def _constant_links(scenario: Any) -> bool:
             and getattr(model, "unit", "steps") == "steps")
 
 
+def _one_delay(scenario: Any) -> bool:
+    """Plain fixed delays with no per-link entry (homogeneous, or model none)."""
+    from netsim.models.delays import FixedDelays
+
+    try:
+        model = scenario.delay_model(0)
+    except Exception:  # noqa: BLE001 - only an estimate
+        return False
+    return type(model) is FixedDelays and not model.delays
+
+
 def kernel_trial_bytes(scenario: Any, steps: int, *, record_delays: bool = False) -> int:
     """Peak bytes of one event-kernel trial: noise, states, measurements, estimates
     (K+1, N, n), squared errors and, if recorded, effective delays (K+1, N, N)."""
@@ -295,6 +306,12 @@ def vectorised_batch_bytes(scenario: Any, steps: int, trials: int, *,
     if horizon is None:
         horizon = delay_horizon(max(scenario.max_delay, scenario.delay_bound + 1), steps)
     per_message = 16 if _constant_links(scenario) else 75
+    if per_message == 16 and _one_delay(scenario):
+        # one delay on every link: the schedule is broadcast views, and so is the
+        # message selection when a message goes every step; the block family's
+        # selection (a message every tau + 1 steps) is two int32 per message
+        # (netsim.linkschedule._select_constant)
+        per_message = 8
     per_step_trial = (8 * (width + n + m + N * m_max + N + (N * n if record_estimates else 0))
                       + L * per_message)
     ring = (horizon + 2) * N * T * n * 8

@@ -2,10 +2,12 @@
 
 A design is deterministic given the consensus matrix P, the plant's A and C_i, the
 scenario's ``[gains]`` request and the solver stack, so it is stored under a
-fingerprint of exactly those: the bytes of P, A and every C_i (float64), the request
+fingerprint of exactly those: the bytes of P (dense; or a sparse P's CSR shape,
+indptr, indices and values, never densified), A and every C_i (float64), the request
 (method, tau1, refine_from, the given K_i), and the versions of netsim, numpy, scipy,
-cvxpy and clarabel. An entry is one ``.npz`` file holding the design (its K_i, L_i and
-scalar fields) and the fingerprint it was made for; an entry that does not load, does
+cvxpy and clarabel. An entry is one ``.npz`` file holding the design (layout 2: the K_i
+stacked, shape (N, n, n), the L_i side by side, shape (n, sum m_i), so two arrays at any
+N; and the scalar fields) and the fingerprint it was made for; an entry that does not load, does
 not carry its own fingerprint or has arrays of the wrong shapes is ignored and
 rewritten, never trusted. Writes go to a temporary file renamed into place, so a
 killed writer leaves no half entry.

@@ -32,6 +32,7 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 from netsim.estimators.contract import ContractError, check_estimator
 
 __all__ = [
@@ -127,7 +128,9 @@ class FamilyContext:
             n_agents=scenario.n_agents,
             in_neighbours=tuple(self.in_neighbours(agent)),
             out_neighbours=tuple(self.out_neighbours(agent)),
-            weights=np.asarray(scenario.weights[agent], dtype=float).copy(),
+            weights=(scenario.weights_sparse[[agent], :].toarray()[0]
+                     if sp.issparse(scenario.weights)
+                     else np.asarray(scenario.weights[agent], dtype=float).copy()),
             A=plant.A, C=plant.C[agent], Q=plant.Q, R=plant.R[agent],
             prior_mean=plant.x0_mean, prior_cov=plant.x0_cov, L=gain,
             rng=self.stream("agent", agent),

@@ -521,8 +521,22 @@ class _FirstRow:
         N, n = G.shape[0], G.shape[1]
         self.N, self.n, self.R = N, n, B.shape[0]
         self.Nn = N * n
-        rows, cols = np.nonzero(P)
-        r_edge = index[rows, cols].astype(np.int64)
+        if sp.issparse(P):
+            # sparse P (large N): ``index`` is per stored entry in CSR order, or None
+            # (every entry r = 0); no N x N array is formed
+            csr = sp.csr_array(P)
+            csr.sort_indices()
+            rows = np.repeat(np.arange(N), np.diff(csr.indptr))
+            cols = csr.indices.astype(np.int64)
+            vals = csr.data.astype(float)
+            nonzero = vals != 0
+            rows, cols, vals = rows[nonzero], cols[nonzero], vals[nonzero]
+            r_edge = (np.zeros(rows.size, dtype=np.int64) if index is None
+                      else np.asarray(index, dtype=np.int64)[nonzero])
+        else:
+            rows, cols = np.nonzero(P)
+            vals = P[rows, cols]
+            r_edge = index[rows, cols].astype(np.int64)
         used = np.unique(r_edge)
         self.nnz = rows.size
         bsr_cost = self.nnz * n * n
@@ -536,13 +550,14 @@ class _FirstRow:
             if kind == "bsr":
                 block_col = r_edge * N + cols
                 order = np.lexsort((block_col, rows))
-                rows, cols, r_edge, block_col = (
+                rows, cols, r_edge, block_col, vals = (
                     rows[order],
                     cols[order],
                     r_edge[order],
                     block_col[order],
+                    vals[order],
                 )
-                data = P[rows, cols][:, None, None] * (G[rows] @ B[r_edge])
+                data = vals[:, None, None] * (G[rows] @ B[r_edge])
                 indptr = np.searchsorted(rows, np.arange(N + 1))
                 self.finite = bool(np.all(np.isfinite(data)))
                 self._S = sp.csr_array(
@@ -555,10 +570,9 @@ class _FirstRow:
             else:
                 self._parts = []
                 for r in used:
-                    mask = np.zeros(P.shape, dtype=bool)
                     sel = r_edge == r
-                    mask[rows[sel], cols[sel]] = True
-                    self._parts.append((int(r), sp.csr_array(np.where(mask, P, 0.0)), B[r]))
+                    part = sp.csr_array((vals[sel], (rows[sel], cols[sel])), shape=(N, N))
+                    self._parts.append((int(r), part, B[r]))
                 self._G = G
                 self.finite = bool(np.all(np.isfinite(B[used])) and np.all(np.isfinite(G)))
                 self.is_zero = self.nnz == 0 or not np.any(G) or not np.any(B[used])
@@ -865,6 +879,21 @@ def delay_free_spectral_radius(
     float
         ``rho((I - K D_C-bar)(P kron A))``.
     """
+    if sp.issparse(P):
+        # large sparse networks: always the structured operator (no N x N array)
+        A_arr = np.asarray(A, dtype=float)
+        C_list = [np.atleast_2d(np.asarray(Ci, dtype=float)) for Ci in C]
+        if len(C_list) != P.shape[0]:
+            raise ValueError(f"C has {len(C_list)} output matrices but P is "
+                             f"{P.shape[0]}x{P.shape[1]}")
+        method = _check_method(method)
+        if method == "dense":
+            raise ValueError("method='dense' needs a dense P")
+        G = _gain_blocks(L, C_list)
+        if not np.all(np.isfinite(A_arr)):
+            return float("inf")
+        row = _FirstRow(G, P, None, A_arr[None])
+        return _companion_rho(row, "matrix (I - K D)(P kron A)")
     P_arr, A_arr, C_list = _check_system(P, A, C)
     return _block_rho(_gain_blocks(L, C_list), P_arr, A_arr, _check_method(method))
 

@@ -196,10 +196,29 @@ class FixedDelays:
         """Delays of messages sent at ``send_steps``, shape (len(send_steps),)."""
         return np.full(len(send_steps), self.draw(sender, receiver, 0), dtype=np.int64)
 
+    def link_delays(self, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+        """Delay of every link (src[l], dst[l]) at once, shape (L,), int64 (vectorised
+        :meth:`draw`: the default, then the listed links by a sorted-key search)."""
+        src = np.asarray(src, dtype=np.int64)
+        dst = np.asarray(dst, dtype=np.int64)
+        out = np.full(len(src), int(self.default), dtype=np.int64)
+        if self.delays and len(src):
+            listed = np.array(list(self.delays), dtype=np.int64).reshape(-1, 2)
+            values = np.array(list(self.delays.values()), dtype=np.int64)
+            base = int(max(src.max(), dst.max(), listed.max())) + 1
+            keys = src * base + dst
+            order = np.argsort(keys, kind="stable")
+            wanted = listed[:, 0] * base + listed[:, 1]
+            at = np.minimum(np.searchsorted(keys[order], wanted), len(keys) - 1)
+            hit = keys[order][at] == wanted
+            out[order[at[hit]]] = values[hit]
+        return out
+
 
 def homogeneous_delays(links: Iterable[Link], tau: int) -> FixedDelays:
-    """Return fixed delays equal to ``tau`` on every link."""
-    return FixedDelays({link: int(tau) for link in links}, default=int(tau))
+    """Return fixed delays equal to ``tau`` on every link (the default: no per-link
+    table, so this is O(1) at any number of links)."""
+    return FixedDelays({}, default=int(tau))
 
 
 def heterogeneous_delays(links: Iterable[Link], tau: int, seed: SeedLike) -> FixedDelays:

@@ -14,7 +14,10 @@ import math
 
 import networkx as nx
 import numpy as np
+import scipy.sparse as sp
 from netsim.models.seeding import SeedLike, stream
+from scipy.sparse.csgraph import connected_components
+from scipy.spatial import cKDTree
 
 __all__ = [
     "NetworkError",
@@ -28,10 +31,24 @@ __all__ = [
     "graph_from_weights",
     "check_consensus_matrix",
     "ROW_SUM_TOLERANCE",
+    "DENSE_RANDOM_MAX_AGENTS",
+    "geometric_links",
+    "random_links",
+    "strongly_connected",
+    "links_of_graph",
+    "sparse_random_weights",
+    "sparse_uniform_weights",
+    "sparse_lazy_metropolis_weights",
+    "links_from_weights",
+    "check_sparse_consensus_matrix",
 ]
 
 #: Tolerance on |row sum - 1| accepted for a row-stochastic matrix.
 ROW_SUM_TOLERANCE = 1e-9
+#: Largest N for which :func:`random_links` (and :func:`random_strongly_connected`)
+#: draws the historic dense N x N uniform matrix, so existing seeds keep their graphs;
+#: above it the extra edges are drawn by geometric skips, O(edges).
+DENSE_RANDOM_MAX_AGENTS = 2048
 
 
 class NetworkError(ValueError):
@@ -82,17 +99,10 @@ def random_strongly_connected(
     """
     if n_agents < 2:
         raise NetworkError(f"a strongly-connected digraph needs at least 2 agents, got {n_agents}")
-    rng = stream(seed, "network/random")
-    order = rng.permutation(n_agents)
+    src, dst = random_links(n_agents, edge_probability, seed)
     graph = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
-    graph.add_edges_from(
-        (int(order[k]), int(order[(k + 1) % n_agents])) for k in range(n_agents)
-    )
-    extra = rng.random((n_agents, n_agents)) < edge_probability
-    for j, i in zip(*np.nonzero(extra), strict=True):
-        if i != j:
-            graph.add_edge(int(j), int(i))
+    graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
     return graph
 
 
@@ -118,23 +128,222 @@ def geometric(n_agents: int, radius: float | None = None, seed: SeedLike = None)
     """
     if n_agents < 2:
         raise NetworkError(f"a geometric network needs at least 2 agents, got {n_agents}")
+    src, dst, positions = geometric_links(n_agents, radius, seed)
+    graph = nx.DiGraph()
+    for i in range(n_agents):
+        graph.add_node(i, pos=(float(positions[i, 0]), float(positions[i, 1])))
+    graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
+    return graph
+
+
+def _sorted_links(src: np.ndarray, dst: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Links sorted by sender, then receiver (one argsort of an int64 key)."""
+    src = np.asarray(src, dtype=np.int64)
+    dst = np.asarray(dst, dtype=np.int64)
+    if not len(src):
+        return src, dst
+    base = int(max(src.max(), dst.max())) + 1
+    # a counting sort by sender (CSR construction), then receivers within each row
+    M = sp.csr_array((np.ones(len(src), dtype=np.int8), (src, dst)), shape=(base, base))
+    M.sum_duplicates()
+    rows = np.repeat(np.arange(base, dtype=np.int64), np.diff(M.indptr))
+    return rows, M.indices.astype(np.int64)
+
+
+def strongly_connected(n_agents: int, src: np.ndarray, dst: np.ndarray) -> tuple[bool, int]:
+    """Whether the digraph with links ``src[l] -> dst[l]`` is strongly connected.
+
+    ``scipy.sparse.csgraph.connected_components(connection="strong")`` on the
+    adjacency in CSR form, O(N + L).
+
+    Parameters
+    ----------
+    n_agents : int
+        Number of nodes N.
+    src, dst : numpy.ndarray, shape (L,)
+        Link endpoints (sender, receiver).
+
+    Returns
+    -------
+    connected : bool
+    components : int
+        Number of strongly connected components.
+    """
+    adjacency = sp.csr_array((np.ones(len(src), dtype=np.int8), (np.asarray(src),
+                              np.asarray(dst))), shape=(n_agents, n_agents))
+    count, _ = connected_components(adjacency, directed=True, connection="strong")
+    return count == 1, int(count)
+
+
+def geometric_links(n_agents: int, radius: float | None = None, seed: SeedLike = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The links of :func:`geometric` as arrays, by a k-d tree in O(L log N).
+
+    The points (stream ``"network/geometric"``, uniform in the unit square) and the
+    radius rule (default ``sqrt(2 log N / N)``, grown by 10% until the graph is
+    connected) are those of :func:`geometric`; the pairs within the radius come from
+    ``scipy.spatial.cKDTree.query_pairs`` (distance at most r), re-queried at each
+    growth (O(L log N) each time, never N^2).
+
+    Returns
+    -------
+    src, dst : numpy.ndarray, shape (L,), int64
+        Links sender -> receiver, both directions of every pair, sorted by sender
+        then receiver.
+    positions : numpy.ndarray, shape (N, 2)
+    """
+    if n_agents < 2:
+        raise NetworkError(f"a geometric network needs at least 2 agents, got {n_agents}")
     rng = stream(seed, "network/geometric")
     positions = rng.random((n_agents, 2))
     if radius is not None and not radius > 0:
         raise NetworkError(f"geometric network radius must be > 0, got {radius}")
     r = radius if radius is not None else math.sqrt(2.0 * math.log(n_agents) / n_agents)
-    dist = np.linalg.norm(positions[:, None, :] - positions[None, :, :], axis=-1)
+    tree = cKDTree(positions)
     while True:
-        graph = nx.DiGraph()
-        for i in range(n_agents):
-            graph.add_node(i, pos=(float(positions[i, 0]), float(positions[i, 1])))
-        for i in range(n_agents):
-            for j in range(n_agents):
-                if i != j and dist[i, j] <= r:
-                    graph.add_edge(j, i)
-        if nx.is_strongly_connected(graph):
-            return graph
+        pairs = tree.query_pairs(r, output_type="ndarray")
+        src = np.concatenate([pairs[:, 0], pairs[:, 1]])
+        dst = np.concatenate([pairs[:, 1], pairs[:, 0]])
+        # symmetric links: strongly connected iff connected
+        if len(src) and strongly_connected(n_agents, src, dst)[0]:
+            src, dst = _sorted_links(src, dst)
+            return src, dst, positions
         r *= 1.1
+
+
+def random_links(n_agents: int, edge_probability: float = 0.1, seed: SeedLike = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The links of :func:`random_strongly_connected` as sorted arrays (sender, receiver).
+
+    A random Hamiltonian cycle, then every other ordered pair independently with
+    probability ``edge_probability``. Up to :data:`DENSE_RANDOM_MAX_AGENTS` agents the
+    extra pairs come from the historic dense draw (the same graphs as before for the
+    same seed); above, from geometric skips over the N^2 ordered pairs (the same
+    distribution, O(L) time and memory).
+    """
+    if n_agents < 2:
+        raise NetworkError(f"a strongly-connected digraph needs at least 2 agents, got {n_agents}")
+    rng = stream(seed, "network/random")
+    order = rng.permutation(n_agents)
+    cycle_src, cycle_dst = order, np.roll(order, -1)
+    if n_agents <= DENSE_RANDOM_MAX_AGENTS:
+        extra = rng.random((n_agents, n_agents)) < edge_probability
+        ej, ei = np.nonzero(extra)
+    elif edge_probability <= 0:
+        ej = ei = np.zeros(0, dtype=np.int64)
+    else:
+        total = n_agents * n_agents
+        chunks, position = [], -1
+        expected = int(total * edge_probability * 1.05) + 64
+        while True:
+            if edge_probability >= 1:
+                gaps = np.ones(expected, dtype=np.int64)
+            else:
+                gaps = rng.geometric(edge_probability, size=expected)
+            flat = position + np.cumsum(gaps)
+            position = int(flat[-1])
+            chunks.append(flat[flat < total])
+            if position >= total:
+                break
+        flat = np.concatenate(chunks)
+        ej, ei = np.divmod(flat, n_agents)
+    keep = ej != ei
+    src = np.concatenate([cycle_src, ej[keep]])
+    dst = np.concatenate([cycle_dst, ei[keep]])
+    key = np.unique(src.astype(np.int64) * n_agents + dst)
+    return _sorted_links(key // n_agents, key % n_agents)
+
+
+def links_of_graph(graph: nx.DiGraph) -> tuple[int, np.ndarray, np.ndarray]:
+    """N and the sorted links (sender, receiver) of a networkx graph, self-loops dropped."""
+    n_agents = _nodes(graph)
+    edges = np.array([e for e in graph.edges if e[0] != e[1]], dtype=np.int64).reshape(-1, 2)
+    src, dst = _sorted_links(edges[:, 0], edges[:, 1])
+    return n_agents, src, dst
+
+
+def _row_support(n_agents: int, src: np.ndarray, dst: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rows (receivers) and columns (self, then in-neighbours ascending) of every
+    nonzero of P, in the order :func:`random_weights` draws them, and the row starts."""
+    # in-neighbours of each receiver ascending (CSR: a counting sort), then the self
+    # entry put in front of every row
+    M = sp.csr_array((np.ones(len(src), dtype=np.int8), (np.asarray(dst), np.asarray(src))),
+                     shape=(n_agents, n_agents))
+    M.sum_duplicates()
+    degree = np.diff(M.indptr)
+    starts = np.concatenate([[0], np.cumsum(degree + 1)]).astype(np.int64)
+    rows = np.repeat(np.arange(n_agents, dtype=np.int64), degree + 1)
+    cols = np.empty(len(rows), dtype=np.int64)
+    cols[starts[:-1]] = np.arange(n_agents)
+    neighbour_rows = np.repeat(np.arange(n_agents, dtype=np.int64), degree)
+    cols[np.arange(len(M.indices)) + neighbour_rows + 1] = M.indices
+    return rows, cols, starts
+
+
+def _csr(rows: np.ndarray, cols: np.ndarray, values: np.ndarray, n_agents: int) -> sp.csr_array:
+    P = sp.csr_array((values, (rows, cols)), shape=(n_agents, n_agents))
+    P.sort_indices()
+    return P
+
+
+def sparse_random_weights(n_agents: int, src: np.ndarray, dst: np.ndarray,
+                          seed: SeedLike = None) -> sp.csr_array:
+    """:func:`random_weights` as a CSR matrix, O(N + L): the same draws in the same
+    order (row by row: the self weight, then the in-neighbours ascending), normalised
+    per row.
+
+    Returns
+    -------
+    scipy.sparse.csr_array, shape (N, N)
+    """
+    rng = stream(seed, "network/weights")
+    rows, cols, starts = _row_support(n_agents, src, dst)
+    w = rng.uniform(0.1, 1.0, size=len(rows))
+    sums = np.add.reduceat(w, starts[:-1])
+    return _csr(rows, cols, w / sums[rows], n_agents)
+
+
+def sparse_uniform_weights(n_agents: int, src: np.ndarray, dst: np.ndarray) -> sp.csr_array:
+    """:func:`uniform_weights` as a CSR matrix: p_ij = 1 / (|N_i| + 1), O(N + L)."""
+    rows, cols, starts = _row_support(n_agents, src, dst)
+    size = np.diff(starts)
+    return _csr(rows, cols, 1.0 / size[rows], n_agents)
+
+
+def sparse_lazy_metropolis_weights(n_agents: int, src: np.ndarray, dst: np.ndarray
+                                   ) -> sp.csr_array:
+    """:func:`lazy_metropolis_weights` as a CSR matrix, O(N + L): symmetric, doubly
+    stochastic, on the undirected version of the links."""
+    a, b = np.minimum(src, dst), np.maximum(src, dst)
+    key = np.unique(a.astype(np.int64) * n_agents + b)
+    a, b = key // n_agents, key % n_agents
+    degree = np.bincount(a, minlength=n_agents) + np.bincount(b, minlength=n_agents)
+    w = 1.0 / (2.0 * np.maximum(degree[a], degree[b]))
+    off = sp.csr_array((np.concatenate([w, w]), (np.concatenate([a, b]),
+                        np.concatenate([b, a]))), shape=(n_agents, n_agents))
+    diag = 1.0 - np.asarray(off.sum(axis=1)).ravel()
+    P = sp.csr_array(off + sp.diags_array(diag, format="csr"))
+    P.sort_indices()
+    return P
+
+
+def links_from_weights(weights: sp.sparray | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sorted links (sender j, receiver i) of the off-diagonal nonzeros ``P[i, j]``,
+    dense or sparse, without building a graph."""
+    if sp.issparse(weights):
+        # column-major (CSC, a counting sort) is sender-major: already in link order
+        csc = sp.csc_array(weights)
+        csc.sum_duplicates()
+        j = np.repeat(np.arange(csc.shape[1], dtype=np.int64), np.diff(csc.indptr))
+        i = csc.indices.astype(np.int64)
+        keep = (i != j) & (csc.data != 0)
+        return j[keep], i[keep]
+    else:
+        i, j = np.nonzero(weights)
+        keep = i != j
+        i, j = i[keep], j[keep]
+    return _sorted_links(np.asarray(j), np.asarray(i))
 
 
 def in_neighbours(graph: nx.DiGraph, agent: int) -> list[int]:
@@ -219,7 +428,7 @@ def graph_from_weights(weights: np.ndarray) -> nx.DiGraph:
 
     Parameters
     ----------
-    weights : numpy.ndarray, shape (N, N)
+    weights : numpy.ndarray or scipy.sparse matrix, shape (N, N)
         Consensus matrix; ``weights[i, j] != 0`` gives the edge (j, i).
 
     Returns
@@ -229,6 +438,10 @@ def graph_from_weights(weights: np.ndarray) -> nx.DiGraph:
     n_agents = weights.shape[0]
     graph = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
+    if sp.issparse(weights):  # no N x N array (a networkx graph still costs ~1 kB a link)
+        src, dst = links_from_weights(weights)
+        graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
+        return graph
     rows, cols = np.nonzero(weights)
     graph.add_edges_from((int(j), int(i)) for i, j in zip(rows, cols, strict=True) if i != j)
     return graph
@@ -279,3 +492,49 @@ def check_consensus_matrix(weights: np.ndarray, name: str = "P") -> None:
             f"{name}: the communication graph is not strongly connected "
             f"({len(components)} strongly connected components, e.g. {sorted(components[0])})"
         )
+
+
+def check_sparse_consensus_matrix(weights: sp.sparray, name: str = "P") -> None:
+    """:func:`check_consensus_matrix` on a sparse matrix, O(N + nnz).
+
+    The same properties and messages: square, finite, nonnegative, row sums 1,
+    positive self-weights (the stored diagonal), strong connectivity
+    (``scipy.sparse.csgraph.connected_components(connection="strong")``).
+    """
+    P = sp.csr_array(weights)
+    if P.ndim != 2 or P.shape[0] != P.shape[1]:
+        raise NetworkError(f"{name}: expected a square N x N matrix, got shape {P.shape}")
+    coo = P.tocoo()
+    bad = ~np.isfinite(coo.data)
+    if bad.any():
+        q = int(np.flatnonzero(bad)[0])
+        raise NetworkError(f"{name}[{coo.row[q]}][{coo.col[q]}] is not finite ({coo.data[q]})")
+    neg = coo.data < 0
+    if neg.any():
+        q = int(np.flatnonzero(neg)[0])
+        raise NetworkError(f"{name}[{coo.row[q]}][{coo.col[q]}] = {coo.data[q]} is negative")
+    sums = np.asarray(P.sum(axis=1)).ravel()
+    badrow = np.flatnonzero(np.abs(sums - 1.0) > ROW_SUM_TOLERANCE)
+    if badrow.size:
+        i = int(badrow[0])
+        raise NetworkError(
+            f"{name} is not row-stochastic: row {i} sums to {sums[i]:.12g}, expected 1"
+        )
+    diag = P.diagonal()
+    zero_diag = np.flatnonzero(diag <= 0)
+    if zero_diag.size:
+        i = int(zero_diag[0])
+        raise NetworkError(f"{name}[{i}][{i}] is {diag[i]}: self-weights must be positive")
+    n_agents = P.shape[0]
+    if n_agents > 1:
+        src, dst = links_from_weights(P)
+        ok, count = strongly_connected(n_agents, src, dst)
+        if not ok:
+            adjacency = sp.csr_array((np.ones(len(src), dtype=np.int8), (src, dst)),
+                                     shape=(n_agents, n_agents))
+            _, labels = connected_components(adjacency, directed=True, connection="strong")
+            first = np.flatnonzero(labels == labels[0])
+            raise NetworkError(
+                f"{name}: the communication graph is not strongly connected "
+                f"({count} strongly connected components, e.g. {first.tolist()[:20]})"
+            )

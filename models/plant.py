@@ -81,10 +81,13 @@ class LinearPlant:
 
     @cached_property
     def _factors(self) -> tuple[np.ndarray, np.ndarray, tuple[np.ndarray, ...]]:
+        # sensors often share one R object (``plant.sensors``): factor each once
+        memo: dict[int, np.ndarray] = {}
         return (
             _factor(self.x0_cov),
             _factor(self.Q),
-            tuple(_factor(Ri) for Ri in self.R),
+            tuple(memo[id(Ri)] if id(Ri) in memo else memo.setdefault(id(Ri), _factor(Ri))
+                  for Ri in self.R),
         )
 
     def sample_initial(self, rng: np.random.Generator) -> np.ndarray:

@@ -35,6 +35,7 @@ from typing import Any
 
 import networkx as nx
 import numpy as np
+import scipy.sparse as sp
 from netsim.models.delays import (
     AsynchronousRandomDelays,
     DelayModel,
@@ -66,12 +67,19 @@ from netsim.models.linkmodels import (
 from netsim.models.network import (
     NetworkError,
     check_consensus_matrix,
+    check_sparse_consensus_matrix,
     directed_cycle,
     geometric,
+    geometric_links,
     graph_from_weights,
     lazy_metropolis_weights,
+    links_from_weights,
+    random_links,
     random_strongly_connected,
     random_weights,
+    sparse_lazy_metropolis_weights,
+    sparse_random_weights,
+    sparse_uniform_weights,
     uniform_weights,
 )
 from netsim.models.plant import LinearPlant
@@ -89,6 +97,12 @@ __all__ = [
     "REFINE_FROM",
     "DEFAULTS",
     "DEFAULT_ESTIMATORS",
+    "SPARSE_MIN_AGENTS",
+    "SUMMARY_MAX_LINKS",
+    "MAX_SPARSE_LINKS",
+    "MAX_AGENTS",
+    "DENSE_WEIGHTS_MAX_AGENTS",
+    "LinkTable",
     "load_scenario",
     "parse_scenario",
     "read_scenario_data",
@@ -100,13 +114,32 @@ __all__ = [
 #: of the registry, :mod:`netsim.estimators.registry`, which checks them: models know
 #: no families).
 DEFAULT_ESTIMATORS = ("compensated", "uncompensated", "block", "centralized-kf")
+#: From this many agents on, a generated network (``network.topology`` cycle, random,
+#: geometric or edges) is built sparse end to end: link arrays, CSR weights
+#: (``Scenario.weights`` is then a ``scipy.sparse.csr_array``), sparse consensus
+#: checks; no N x N array and no networkx graph. Below it the historic dense path runs
+#: (the same numbers as before for every existing scenario).
+SPARSE_MIN_AGENTS = 2048
+#: Largest N for which :meth:`Scenario.dense_weights` densifies sparse weights
+#: (8 N^2 bytes: 128 MiB at 4096).
+DENSE_WEIGHTS_MAX_AGENTS = 4096
+#: Largest number of links (estimated before anything is drawn) and of agents a
+#: generated sparse network may have: building takes about 200 bytes per link and a
+#: run several times that, so larger requests are refused in one line at parse time.
+MAX_SPARSE_LINKS = 20_000_000
+MAX_AGENTS = 10_000_000
+#: Above this N n a scenario without ``gains.method`` uses the local design (the
+#: same size rule as ``method = "auto"``, ``netsim.estimators.gains.LOCAL_AUTO_MIN_STATES``).
+LOCAL_DEFAULT_MIN_STATES = 1500
+#: Largest number of links :meth:`Scenario.summary` lists one by one.
+SUMMARY_MAX_LINKS = 20_000
 #: Delay models a scenario may name under ``delays.model``.
 DELAY_MODELS = (
     "none", "homogeneous", "heterogeneous", "fixed", "synchronous", "asynchronous", "latency",
 )
 #: Values of ``gains.method``: the designs ``netsim design`` offers (``refined`` is its
 #: ``--refine``) and ``given`` (explicit ``gains.K``).
-GAIN_METHODS = ("lmi", "ccl", "auto", "refined", "given")
+GAIN_METHODS = ("lmi", "ccl", "auto", "local", "refined", "given")
 #: Values of ``gains.refine_from``: the design a ``refined`` gain starts from.
 REFINE_FROM = ("lmi", "ccl", "auto", "given")
 #: Defaults of every optional key, in one place.
@@ -127,6 +160,7 @@ DEFAULTS: dict[str, Any] = {
     "delays.seed": 0,
     "delays.default": 0,
     "gains.method": "lmi",
+    "gains.method (N n > 1500)": "local",
     "gains.tau1": 0,
     "gains.refine_from": "auto",
     "links.delay.mode": "asynchronous",
@@ -143,7 +177,7 @@ _SCHEMA: dict[str, set[str]] = {
         "steps", "trials", "seed", "sample_period", "divergence_threshold",
         "steady_state_fraction", "estimators",
     },
-    "plant": {"A", "C", "Q", "R", "x0_mean", "x0_cov"},
+    "plant": {"A", "C", "Q", "R", "x0_mean", "x0_cov", "sensors"},
     "network": {"topology", "agents", "edges", "weights", "P", "seed", "edge_probability",
                 "radius"},
     "delays": {"model", "tau", "links", "default", "seed"},
@@ -229,8 +263,10 @@ class GainSpec:
     method : str
         One of :data:`GAIN_METHODS`: ``lmi`` (block-diagonal LMI with rate bisection),
         ``ccl`` (cone-complementarity, full Lyapunov matrix), ``auto`` (CCL up to
-        ``N n = 60``, LMI above), ``refined`` (the ``refine_from`` design, then a direct
-        minimisation of the spectral radius, as ``netsim design --refine``) or
+        ``N n = 60``, LMI up to 1500, ``local`` above), ``local`` (L_i = gamma C_i^T
+        (C_i C_i^T)^+, exact rho by the structured method; any N), ``refined`` (the
+        ``refine_from`` design, then a direct minimisation of the spectral radius, as
+        ``netsim design --refine``) or
         ``given`` (the matrices ``K``).
     K : tuple of numpy.ndarray or None
         The given per-agent gains ``K_i`` (n x n) for ``given``, or for ``refined``
@@ -246,6 +282,26 @@ class GainSpec:
     K: tuple[np.ndarray, ...] | None = None
     tau1: int = 0
     refine_from: str | None = None
+
+
+@dataclass(frozen=True)
+class LinkTable:
+    """The links of a scenario as arrays, sorted by sender then receiver.
+
+    Attributes
+    ----------
+    src, dst : numpy.ndarray, shape (L,), int64
+        Sender j and receiver i of every link (j, i).
+    weight : numpy.ndarray, shape (L,)
+        Consensus weight p_ij = P[i, j] of each link (LCSYS2022 eq. 4).
+    """
+
+    src: np.ndarray
+    dst: np.ndarray
+    weight: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.src)
 
 
 @dataclass(frozen=True)
@@ -298,18 +354,84 @@ class Scenario:
     @cached_property
     def graph(self) -> nx.DiGraph:
         """Communication graph, edge (j, i): i receives from j (built once; do not
-        modify it). With a time-varying ``topology``: the union of its graphs."""
+        modify it). With a time-varying ``topology``: the union of its graphs. (A
+        networkx graph costs about 1 kB per link: large-N code reads
+        :attr:`link_table` instead.)"""
         if self.topology is not None:
             graph = nx.DiGraph()
             graph.add_nodes_from(range(self.topology.n_agents))
             graph.add_edges_from(self.topology.links())
             return graph
+        if sp.issparse(self.weights):
+            graph = nx.DiGraph()
+            graph.add_nodes_from(range(self.n_agents))
+            table = self.link_table
+            graph.add_edges_from(zip(table.src.tolist(), table.dst.tolist(), strict=True))
+            return graph
         return graph_from_weights(self.weights)
 
-    @property
+    @cached_property
+    def link_table(self) -> LinkTable:
+        """The links as arrays, sorted by sender then receiver (the order of
+        :attr:`links`), with their consensus weights p_ij; built once."""
+        if self.topology is not None:
+            links = sorted(self.topology.links())
+            arr = np.array(links, dtype=np.int64).reshape(-1, 2)
+            src, dst = arr[:, 0], arr[:, 1]
+            W = self.weights_sparse
+            return LinkTable(src, dst, np.asarray(W[dst, src]).ravel() if len(src)
+                             else np.zeros(0))
+        # column-major (CSC, a counting sort) is sender-major: the link order
+        csc = sp.csc_array(self.weights_sparse)
+        csc.sum_duplicates()
+        j = np.repeat(np.arange(self.n_agents, dtype=np.int64), np.diff(csc.indptr))
+        i = csc.indices.astype(np.int64)
+        keep = (i != j) & (csc.data != 0)
+        return LinkTable(j[keep], i[keep], csc.data[keep])
+
+    @cached_property
+    def weights_sparse(self) -> sp.csr_array:
+        """The consensus matrix P as CSR (shape (N, N), sorted indices); built once."""
+        P = sp.csr_array(self.weights, dtype=float)
+        P.sort_indices()
+        return P
+
+    def dense_weights(self) -> np.ndarray:
+        """P as a dense (N, N) array; ScenarioError (one line) above
+        :data:`DENSE_WEIGHTS_MAX_AGENTS` agents when P is stored sparse."""
+        if not sp.issparse(self.weights):
+            return np.asarray(self.weights, dtype=float)
+        N = self.n_agents
+        if N > DENSE_WEIGHTS_MAX_AGENTS:
+            raise ScenarioError("network", f"this needs the dense N x N consensus matrix, "
+                                f"{8 * N * N / 2**30:.1f} GiB at N = {N} agents (sparse "
+                                f"paths go up to any N; dense ones to "
+                                f"{DENSE_WEIGHTS_MAX_AGENTS})")
+        return self.weights.toarray()
+
+    def densified(self, what: str = "this command") -> Scenario:
+        """This scenario with dense weights (itself if they are dense already).
+
+        Sparse weights are densified up to :data:`DENSE_WEIGHTS_MAX_AGENTS` agents;
+        above, ScenarioError in one line saying that ``what`` needs the dense N x N
+        matrix and what runs at that size instead.
+        """
+        if not sp.issparse(self.weights):
+            return self
+        N = self.n_agents
+        if N > DENSE_WEIGHTS_MAX_AGENTS:
+            raise ScenarioError("network.agents", f"{what} needs the dense N x N consensus "
+                                f"matrix ({8 * N * N / 2**30:.1f} GiB at N = {N}; dense "
+                                f"paths go up to {DENSE_WEIGHTS_MAX_AGENTS} agents); at this "
+                                "size `netsim run` (vectorised engine, [gains] method = "
+                                "'local' or 'auto') is supported")
+        return replace(self, weights=self.weights.toarray())
+
+    @cached_property
     def links(self) -> list[tuple[int, int]]:
-        """Sorted links (sender, receiver)."""
-        return sorted(self.graph.edges)
+        """Sorted links (sender, receiver); built once."""
+        table = self.link_table
+        return list(zip(table.src.tolist(), table.dst.tolist(), strict=True))
 
     @property
     def n_agents(self) -> int:
@@ -426,7 +548,11 @@ class Scenario:
             "source": self.source,
             "n_states": self.plant.n_states,
             "n_agents": self.n_agents,
-            "links": [list(link) for link in self.links],
+            "n_links": len(self.link_table),
+            # the list itself only for networks up to SUMMARY_MAX_LINKS links (a
+            # 100,000-agent geometric graph has 1.5 million)
+            **({"links": [list(link) for link in self.links]}
+               if len(self.link_table) <= SUMMARY_MAX_LINKS else {}),
             "delays": {
                 "model": self.delays.model,
                 "tau": self.delays.tau,
@@ -574,6 +700,15 @@ def _parse_plant(table: dict[str, Any]) -> LinearPlant:
         R = [_covariance(r, f"plant.R[{i}]", C[i].shape[0]) for i, r in enumerate(R_raw)]
     else:
         R = [_covariance(R_raw, "plant.R", Ci.shape[0]) for Ci in C]
+    if "sensors" in table:
+        # N sensors cycling through the listed ones: sensor i is C[i mod len(C)]
+        # (with its R); the same matrices are shared, not copied
+        sensors = _int(table["sensors"], "plant.sensors", len(C))
+        if sensors > MAX_AGENTS:
+            raise ScenarioError("plant.sensors", f"= {sensors}: at most {MAX_AGENTS} sensors "
+                                "(one per agent) are supported")
+        C = [C[i % len(C)] for i in range(sensors)]
+        R = [R[i % len(R)] for i in range(sensors)]
     x0_mean = (
         _vector(table["x0_mean"], "plant.x0_mean", n) if "x0_mean" in table else np.zeros(n)
     )
@@ -604,6 +739,8 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     topology = table.get("topology")
     if topology is None:
         raise ScenarioError("network.topology", "is missing (or give the matrix network.P)")
+    if agents >= SPARSE_MIN_AGENTS:
+        return _parse_sparse_network(table, agents, topology, weights_spec, seed)
     if topology == "cycle":
         graph = directed_cycle(agents)
     elif topology == "random":
@@ -648,9 +785,75 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     return P
 
 
-def _check_weights(P: np.ndarray, key: str) -> None:
+def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
+                          weights_spec: Any, seed: int) -> sp.csr_array:
+    """:func:`_parse_network` from :data:`SPARSE_MIN_AGENTS` agents on: the same
+    graphs (k-d tree for geometric, geometric skips for random) and weights as arrays
+    and CSR, O(L log N) time, O(N + L) memory."""
+    if agents > MAX_AGENTS:
+        raise ScenarioError("network.agents", f"= {agents}: at most {MAX_AGENTS} agents are "
+                            "supported (the arrays per agent alone would not fit)")
+    if topology == "cycle":
+        src = np.arange(agents, dtype=np.int64)
+        dst = (src + 1) % agents
+        order = np.lexsort((dst, src))
+        src, dst = src[order], dst[order]
+    elif topology == "random":
+        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
+                       "network.edge_probability")
+        if not 0 <= prob <= 1:
+            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
+        if prob * agents * agents > MAX_SPARSE_LINKS:
+            raise ScenarioError("network.edge_probability", f"= {prob:g} gives about "
+                                f"{prob * agents * agents:.3g} links at N = {agents}; "
+                                f"at most {MAX_SPARSE_LINKS:.0e} are supported (lower it)")
+        src, dst = random_links(agents, prob, seed)
+    elif topology == "geometric":
+        radius = table.get("radius")
+        if radius is not None:
+            radius = _number(radius, "network.radius")
+            if radius <= 0:
+                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+        r = radius if radius is not None else math.sqrt(2.0 * math.log(agents) / agents)
+        expected = min(math.pi * r * r, 1.0) * agents * (agents - 1)
+        if expected > MAX_SPARSE_LINKS:
+            raise ScenarioError("network.radius", f"= {r:g}{'' if radius else ' (default)'} "
+                                f"gives about {expected:.3g} links at N = {agents}; at most "
+                                f"{MAX_SPARSE_LINKS:.0e} are supported (lower the radius or "
+                                "the agents)")
+        src, dst, _ = geometric_links(agents, radius, seed)
+    elif topology == "edges":
+        edges = _parse_edge_list(_require(table, "edges", "network"), "network.edges", agents)
+        arr = np.array(edges, dtype=np.int64).reshape(-1, 2)
+        order = np.lexsort((arr[:, 1], arr[:, 0]))
+        src, dst = arr[order, 0], arr[order, 1]
+    else:
+        raise ScenarioError(
+            "network.topology",
+            f"unknown topology {topology!r}; expected cycle, random, geometric or edges",
+        )
+    if weights_spec == "random":
+        P = sparse_random_weights(agents, src, dst, seed)
+    elif weights_spec == "uniform":
+        P = sparse_uniform_weights(agents, src, dst)
+    elif weights_spec == "lazy-metropolis":
+        P = sparse_lazy_metropolis_weights(agents, src, dst)
+    else:
+        raise ScenarioError(
+            "network.weights",
+            f"unknown scheme {weights_spec!r}; expected random, uniform or lazy-metropolis "
+            "(or give the matrix network.P)",
+        )
+    _check_weights(P, "network.edges" if topology == "edges" else "network")
+    return P
+
+
+def _check_weights(P: np.ndarray | sp.sparray, key: str) -> None:
     try:
-        check_consensus_matrix(P, key)
+        if sp.issparse(P):
+            check_sparse_consensus_matrix(P, key)
+        else:
+            check_consensus_matrix(P, key)
     except NetworkError as exc:
         error = ScenarioError("", str(exc))  # the message already starts with the key
         error.key = key
@@ -912,7 +1115,10 @@ def _parse_links(table: dict[str, Any], links: list[tuple[int, int]], delays: De
 
 
 def _parse_gains(table: dict[str, Any], plant: LinearPlant) -> GainSpec:
-    method = table.get("method", DEFAULTS["gains.method"])
+    default = DEFAULTS["gains.method"]
+    if plant.n_sensors * plant.n_states > LOCAL_DEFAULT_MIN_STATES:
+        default = "local"  # the LMI is not affordable at this size
+    method = table.get("method", default)
     if not isinstance(method, str) or method not in GAIN_METHODS:
         raise ScenarioError(
             "gains.method", f"unknown method {method!r}; expected one of {', '.join(GAIN_METHODS)}"
@@ -974,7 +1180,13 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         links = sorted(union.edges)
     else:
         P = _parse_network(_section(data, "network"), plant.n_sensors)
-        links = sorted(graph_from_weights(P).edges)
+        delays_raw = data.get("delays", {})
+        if ("links" in data or topology is not None
+                or (isinstance(delays_raw, dict) and "links" in delays_raw)):
+            src, dst = links_from_weights(P)
+            links = list(zip(src.tolist(), dst.tolist(), strict=True))
+        else:
+            links = []  # only per-link tables need them (Scenario.links builds them once)
         if topology is not None and set(topology.links()) - set(links):
             extra = sorted(set(topology.links()) - set(links))[0]
             raise ScenarioError("topology.graphs", f"link {list(extra)} is not an edge of "

@@ -253,7 +253,8 @@ def _sizes(scenario: Any) -> tuple[int, int, int, int, int, int]:
     plant = scenario.plant
     n = int(plant.n_states)
     N = int(scenario.n_agents)
-    L = len(scenario.links)
+    table = getattr(scenario, "link_table", None)
+    L = len(table) if table is not None else len(scenario.links)
     ms = [int(c.shape[0]) for c in plant.C] or [0]
     width = int(getattr(plant, "noise_width", n + sum(ms)))
     return n, N, L, sum(ms), max(ms), width
@@ -267,6 +268,17 @@ def _constant_links(scenario: Any) -> bool:
     return (scenario.link_spec is None and scenario.topology is None
             and bool(getattr(model, "time_invariant", False))
             and getattr(model, "unit", "steps") == "steps")
+
+
+def _one_delay(scenario: Any) -> bool:
+    """Plain fixed delays with no per-link entry (homogeneous, or model none)."""
+    from netsim.models.delays import FixedDelays
+
+    try:
+        model = scenario.delay_model(0)
+    except Exception:  # noqa: BLE001 - only an estimate
+        return False
+    return type(model) is FixedDelays and not model.delays
 
 
 def kernel_trial_bytes(scenario: Any, steps: int, *, record_delays: bool = False) -> int:
@@ -294,6 +306,12 @@ def vectorised_batch_bytes(scenario: Any, steps: int, trials: int, *,
     if horizon is None:
         horizon = delay_horizon(max(scenario.max_delay, scenario.delay_bound + 1), steps)
     per_message = 16 if _constant_links(scenario) else 75
+    if per_message == 16 and _one_delay(scenario):
+        # one delay on every link: the schedule is broadcast views, and so is the
+        # message selection when a message goes every step; the block family's
+        # selection (a message every tau + 1 steps) is two int32 per message
+        # (netsim.linkschedule._select_constant)
+        per_message = 8
     per_step_trial = (8 * (width + n + m + N * m_max + N + (N * n if record_estimates else 0))
                       + L * per_message)
     ring = (horizon + 2) * N * T * n * 8
@@ -320,6 +338,8 @@ def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,
     n, N, L, m, _, _ = _sizes(scenario)
     K1 = int(steps) + 1
     kept = 8 * K1 * (n + m + N + (N * n if keep_estimates or engine != "vectorised" else 0))
+    if keep_estimates:
+        kept += 4 * K1 * N * N  # the kept trials' (K+1, N, N) effective-delay records
     if engine == "vectorised":
         from netsim.vectorised import BATCH_ELEMENTS
 
@@ -448,8 +468,24 @@ def check_gain_design(scenario: Any, method: str | None = None,
     N = int(scenario.n_agents)
     Nn = n * N
     what = f"gain design for n = {n} states x N = {N} agents (N n = {Nn})"
+    from netsim.estimators.gains import LARGE_LMI_STATES, LOCAL_AUTO_MIN_STATES
+
+    spec = getattr(scenario, "gains", None)
+    chosen = method or getattr(spec, "method", "lmi")
+    if chosen == "refined":
+        chosen = getattr(spec, "refine_from", None) or "auto"
+    if chosen == "local" or (chosen == "auto" and Nn > LOCAL_AUTO_MIN_STATES):
+        # the local design: the structured spectral radius (ARPACK, Krylov basis of
+        # about 40 vectors of N n, the block-sparse operator of nnz(P) n x n blocks,
+        # stored twice) per gain scale tried; no SDP, no N n eigendecomposition
+        L = len(scenario.link_table) if hasattr(scenario, "link_table") else N * N
+        memory = 8.0 * Nn * 60 + 2 * 8.0 * (L + N) * n * n
+        check_memory(memory, parameter, what + " (local design)", f"{n} x {n}",
+                     "use fewer agents N")
+        return
+    hint = ("use fewer states n or agents N, or [gains] method = 'local' (or 'auto') "
+            "for large networks")
     mem_obs, t_obs = exact_observability_cost(n, N)
-    from netsim.estimators.gains import LARGE_LMI_STATES
 
     # up to LARGE_LMI_STATES an interior-point solve of the 2 N n cone; above it the
     # split form (one N n cone) with SCS
@@ -458,7 +494,6 @@ def check_gain_design(scenario: Any, method: str | None = None,
     # about 2000 first-order iterations over the bisection's solves, each a symmetric
     # eigendecomposition (9 d^3 flops, at about four times the non-symmetric rate)
     t_sdp = 2000 * 9.0 * float(cone) ** 3 / (4 * FLOPS)
-    hint = "use fewer states n or agents N"
     check_memory(max(mem_obs, mem_sdp), parameter, what, f"{n} x {n}", hint)
     check_time(t_obs + t_sdp, parameter, what, f"{n} x {n}", hint)
 

@@ -115,10 +115,12 @@ def build_parser() -> argparse.ArgumentParser:
         ),
     )
     design.add_argument("scenario", help="built-in scenario name or TOML file")
-    design.add_argument("--method", default=None, choices=["auto", "lmi", "ccl"],
+    design.add_argument("--method", default=None, choices=["auto", "lmi", "ccl", "local"],
                         help="override the scenario's [gains] method (default: the "
                         "scenario's, which netsim run uses); auto: cone-complementarity "
-                        "for small networks, block-diagonal LMI otherwise")
+                        "for small networks, block-diagonal LMI up to N n = 1500, the local "
+                        "design above; local: L_i = gamma C_i^T (C_i C_i^T)^+ with the "
+                        "exact rho (any size)")
     design.add_argument("--tau1", type=int, default=None,
                         help="design to tolerate delays up to tau1 (default: the scenario's "
                         "gains.tau1, 0 if unset: delay-free)")
@@ -600,7 +602,7 @@ def _format_run(data: dict[str, Any]) -> str:
     s = data["scenario"]
     lines = [
         f"scenario {s['name']} ({s['source']}): n = {s['n_states']} states, "
-        f"N = {s['n_agents']} agents, {len(s['links'])} links",
+        f"N = {s['n_agents']} agents, {s.get('n_links', len(s.get('links', ())))} links",
         _format_delays(s, data.get("delay_bound")),
         f"run: {data['steps']} steps x {data['trials']} trials, seed {data['seed']}, "
         f"{data.get('engine', 'events')} engine",
@@ -622,6 +624,8 @@ def _format_run(data: dict[str, Any]) -> str:
             f"eq. (26) bound = {_fmt(a['bound_lcsys_eq26'])}, delay-tolerant bound "
             f"rho^(1/(tau+1)) = {_fmt(a['bound_delay_tolerant'])}"
         )
+        if a.get("note"):
+            lines.append(f"analytics: {a['note']}")
         if a.get("rho_exact_compensated") is not None:
             lines.append(
                 f"exact rho of the augmented closed loop for the realised delays: "
@@ -675,13 +679,15 @@ def _format_run(data: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _load(name: str, tau: int | None = None):
+def _load(name: str, tau: int | None = None, what: str | None = None):
     from netsim.models.scenario import ScenarioError, resolve_scenario
 
     try:
         scenario = resolve_scenario(name)
         if tau is not None:
             scenario = scenario.with_tau(tau)
+        if what is not None:  # the command's analytics need the dense P
+            scenario = scenario.densified(what)
     except ScenarioError as exc:
         raise CommandError(f"scenario {name}: {exc}") from None
     return scenario
@@ -717,7 +723,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
 
     if args.tau1 is not None and args.tau1 < 0:
         raise CommandError(f"--tau1 must be a non-negative integer, got {args.tau1}")
-    scenario = _load(args.scenario)
+    scenario = _load(args.scenario, what="netsim design")
     P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
     overrides = {"method": args.method, "tau1": args.tau1, "refine": args.refine}
     try:
@@ -798,7 +804,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
         report = analyze_trace(_read(args.scenario))
         return _emit(args, report.to_dict(), report.format_text())
-    scenario = _load(args.scenario)
+    scenario = _load(args.scenario, what="netsim analyze")
     try:
         gains = scenario_gains(scenario)
     except (GainDesignError, ValueError) as exc:

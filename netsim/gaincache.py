@@ -2,10 +2,12 @@
 
 A design is deterministic given the consensus matrix P, the plant's A and C_i, the
 scenario's ``[gains]`` request and the solver stack, so it is stored under a
-fingerprint of exactly those: the bytes of P, A and every C_i (float64), the request
+fingerprint of exactly those: the bytes of P (dense; or a sparse P's CSR shape,
+indptr, indices and values, never densified), A and every C_i (float64), the request
 (method, tau1, refine_from, the given K_i), and the versions of netsim, numpy, scipy,
-cvxpy and clarabel. An entry is one ``.npz`` file holding the design (its K_i, L_i and
-scalar fields) and the fingerprint it was made for; an entry that does not load, does
+cvxpy and clarabel. An entry is one ``.npz`` file holding the design (layout 2: the K_i
+stacked, shape (N, n, n), the L_i side by side, shape (n, sum m_i), so two arrays at any
+N; and the scalar fields) and the fingerprint it was made for; an entry that does not load, does
 not carry its own fingerprint or has arrays of the wrong shapes is ignored and
 rewritten, never trusted. Writes go to a temporary file renamed into place, so a
 killed writer leaves no half entry.
@@ -28,13 +30,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import scipy.sparse as sp
 
 from netsim.estimators.gains import GainDesign
 
 __all__ = ["cache_dir", "fingerprint", "cached_design", "load", "store", "disabled"]
 
 #: Bumped when the stored layout changes (old entries are then foreign and rewritten).
-LAYOUT = 1
+LAYOUT = 2
 _SCALARS = ("rho", "certified_rate", "certified", "method", "solver", "status", "message",
             "design_tau", "rho_design", "iterations")
 
@@ -92,7 +95,18 @@ def fingerprint(scenario: Any, request: dict[str, Any]) -> str:
         digest.update(repr(a.shape).encode())
         digest.update(a.tobytes())
 
-    add(scenario.weights)
+    weights = scenario.weights
+    if sp.issparse(weights):
+        # CSR with sorted indices: shape, structure and values (never densified)
+        W = sp.csr_array(weights)
+        W.sort_indices()
+        digest.update(b"csr")
+        add(np.asarray(W.shape, dtype=np.float64))
+        add(W.indptr)
+        add(W.indices)
+        add(W.data)
+    else:
+        add(weights)
     add(scenario.plant.A)
     for C in scenario.plant.C:
         add(C)
@@ -109,10 +123,14 @@ def load(path: Path, key: str, scenario: Any) -> GainDesign | None:
             meta = json.loads(str(data["meta"][()]))
             if meta.get("fingerprint") != key or meta.get("layout") != LAYOUT:
                 return None
-            N = len(scenario.plant.C)
             n = scenario.plant.n_states
-            K = tuple(np.array(data[f"K_{i}"], dtype=np.float64) for i in range(N))
-            L = tuple(np.array(data[f"L_{i}"], dtype=np.float64) for i in range(N))
+            sizes = [C.shape[0] for C in scenario.plant.C]
+            K_all = np.array(data["K"], dtype=np.float64)
+            L_all = np.array(data["L"], dtype=np.float64)
+            if K_all.shape != (len(sizes), n, n) or L_all.shape != (n, sum(sizes)):
+                return None
+            K = tuple(K_all)
+            L = tuple(np.split(L_all, np.cumsum(sizes)[:-1], axis=1)) if sizes else ()
     except (OSError, ValueError, KeyError, TypeError, EOFError, json.JSONDecodeError):
         return None
     shapes_ok = all(k.shape == (n, n) for k in K) and all(
@@ -130,8 +148,11 @@ def store(path: Path, key: str, design: GainDesign) -> None:
     is an optimisation, never a reason to fail a command)."""
     meta = {"fingerprint": key, "layout": LAYOUT,
             **{name: getattr(design, name) for name in _SCALARS}}
-    arrays = {f"K_{i}": np.asarray(K) for i, K in enumerate(design.K)}
-    arrays.update({f"L_{i}": np.asarray(L) for i, L in enumerate(design.L)})
+    # layout 2: K stacked (N, n, n), L side by side (n, sum m_i): two arrays at any N
+    arrays = {"K": np.stack([np.asarray(K) for K in design.K]),
+              "L": np.concatenate([np.asarray(L).reshape(len(K), -1)
+                                   for L, K in zip(design.L, design.K, strict=True)],
+                                  axis=1)}
     buffer = io.BytesIO()
     np.savez(buffer, meta=np.array(json.dumps(meta, default=float)), **arrays)
     try:

@@ -20,6 +20,7 @@ Links whose model has no loss, outage or buffer are computed with array operatio
 from __future__ import annotations
 
 import heapq
+import itertools
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -28,7 +29,7 @@ from functools import cached_property
 import numpy as np
 
 from netsim.links import resolve_link
-from netsim.models.delays import DelayModel
+from netsim.models.delays import DelayModel, FixedDelays
 
 __all__ = [
     "DELIVERED",
@@ -249,9 +250,19 @@ def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[i
     """
     T, L, S = len(delay_models), len(links), len(send_steps)
     d = np.zeros((T, L, 1))
+    arrays = None
     for t, model in enumerate(delay_models):
         if t and _same_model(model, delay_models[0]):
             d[t] = d[0]  # e.g. homogeneous delays: every trial has the same model
+            continue
+        if type(model) is FixedDelays:
+            # plain fixed delays (homogeneous, heterogeneous, fixed): one vectorised
+            # lookup for every link (no per-link Python)
+            if arrays is None:
+                arr = np.fromiter(itertools.chain.from_iterable(links), dtype=np.int64,
+                                  count=2 * L).reshape(-1, 2)
+                arrays = arr[:, 0], arr[:, 1]
+            d[t, :, 0] = model.link_delays(*arrays)
             continue
         for l_, (j, i) in enumerate(links):
             delays, configured = resolve_link(model, j, i)

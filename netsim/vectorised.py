@@ -57,6 +57,7 @@ __all__ = [
     "run_vectorised",
     "LockstepRule",
     "lockstep_rule",
+    "effective_delays_per_link",
 ]
 
 #: Largest trials x links x (steps + 2) of one lockstep batch. Links with random
@@ -205,12 +206,70 @@ class _Outputs:
         return bool(np.any(self.alive))
 
 
+def _link_positions(schedule_links: Sequence[tuple[int, int]], scenario: Scenario,
+                    src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """Index into ``schedule_links`` of each link (src[e], dst[e]), -1 if absent, shape (E,).
+
+    The schedule's links are normally the scenario's (its :attr:`Scenario.link_table`,
+    sorted by sender then receiver): then a search on the sorted keys, no dictionary.
+    """
+    N = scenario.n_agents
+    table = scenario.link_table
+    if len(schedule_links) == len(table) and (
+            schedule_links is scenario.links or list(schedule_links) == scenario.links):
+        # link q sits at (dst, src) of a CSR matrix holding q + 1: reading it at the
+        # wanted (receiver, sender) pairs is a counting sort, not a search
+        L = len(table)
+        index = sp.csr_array((np.arange(1, L + 1, dtype=np.int64), (table.dst, table.src)),
+                             shape=(N, N))
+        index.sum_duplicates()
+        rows = np.repeat(np.arange(N, dtype=np.int64), np.diff(index.indptr))
+        wanted_dst = np.asarray(dst, dtype=np.int64)
+        wanted_src = np.asarray(src, dtype=np.int64)
+        if (len(rows) == len(wanted_dst) and np.array_equal(rows, wanted_dst)
+                and np.array_equal(index.indices, wanted_src)):
+            return index.data - 1  # the terms are exactly the links, in row order
+        keys = table.src * N + table.dst
+    else:
+        arr = np.array(schedule_links, dtype=np.int64).reshape(-1, 2)
+        keys = arr[:, 0] * N + arr[:, 1]
+    order = np.argsort(keys, kind="stable")
+    sorted_keys = keys[order]
+    wanted = np.asarray(src, dtype=np.int64) * N + np.asarray(dst, dtype=np.int64)
+    at = np.minimum(np.searchsorted(sorted_keys, wanted), max(len(keys) - 1, 0))
+    found = (sorted_keys[at] == wanted) if len(keys) else np.zeros(len(wanted), dtype=bool)
+    return np.where(found, order[at] if len(keys) else -1, -1).astype(np.int64)
+
+
+def _consensus_terms(scenario: Scenario, schedule: LinkSchedule
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The consensus terms from the sparse weights (never an N x N array).
+
+    Returns every (i, j) with p_ij > 0, j != i, in row order (the order of the
+    neighbour sums): receivers ``term_i``, senders ``term_j``, weights ``term_w``,
+    the schedule link of each term ``term_link`` (-1 if none), all shape (E,), and
+    the self weights p_ii, shape (N,).
+    """
+    W = scenario.weights_sparse
+    N = W.shape[0]
+    rows = np.repeat(np.arange(N, dtype=np.int64), np.diff(W.indptr))
+    cols = W.indices.astype(np.int64)
+    vals = W.data
+    keep = (rows != cols) & (vals != 0)
+    term_i, term_j, term_w = rows[keep], cols[keep], vals[keep]
+    term_link = _link_positions(schedule.links, scenario, term_j, term_i)
+    return term_i, term_j, term_w, term_link, W.diagonal()
+
+
 def _pad_outputs(scenario: Scenario, gains: GainDesign) -> tuple[np.ndarray, np.ndarray]:
     """C_i (N, m, n) and L_i (N, n, m), zero-padded to the largest m_i."""
     C = scenario.plant.C
     m = max(Ci.shape[0] for Ci in C)
     n = scenario.plant.n_states
     N = len(C)
+    if all(Ci.shape[0] == m for Ci in C):
+        return (np.stack(C).astype(float, copy=False).reshape(N, m, n),
+                np.stack([np.asarray(Li, dtype=float) for Li in gains.L]).reshape(N, n, m))
     Cp = np.zeros((N, m, n))
     Lp = np.zeros((N, n, m))
     for i, Ci in enumerate(C):
@@ -223,6 +282,9 @@ def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
     """Measurements per agent, shape (K+1, N, T, m), zero-padded."""
     K1, T, _ = batch.measurements.shape
     N = len(batch.offsets) - 1
+    if N and batch.measurements.shape[2] == N * m:  # every agent has m outputs
+        return np.ascontiguousarray(
+            batch.measurements.reshape(K1, T, N, m).transpose(0, 2, 1, 3))
     out = np.zeros((K1, N, T, m))
     for i in range(N):
         a, b = batch.offsets[i], batch.offsets[i + 1]
@@ -253,18 +315,10 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     n = plant.n_states
     K = int(steps)
     T = batch.states.shape[1]
-    P = np.asarray(scenario.weights, dtype=float)
-    N = P.shape[0]
+    N = scenario.n_agents
     Cp, Lp = _pad_outputs(scenario, gains)
     Y = _agent_measurements(batch, Cp.shape[1])
-    link_index = {link: q for q, link in enumerate(schedule.links)}
-    # consensus terms: every (i, j) with p_ij > 0, j != i, in row order
-    rows, cols = np.nonzero(P)
-    keep = rows != cols
-    term_i, term_j = rows[keep], cols[keep]
-    term_w = P[term_i, term_j]
-    term_link = np.array([link_index.get((int(j), int(i)), -1)
-                          for i, j in zip(term_i, term_j, strict=True)], dtype=np.int64)
+    term_i, term_j, term_w, term_link, diagonal = _consensus_terms(scenario, schedule)
     E = len(term_i)
     aggregate = sp.csr_matrix((term_w, (term_i, np.arange(E))), shape=(N, E))
     # one constant delay d on every link, a message every step: from step d + 1 on,
@@ -272,7 +326,7 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     # sparse product with P minus its diagonal
     uniform = selection.uniform_delay if not np.any(term_link < 0) else None
     neighbour_matrix = sp.csr_matrix((term_w, (term_i, term_j)), shape=(N, N))
-    own_weight = np.diag(P)[:, None, None]
+    own_weight = diagonal[:, None, None]
     block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
@@ -386,6 +440,11 @@ def _kalman_run(scenario: Scenario, batch: PlantBatch, steps: int,
     from netsim.estimators.kalman import kalman_gain
 
     plant = scenario.plant
+    M = sum(Ci.shape[0] for Ci in plant.C)
+    # the filter's dense M x M innovation covariance (and R, the gain's solve)
+    budget.check_memory(4 * 8.0 * M * M, "plant.C", "the centralised Kalman filter of "
+                        f"M = {M} stacked outputs", f"{len(plant.C)} sensors",
+                        "drop centralized-kf from run.estimators for large networks")
     A, C, Q, R = plant.A, plant.C_stacked, plant.Q, plant.R_stacked
     K = int(steps)
     T = batch.states.shape[1]
@@ -411,24 +470,43 @@ def _kalman_run(scenario: Scenario, batch: PlantBatch, steps: int,
     return outputs
 
 
-def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
-                      P: np.ndarray, updated: np.ndarray, trial: int, end: int
-                      ) -> np.ndarray:
-    """r_ij[k] of one trial as the kernel records it, shape (K+1, N, N)."""
+def effective_delays_per_link(selection: MessageSelection, schedule: LinkSchedule,
+                              term_link: np.ndarray, updated: np.ndarray, trial: int,
+                              end: int) -> np.ndarray:
+    """r_ij[k] of one trial per consensus term, shape (K+1, E), int32.
+
+    Column e is the term of ``term_link[e]`` (a schedule link, -1: none): the lag
+    k - 1 - s of the message the receiver used at update step k (-1: nothing used,
+    its own prediction stood in; :data:`netsim.kernel.NOT_USED` at steps without an
+    update or after ``end``). The kernel's (K+1, N, N) record holds the same numbers
+    at (k, i, j); this form has no N x N array.
+    """
     K1 = selection.chosen.shape[0]
-    N = P.shape[0]
-    out = np.full((K1, N, N), NOT_USED, dtype=np.int32)
-    link_index = {link: q for q, link in enumerate(schedule.links)}
-    steps = updated[updated <= end]
-    for i, j in zip(*np.nonzero(P), strict=True):
-        if i == j:
-            continue
-        q = link_index.get((int(j), int(i)))
-        held = (selection.chosen[steps, q, trial] if q is not None
-                else np.full(len(steps), -1))
-        r = np.where(held >= 0, steps - 1 - schedule.send_steps[np.maximum(held, 0)], -1)
-        r[steps == 0] = -1
-        out[steps, i, j] = r
+    E = len(term_link)
+    out = np.full((K1, E), NOT_USED, dtype=np.int32)
+    steps = np.asarray(updated[updated <= end])
+    if not E or not steps.size:
+        return out
+    linked = term_link >= 0
+    held = np.full((len(steps), E), -1, dtype=np.int64)
+    held[:, linked] = selection.chosen[steps][:, term_link[linked], trial]
+    sent = schedule.send_steps[np.maximum(held, 0)]
+    r = np.where(held >= 0, steps[:, None] - 1 - sent, -1)
+    r[steps == 0] = -1
+    out[steps] = r
+    return out
+
+
+def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
+                      scenario: Scenario, updated: np.ndarray, trial: int, end: int
+                      ) -> np.ndarray:
+    """r_ij[k] of one trial as the kernel records it, shape (K+1, N, N) (from the
+    per-link record :func:`effective_delays_per_link`)."""
+    term_i, term_j, _, term_link, _ = _consensus_terms(scenario, schedule)
+    per_link = effective_delays_per_link(selection, schedule, term_link, updated, trial, end)
+    N = scenario.n_agents
+    out = np.full((per_link.shape[0], N, N), NOT_USED, dtype=np.int32)
+    out[:, term_i, term_j] = per_link
     return out
 
 
@@ -481,7 +559,6 @@ def run_batch(
     plant = scenario.plant
     batch = simulate_plant(scenario, trial_seeds, K)
     schedule = selection = None
-    P = np.asarray(scenario.weights, dtype=float)
     if rule.kind == "kalman":
         outputs = _kalman_run(scenario, batch, K, record_estimates)
         updated = np.arange(K + 1)
@@ -522,7 +599,7 @@ def run_batch(
             counts = all_counts[t]
             discarded = int(all_discarded[t])
             if t in wanted:
-                delays = _effective_delays(selection, schedule, P, updated, t, end)
+                delays = _effective_delays(selection, schedule, scenario, updated, t, end)
         elif t in wanted:
             delays = np.full((K + 1, N, N), NOT_USED, dtype=np.int32)
         results.append(TrialResult(

@@ -202,6 +202,7 @@ def _cmd_delay_tolerance(args: Any) -> int:
         raise CommandError(f"--plot {args.plot}: the output must be a .png file")
     try:
         scenario = resolve_scenario(preset.scenario if preset else args.scenario)
+        scenario = scenario.densified("netsim bench")
     except ScenarioError as exc:
         extra = "" if preset else f" (or a preset: {', '.join(PRESETS)})"
         raise CommandError(f"scenario {args.scenario}: {exc}{extra}") from None

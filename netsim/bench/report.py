@@ -28,7 +28,7 @@ def format_report(data: dict[str, Any]) -> str:
         lines.append("  this run departs from the preset: " + "; ".join(departs) if departs
                      else f"  as the preset: {ran['trials']} trials x {ran['steps']} steps")
     lines.append(f"scenario {s['name']} ({s['source']}): n = {s['n_states']}, "
-                 f"N = {s['n_agents']}, {len(s['links'])} links")
+                 f"N = {s['n_agents']}, {s.get('n_links', len(s.get('links', ())))} links")
     g = data["gains"]
     scan = data["analysis"] or {}
     if g:

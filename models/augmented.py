@@ -63,9 +63,12 @@ from scipy.sparse.csgraph import breadth_first_order, connected_components
 from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
 
 __all__ = [
+    "ARPACK_BASIS_BYTES",
     "ARPACK_K",
     "ARPACK_MAXITER",
+    "ARPACK_NCV",
     "ARPACK_POWER",
+    "ARPACK_RETRIES",
     "ARPACK_TOL",
     "DEFAULT_TAU_MAX",
     "DENSE_FALLBACK_MAX",
@@ -101,8 +104,12 @@ DEFAULT_TAU_MAX: int = 200
 
 #: ``method="auto"`` uses dense ``numpy.linalg.eigvals`` when the matrix dimension
 #: (``N n (tau+1)`` for the augmented closed loop, ``N n`` for the delay-free one)
-#: is at most this, and the structured ARPACK method above it.
-DENSE_SIZE_THRESHOLD: int = 1500
+#: is at most this, and the structured ARPACK method above it. Chosen by measurement
+#: (``python benchmarks/spectral_radius.py --crossover``, 2-core machine): structured
+#: is faster at every size from 168 rows up for the lcsys2022-homogeneous shape
+#: (N = 4, n = 6) and from 330 rows up for N = 10, n = 3 with heterogeneous delays;
+#: below that ARPACK's fixed cost (10-30 ms) loses to a dense call of a few ms.
+DENSE_SIZE_THRESHOLD: int = 300
 
 #: If ARPACK fails (no convergence, or a Ritz pair that does not pass the residual
 #: check), the structured method falls back to dense eigenvalues up to this
@@ -118,8 +125,20 @@ ARPACK_K: int = 6
 #: ARPACK relative accuracy of the Ritz values.
 ARPACK_TOL: float = 1e-12
 
-#: ARPACK restart limit per run (typical runs need well under 200).
-ARPACK_MAXITER: int = 600
+#: ARPACK restart limit per run (converging runs need well under 50 with
+#: :data:`ARPACK_NCV` vectors; this bounds the time a failing run costs).
+ARPACK_MAXITER: int = 300
+
+#: Krylov vectors of the first ARPACK run (each retry doubles it), see
+#: :func:`_arpack_attempts`.
+ARPACK_NCV: int = 80
+
+#: ARPACK retries after a failed first run, each with twice the power and twice the
+#: Krylov space, before the dense fallback.
+ARPACK_RETRIES: int = 2
+
+#: Largest Krylov basis (``8 D ncv`` bytes) ARPACK may keep.
+ARPACK_BASIS_BYTES: int = 256 * 2**20
 
 #: The first ARPACK run works on ``M^ARPACK_POWER`` (fewer, equally informative ARPACK
 #: steps; ``rho(M) = rho(M^q)^(1/q)``), see :func:`_arpack_rho`.
@@ -743,6 +762,23 @@ def _companion_rho(row: _FirstRow, what: str) -> float:
     return _arpack_rho(power, nodes.size, label, q) ** (1.0 / p)
 
 
+def _arpack_attempts(q: int, D: int, k: int) -> list[tuple[int, int]]:
+    """The ``(power, ncv)`` of each ARPACK run of :func:`_arpack_rho`, in order.
+
+    The first run uses :data:`ARPACK_NCV` Krylov vectors (fewer if the basis would
+    exceed :data:`ARPACK_BASIS_BYTES`); each retry doubles the power and the Krylov
+    space, which is what separates clustered top moduli (the uncompensated loop of
+    lcsys2022-homogeneous at tau = 30 has its top ten moduli within 2e-4 of each
+    other: ncv = 40 never converged, ncv = 80 does). Capped at ``D``.
+    """
+    cap = max(2 * k + 1, ARPACK_BASIS_BYTES // (8 * max(D, 1)))
+    ncv = max(2 * k + 1, min(ARPACK_NCV, cap))
+    out = []
+    for step in range(ARPACK_RETRIES + 1):
+        out.append((q * 2**step, min(ncv * 2**step, cap, D)))
+    return out
+
+
 def _arpack_rho(
     power: Callable[[int], Callable[[np.ndarray], np.ndarray]],
     D: int,
@@ -759,23 +795,26 @@ def _arpack_rho(
     block. ARPACK's cost per step (Gram-Schmidt against ``ncv`` vectors of length
     ``D``) is several times that of one sparse application of ``M``, so the first run
     works on ``M^q`` (the same ``k`` largest moduli, raised to the power ``q``, and
-    ``q`` times fewer ARPACK steps) and returns ``max |mu|^(1/q)``. The second run,
-    only if the first fails, uses ``M`` itself with a larger Krylov space and another
-    random start vector. A run is accepted only if ARPACK converged and the residual
-    of its top Ritz pair, recomputed with the operator, is at most ``1e-8 max(|mu|,
-    ||M^j x|| / ||x||)``. If both fail: dense eigenvalues of ``M`` up to
-    :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning), else RuntimeError.
+    ``q`` times fewer ARPACK steps) and returns ``max |mu|^(1/q)``. If a run fails,
+    the next (:func:`_arpack_attempts`) doubles the power and the Krylov space, with
+    another random start vector (or, once a power maps the start vector to zero, works
+    on ``M`` itself: nilpotent-like operators); each run has at most :data:`ARPACK_MAXITER`
+    restarts, so a failure costs a bounded time. A run is accepted only if ARPACK
+    converged and the residual of its top Ritz pair, recomputed with the operator,
+    is at most ``1e-8 max(|mu|, ||M^j x|| / ||x||)``. If every run fails: dense
+    eigenvalues of ``M`` up to :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning),
+    else RuntimeError.
     """
     if D <= k + 2:  # ARPACK needs k < D - 1
         return _dense_operator_rho(power(1), D)
     rng = np.random.default_rng(seed)
     failures: list[str] = []
-    attempts = [(q, max(2 * k + 1, 40))]
-    attempts.append((1, max(4 * k + 1, 100)))
-    for j, ncv in attempts:
+    annihilated = False  # M^j v0 = 0 happened: the powers are (nearly) nilpotent
+    for j, ncv in _arpack_attempts(q, D, k):
+        if annihilated:
+            j = 1
         apply = power(j)
         op = LinearOperator((D, D), matvec=apply, matmat=apply, dtype=float)
-        ncv = min(ncv, D)
         v0 = rng.standard_normal(D)
         label = f"M^{j}, ncv={ncv}"
         try:
@@ -784,6 +823,10 @@ def _arpack_rho(
                     norm_est = float(np.linalg.norm(apply(v0)) / np.linalg.norm(v0))
                 if not math.isfinite(norm_est):
                     failures.append(f"{label}: the operator overflows")
+                    continue
+                if norm_est == 0.0 and j > 1:
+                    failures.append(f"{label}: M^{j} maps the start vector to zero")
+                    annihilated = True
                     continue
                 vals, vecs = eigs(
                     op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=ARPACK_MAXITER

@@ -52,15 +52,34 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 from netsim.models.validation import as_outputs as _as_outputs
 from netsim.models.validation import as_square as _as_square
 from netsim.models.validation import check_system as _check_system
 from numpy.typing import ArrayLike
-from scipy.sparse.csgraph import breadth_first_order, connected_components
-from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
+
+# scipy.sparse (and its csgraph and ARPACK) costs about 0.1 s to import and only the
+# structured method needs it: it is imported on first use (``netsim run`` and
+# ``netsim --help`` import this module without computing a structured radius).
+# ``eigs`` stays a module attribute (tests replace it) through __getattr__ below.
+_SPARSE_LINALG_NAMES = ("ArpackError", "ArpackNoConvergence", "LinearOperator", "eigs")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _SPARSE_LINALG_NAMES:
+        import scipy.sparse.linalg as _spla
+
+        value = getattr(_spla, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _sparse_linalg(name: str) -> Any:
+    """``scipy.sparse.linalg.<name>``, or what replaced this module's attribute ``name``."""
+    return globals().get(name) or __getattr__(name)
 
 __all__ = [
     "ARPACK_BASIS_BYTES",
@@ -537,6 +556,8 @@ class _FirstRow:
         B: np.ndarray,
         kind: str = "auto",
     ) -> None:
+        import scipy.sparse as sp
+
         N, n = G.shape[0], G.shape[1]
         self.N, self.n, self.R = N, n, B.shape[0]
         self.Nn = N * n
@@ -690,6 +711,9 @@ def _cyclic_class(row: _FirstRow) -> tuple[int, np.ndarray]:
         ``p`` and the state indices (into the augmented vector) of the smallest
         colour class; ``nodes`` is everything when ``p <= 1``.
     """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
     N, n, R = row.N, row.n, row.R
     V = N * R
     src, dst = row.block_edges
@@ -807,6 +831,10 @@ def _arpack_rho(
     """
     if D <= k + 2:  # ARPACK needs k < D - 1
         return _dense_operator_rho(power(1), D)
+    eigs = _sparse_linalg("eigs")
+    LinearOperator = _sparse_linalg("LinearOperator")  # noqa: N806
+    ArpackError = _sparse_linalg("ArpackError")  # noqa: N806
+    ArpackNoConvergence = _sparse_linalg("ArpackNoConvergence")  # noqa: N806
     rng = np.random.default_rng(seed)
     failures: list[str] = []
     annihilated = False  # M^j v0 = 0 happened: the powers are (nearly) nilpotent

@@ -37,8 +37,34 @@ __all__ = ["main", "build_parser", "CommandError", "EXIT_BAD_INPUT", "EXIT_DESIG
            "EXIT_INTERRUPTED"]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the argument parser of ``netsim``."""
+#: ``netsim bench``'s line in ``netsim --help`` (the bench parser itself, in
+#: :mod:`netsim.bench.command`, is only built when the command is bench; a test checks
+#: that both say the same).
+_BENCH_HELP = "benchmarks: delay tolerance of each estimator vs the papers' bounds; sweeps"
+
+
+def _command_in(argv: Sequence[str], commands: Sequence[str]) -> str | None:
+    """The subcommand argparse will pick from ``argv``: its first token if that is one
+    of ``commands`` (the top level has no option but ``-h``); ``""`` for no command or
+    ``-h``/``--help``; None otherwise (anything unusual: build everything)."""
+    if not argv or argv[0] in ("-h", "--help"):
+        return ""
+    return argv[0] if argv[0] in commands else None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """Return the argument parser of ``netsim``.
+
+    Parameters
+    ----------
+    only : str, optional
+        None (default): the whole parser. A command name: a parser that parses that
+        command exactly as the whole one does; the other commands may lack options
+        whose definitions import heavy modules (the run options of :mod:`netsim.aoi`,
+        the bench subcommands). ``""``: enough for the top-level ``--help`` (every
+        command listed). :func:`main` passes what its arguments need, which keeps
+        ``netsim --help`` and ``netsim run`` from importing what they do not use.
+    """
     parser = OneLineParser(
         prog="netsim",
         description=(
@@ -87,9 +113,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--measurement-noise", type=float, default=None, metavar="VAR",
                      help="measurement noise variance (every R_i = VAR I)")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    from netsim.aoi import add_aoi_arguments
+    if only in (None, "run"):
+        from netsim.aoi import add_aoi_arguments
 
-    add_aoi_arguments(run)
+        add_aoi_arguments(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
     design = sub.add_parser(
@@ -249,9 +276,12 @@ def build_parser() -> argparse.ArgumentParser:
                        help="random link delays in 0..d_i - 1, padded to d_i at the centre "
                        "(Remark 1; kernel engine)")
     f_run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    from netsim.bench import add_bench_parser
+    if only in (None, "bench"):
+        from netsim.bench import add_bench_parser
 
-    add_bench_parser(sub)
+        add_bench_parser(sub)
+    elif only == "":  # the listing only: importing netsim.bench costs 0.2-0.3 s
+        sub.add_parser("bench", help=_BENCH_HELP)
     for name, command in sub.choices.items():
         _add_no_cache(name, command)
     return parser
@@ -918,11 +948,6 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``netsim`` command; returns the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help(sys.stderr)
-        return EXIT_BAD_INPUT
     handlers = {
         "run": _cmd_run,
         "design": _cmd_design,
@@ -935,6 +960,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "claims": _cmd_claims,
         "scenarios": _cmd_scenarios,
     }
+    parser = build_parser(_command_in(sys.argv[1:] if argv is None else list(argv), handlers))
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_BAD_INPUT
     from netsim import gaincache
 
     fresh = gaincache.disabled() if getattr(args, "no_cache", False) else nullcontext()

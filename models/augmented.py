@@ -144,9 +144,10 @@ ARPACK_K: int = 6
 #: ARPACK relative accuracy of the Ritz values.
 ARPACK_TOL: float = 1e-12
 
-#: ARPACK restart limit per run (converging runs need well under 50 with
-#: :data:`ARPACK_NCV` vectors; this bounds the time a failing run costs).
-ARPACK_MAXITER: int = 300
+#: ARPACK restart limit of the first run (retries get half, a quarter). Converging
+#: runs need at most about 25 with :data:`ARPACK_NCV` vectors (lcsys2022-homogeneous,
+#: uncompensated, tau = 12..40); the limit bounds the time a failing run costs.
+ARPACK_MAXITER: int = 100
 
 #: Krylov vectors of the first ARPACK run (each retry doubles it), see
 #: :func:`_arpack_attempts`.
@@ -787,19 +788,25 @@ def _companion_rho(row: _FirstRow, what: str) -> float:
 
 
 def _arpack_attempts(q: int, D: int, k: int) -> list[tuple[int, int]]:
-    """The ``(power, ncv)`` of each ARPACK run of :func:`_arpack_rho`, in order.
+    """The ``(power, ncv, maxiter)`` of each ARPACK run of :func:`_arpack_rho`, in order.
 
     The first run uses :data:`ARPACK_NCV` Krylov vectors (fewer if the basis would
-    exceed :data:`ARPACK_BASIS_BYTES`); each retry doubles the power and the Krylov
-    space, which is what separates clustered top moduli (the uncompensated loop of
-    lcsys2022-homogeneous at tau = 30 has its top ten moduli within 2e-4 of each
-    other: ncv = 40 never converged, ncv = 80 does). Capped at ``D``.
+    exceed :data:`ARPACK_BASIS_BYTES`) and :data:`ARPACK_MAXITER` restarts; each retry
+    doubles the power and the Krylov space, which is what separates clustered top
+    moduli (the uncompensated loop of lcsys2022-homogeneous at tau = 30 has its top ten
+    moduli within 2e-4 of each other: ncv = 40 never converged, ncv = 80 does), with
+    half the restarts (a larger space needs fewer). A retry whose Krylov space would
+    exceed ``D / 4`` is not run: the dense fallback is cheaper. This bounds the work of a
+    failure to about three times that of the first run's restart limit.
     """
     cap = max(2 * k + 1, ARPACK_BASIS_BYTES // (8 * max(D, 1)))
     ncv = max(2 * k + 1, min(ARPACK_NCV, cap))
-    out = []
-    for step in range(ARPACK_RETRIES + 1):
-        out.append((q * 2**step, min(ncv * 2**step, cap, D)))
+    out = [(q, min(ncv, D), ARPACK_MAXITER)]
+    for step in range(1, ARPACK_RETRIES + 1):
+        size = min(ncv * 2**step, cap)
+        if size > D // 4:  # a Krylov space this large costs about what dense does
+            break
+        out.append((q * 2**step, size, max(10, ARPACK_MAXITER >> step)))
     return out
 
 
@@ -838,7 +845,8 @@ def _arpack_rho(
     rng = np.random.default_rng(seed)
     failures: list[str] = []
     annihilated = False  # M^j v0 = 0 happened: the powers are (nearly) nilpotent
-    for j, ncv in _arpack_attempts(q, D, k):
+    attempts = _arpack_attempts(q, D, k)
+    for step, (j, ncv, maxiter) in enumerate(attempts):
         if annihilated:
             j = 1
         apply = power(j)
@@ -854,10 +862,12 @@ def _arpack_rho(
                     continue
                 if norm_est == 0.0 and j > 1:
                     failures.append(f"{label}: M^{j} maps the start vector to zero")
+                    if not annihilated and step == len(attempts) - 1:
+                        attempts.append((1, ncv, ARPACK_MAXITER))  # one run on M itself
                     annihilated = True
                     continue
                 vals, vecs = eigs(
-                    op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=ARPACK_MAXITER
+                    op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=maxiter
                 )
         except ArpackNoConvergence as exc:
             failures.append(f"{label}: no convergence ({len(exc.eigenvalues)} of {k} converged)")

@@ -886,7 +886,7 @@ def test_arpack_retries_with_a_larger_krylov_space(monkeypatch):
     with no warning."""
     from scipy.sparse.linalg import ArpackNoConvergence, eigs
 
-    P, A, C, L, delays = random_instance(5, 8, 4, 6)
+    P, A, C, L, delays = random_instance(5, 16, 4, 9)  # 640 rows: room for a retry
     dense = augmented_spectral_radius(P, A, C, L, delays, method="dense")
     calls = []
 
@@ -903,12 +903,15 @@ def test_arpack_retries_with_a_larger_krylov_space(monkeypatch):
     assert value == pytest.approx(dense, abs=1e-10)
     assert len(calls) == 2 and calls[1] >= calls[0]
     attempts = aug._arpack_attempts(8, 10_000, aug.ARPACK_K)
-    assert [j for j, _ in attempts] == [8 * 2**s for s in range(aug.ARPACK_RETRIES + 1)]
-    assert [c for _, c in attempts] == sorted(c for _, c in attempts)
+    assert [j for j, _, _ in attempts] == [8 * 2**s for s in range(aug.ARPACK_RETRIES + 1)]
+    assert [c for _, c, _ in attempts] == sorted(c for _, c, _ in attempts)
+    assert [m for _, _, m in attempts] == sorted((m for _, _, m in attempts), reverse=True)
+    # no retry whose Krylov space is a quarter of the dimension: dense is cheaper
+    assert all(c <= 744 // 4 for _, c, _ in aug._arpack_attempts(8, 744, aug.ARPACK_K)[1:])
     # the Krylov basis stays within ARPACK_BASIS_BYTES at large sizes
     big = 10**7
     assert all(8 * big * c <= max(aug.ARPACK_BASIS_BYTES, 8 * big * (2 * aug.ARPACK_K + 1))
-               for _, c in aug._arpack_attempts(8, big, aug.ARPACK_K))
+               for _, c, _ in aug._arpack_attempts(8, big, aug.ARPACK_K))
 
 
 @contextlib.contextmanager

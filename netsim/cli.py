@@ -741,6 +741,14 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
     if args.tau_max < 0:
         raise CommandError(f"--tau-max must be a non-negative integer, got {args.tau_max}")
+    if args.workers is not None and args.workers < 1:
+        raise CommandError(f"--workers must be a positive integer, got {args.workers}")
+    from netsim.parallel import env_workers
+
+    try:
+        env_workers()
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
     if args.scenario.endswith(".mcap"):
         from netsim.traces.analysis import analyze_trace
 
@@ -752,14 +760,6 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     except (GainDesignError, ValueError) as exc:
         raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                            EXIT_DESIGN_FAILED) from None
-    if args.workers is not None and args.workers < 1:
-        raise CommandError(f"--workers must be a positive integer, got {args.workers}")
-    from netsim.parallel import env_workers
-
-    try:
-        env_workers()
-    except ValueError as exc:
-        raise CommandError(str(exc)) from None
     report = analyze_with_progress(scenario, gains, args.tau_max, analyze,
                                    disable=True if args.no_progress else None,
                                    workers=args.workers)

@@ -237,9 +237,13 @@ def analyze(
     ]
     if fixed is not None:
         tasks.append((P, A, C, L, fixed, int(fixed.max())))
+    depths = [t[-1] for t in tasks]
+    # each worker holds one augmented problem at a time: as many as fit in memory
+    memory, _ = budget.analysis_cost(n, N, depths)
+    fit = max(1, int(budget.memory_limit()[0] // max(memory, 1.0)))
     results = ordered_map(
-        _exact_pair, tasks, estimated_seconds=analysis_seconds(N, n, [t[-1] for t in tasks]),
-        workers=workers, progress=progress, check=interrupt.check,
+        _exact_pair, tasks, estimated_seconds=analysis_seconds(N, n, depths),
+        workers=workers, max_workers=fit, progress=progress, check=interrupt.check,
     )
     for tau, (exact_c, exact_u, b26) in enumerate(results[: tau_max + 1]):
         btol = rho0 ** (1.0 / (tau + 1))

@@ -45,7 +45,7 @@ def available_cpus() -> int:
 
 
 def choose_workers(n_items: int, estimated_seconds: float | None,
-                   workers: int | None = None) -> int:
+                   workers: int | None = None, max_workers: int | None = None) -> int:
     """Return how many processes :func:`ordered_map` uses (1: serial, in-process).
 
     Parameters
@@ -59,6 +59,8 @@ def choose_workers(n_items: int, estimated_seconds: float | None,
         An explicit count (from ``--workers``); ``None``: :envvar:`NETSIM_WORKERS`,
         else :func:`available_cpus`, and only if the estimate reaches
         :data:`PARALLEL_MIN_SECONDS`.
+    max_workers : int, optional
+        A cap on the result (e.g. how many tasks fit in memory at once).
     """
     if n_items <= 1 or multiprocessing.parent_process() is not None:
         return 1
@@ -68,6 +70,8 @@ def choose_workers(n_items: int, estimated_seconds: float | None,
         if estimated_seconds is None or estimated_seconds < PARALLEL_MIN_SECONDS:
             return 1
         workers = available_cpus()
+    if max_workers is not None:
+        workers = min(int(workers), int(max_workers))
     return max(1, min(int(workers), n_items))
 
 
@@ -107,6 +111,7 @@ def ordered_map(
     *,
     estimated_seconds: float | None = None,
     workers: int | None = None,
+    max_workers: int | None = None,
     progress: Callable[[int], None] | None = None,
     check: Callable[[], None] | None = None,
 ) -> list[R]:
@@ -118,7 +123,7 @@ def ordered_map(
         A module-level function (picklable), deterministic in its argument.
     items : iterable
         Its arguments (picklable).
-    estimated_seconds, workers
+    estimated_seconds, workers, max_workers
         See :func:`choose_workers`.
     progress : callable(int), optional
         Called with 1 as each task finishes (in completion order when parallel).
@@ -133,7 +138,7 @@ def ordered_map(
         ``fn(item)`` per item, in the items' order.
     """
     todo: Sequence[T] = list(items)
-    count = choose_workers(len(todo), estimated_seconds, workers)
+    count = choose_workers(len(todo), estimated_seconds, workers, max_workers)
     if count == 1:
         out = []
         for item in todo:

@@ -40,6 +40,7 @@ def test_serial_below_the_work_threshold(monkeypatch):
     assert choose_workers(1, 100.0) == 1
     assert choose_workers(10, 100.0) == min(10, len(os.sched_getaffinity(0)))
     assert choose_workers(3, 0.0, workers=8) == 3  # explicit count, capped by the items
+    assert choose_workers(10, 100.0, workers=8, max_workers=2) == 2  # e.g. by memory
     monkeypatch.setenv(WORKERS_ENV, "1")
     assert choose_workers(10, 100.0) == 1
 

@@ -39,6 +39,20 @@ Usage::
     python benchmarks/spectral_radius.py --force-dense    # also dense at 20000 (hours, ~10 GB)
     python benchmarks/spectral_radius.py --json > rho.json
 
+Crossover mode (``--crossover``) chooses ``DENSE_SIZE_THRESHOLD``: for small instances
+of the shapes ``netsim analyze`` meets -- N = 4 agents, n = 6 states, homogeneous delays
+on every link (the lcsys2022-homogeneous shape; ``--crossover-shapes`` adds N = 10,
+n = 3 with heterogeneous delays), tau = 0..``--crossover-tau``, compensated and
+uncompensated -- it times, in this process and best of ``--repeat``,
+``augmented_spectral_radius(..., method="dense")`` (single-threaded eigvals, as ``auto``
+runs it) against ``method="structured"``, checks that they agree to 1e-10 and that the
+structured call gave no RuntimeWarning (dense fallback), and prints per shape the
+smallest size from which structured is faster at every larger size measured: the
+crossover. The largest crossover over the shapes is the recommended threshold.
+
+    python benchmarks/spectral_radius.py --crossover      # about 30 s idle
+    python benchmarks/spectral_radius.py --crossover --json
+
 Progress goes to stderr; stdout holds the table (or, with ``--json``, exactly one
 JSON object and no table).
 """
@@ -166,6 +180,117 @@ def run_structured(spec: dict[str, Any], repeat: int) -> dict[str, Any]:
     }
 
 
+def crossover_instance(shape: str, tau: int, seed: int):
+    """Instance of one crossover shape at delay ``tau`` (P, A, C, L, delays)."""
+    rng = np.random.default_rng([seed, tau, len(shape)])
+    if shape == "homogeneous":  # lcsys2022-homogeneous's shape: N = 4, n = 6, ring + chords
+        N, n = 4, 6
+        mask = np.eye(N, dtype=bool) | np.roll(np.eye(N, dtype=bool), 1, axis=1)
+        mask[0, 2] = mask[3, 1] = True
+    else:  # "heterogeneous": N = 10, n = 3, random digraph, delays 0..tau
+        N, n = 10, 3
+        mask = np.eye(N, dtype=bool) | np.roll(np.eye(N, dtype=bool), 1, axis=1)
+        mask |= rng.random((N, N)) < 0.2
+    W = mask * rng.uniform(0.2, 1.0, (N, N))
+    P = W / W.sum(axis=1, keepdims=True)
+    A = rng.standard_normal((n, n))
+    A *= 1.05 / np.max(np.abs(np.linalg.eigvals(A)))
+    C = [np.eye(n)[[i % n]] for i in range(N)]
+    L = [0.4 * Ci.T for Ci in C]
+    if shape == "homogeneous":
+        delays = np.full((N, N), tau)
+    else:
+        delays = rng.integers(0, tau + 1, (N, N))
+        delays[0, N - 1] = tau
+    np.fill_diagonal(delays, 0)
+    return P, A, C, L, delays
+
+
+def _best(fn, repeat: int) -> tuple[float, Any, int]:
+    import warnings
+
+    times, value, warned = [], None, 0
+    for _ in range(repeat):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            t0 = time.perf_counter()
+            value = fn()
+            times.append(time.perf_counter() - t0)
+        warned += len(caught)
+    return min(times), value, warned
+
+
+def run_crossover(args: argparse.Namespace) -> dict[str, Any]:
+    """Dense vs structured per shape and size; the crossover sizes."""
+    import netsim.models.augmented as aug
+
+    shapes = [s.strip() for s in args.crossover_shapes.split(",") if s.strip()]
+    rows: list[dict[str, Any]] = []
+    crossover: dict[str, int | None] = {}
+    load_start = os.getloadavg()
+    for shape in shapes:
+        shape_rows = []
+        for tau in range(0, args.crossover_tau + 1, args.crossover_step):
+            P, A, C, L, delays = crossover_instance(shape, tau, args.seed)
+            D = P.shape[0] * A.shape[0] * (tau + 1)
+            for comp in (True, False):
+                system = (P, A, C, L, delays, tau)
+
+                def call(method: str, system=system, comp=comp):
+                    return aug.augmented_spectral_radius(*system, compensated=comp,
+                                                         method=method)
+
+                td, rd, _ = _best(lambda: call("dense"), args.repeat)
+                ts, rs, warned = _best(lambda: call("structured"), args.repeat)
+                row = {"shape": shape, "tau": tau, "compensated": comp, "size": D,
+                       "dense_s": td, "structured_s": ts, "rho": rd,
+                       "abs_diff": abs(rd - rs), "structured_warnings": warned}
+                log(f"{shape} tau={tau} comp={comp} D={D}: dense {td * 1e3:.1f} ms, "
+                    f"structured {ts * 1e3:.1f} ms, |drho| {abs(rd - rs):.1e}"
+                    + (f", {warned} warning(s)" if warned else ""))
+                shape_rows.append(row)
+        rows += shape_rows
+        # smallest size from which structured wins at every larger size measured
+        cut = None
+        for row in sorted(shape_rows, key=lambda r: r["size"], reverse=True):
+            if row["structured_s"] < row["dense_s"]:
+                cut = row["size"]
+            else:
+                break
+        crossover[shape] = cut
+    known = [c for c in crossover.values() if c is not None]
+    return {
+        "machine": {"cpu_count": os.cpu_count(), "loadavg_start": load_start,
+                    "loadavg_end": os.getloadavg(), "numpy": np.__version__},
+        "current_threshold": aug.DENSE_SIZE_THRESHOLD,
+        "rows": rows,
+        "crossover": crossover,
+        "recommended_threshold": max(known) if known else None,
+        "max_abs_diff": max(r["abs_diff"] for r in rows),
+        "structured_warnings": sum(r["structured_warnings"] for r in rows),
+    }
+
+
+def print_crossover(summary: dict[str, Any]) -> None:
+    head = (f"{'shape':>13} {'tau':>3} {'comp':>5} {'D':>5} {'dense ms':>9} "
+            f"{'struct ms':>9} {'dense/struct':>12} {'|drho|':>8}")
+    print(head)
+    print("-" * len(head))
+    for r in summary["rows"]:
+        print(f"{r['shape']:>13} {r['tau']:>3} {str(r['compensated']):>5} {r['size']:>5} "
+              f"{r['dense_s'] * 1e3:>9.2f} {r['structured_s'] * 1e3:>9.2f} "
+              f"{r['dense_s'] / r['structured_s']:>12.2f} {r['abs_diff']:>8.1e}"
+              + ("  (fallback warning)" if r["structured_warnings"] else ""))
+    m = summary["machine"]
+    print(f"\n{m['cpu_count']} CPUs; load average {m['loadavg_start'][0]:.2f} at start, "
+          f"{m['loadavg_end'][0]:.2f} at end; max |drho| {summary['max_abs_diff']:.1e}; "
+          f"structured fallbacks: {summary['structured_warnings']}")
+    for shape, cut in summary["crossover"].items():
+        print(f"crossover {shape}: structured faster from D = {cut} up")
+    print(f"recommended DENSE_SIZE_THRESHOLD: below {summary['recommended_threshold']} "
+          f"(current {summary['current_threshold']})")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         description="Structured (ARPACK) vs dense spectral radius of the augmented closed loop.",
@@ -202,11 +327,26 @@ def main(argv: list[str] | None = None) -> int:
         help="seconds before a dense child process is stopped (default 600)",
     )
     ap.add_argument("--json", action="store_true", help="print one JSON object, no table")
+    ap.add_argument("--crossover", action="store_true",
+                    help="measure the dense/structured crossover on small sizes instead")
+    ap.add_argument("--crossover-tau", type=int, default=30,
+                    help="crossover: tau = 0..this (default 30)")
+    ap.add_argument("--crossover-step", type=int, default=2,
+                    help="crossover: tau step (default 2)")
+    ap.add_argument("--crossover-shapes", default="homogeneous,heterogeneous",
+                    help="crossover shapes (homogeneous: N=4, n=6; heterogeneous: N=10, n=3)")
     ap.add_argument("--_dense-worker", dest="dense_worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
 
     if args.dense_worker is not None:
         print(json.dumps(dense_worker(json.loads(args.dense_worker))))
+        return 0
+    if args.crossover:
+        summary = run_crossover(args)
+        if args.json:
+            print(json.dumps(summary, indent=2))
+        else:
+            print_crossover(summary)
         return 0
 
     sizes = [int(s) for s in args.sizes.split(",") if s.strip()]

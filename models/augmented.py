@@ -52,20 +52,42 @@ from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 from netsim.models.validation import as_outputs as _as_outputs
 from netsim.models.validation import as_square as _as_square
 from netsim.models.validation import check_system as _check_system
 from numpy.typing import ArrayLike
-from scipy.sparse.csgraph import breadth_first_order, connected_components
-from scipy.sparse.linalg import ArpackError, ArpackNoConvergence, LinearOperator, eigs
+
+# scipy.sparse (and its csgraph and ARPACK) costs about 0.1 s to import and only the
+# structured method needs it: it is imported on first use (``netsim run`` and
+# ``netsim --help`` import this module without computing a structured radius).
+# ``eigs`` stays a module attribute (tests replace it) through __getattr__ below.
+_SPARSE_LINALG_NAMES = ("ArpackError", "ArpackNoConvergence", "LinearOperator", "eigs")
+
+
+def __getattr__(name: str) -> Any:
+    if name in _SPARSE_LINALG_NAMES:
+        import scipy.sparse.linalg as _spla
+
+        value = getattr(_spla, name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _sparse_linalg(name: str) -> Any:
+    """``scipy.sparse.linalg.<name>``, or what replaced this module's attribute ``name``."""
+    return globals().get(name) or __getattr__(name)
 
 __all__ = [
+    "ARPACK_BASIS_BYTES",
     "ARPACK_K",
     "ARPACK_MAXITER",
+    "ARPACK_NCV",
     "ARPACK_POWER",
+    "ARPACK_RETRIES",
     "ARPACK_TOL",
     "DEFAULT_TAU_MAX",
     "DENSE_FALLBACK_MAX",
@@ -101,8 +123,12 @@ DEFAULT_TAU_MAX: int = 200
 
 #: ``method="auto"`` uses dense ``numpy.linalg.eigvals`` when the matrix dimension
 #: (``N n (tau+1)`` for the augmented closed loop, ``N n`` for the delay-free one)
-#: is at most this, and the structured ARPACK method above it.
-DENSE_SIZE_THRESHOLD: int = 1500
+#: is at most this, and the structured ARPACK method above it. Chosen by measurement
+#: (``python benchmarks/spectral_radius.py --crossover``, 2-core machine): structured
+#: is faster at every size from 168 rows up for the lcsys2022-homogeneous shape
+#: (N = 4, n = 6) and from 330 rows up for N = 10, n = 3 with heterogeneous delays;
+#: below that ARPACK's fixed cost (10-30 ms) loses to a dense call of a few ms.
+DENSE_SIZE_THRESHOLD: int = 300
 
 #: If ARPACK fails (no convergence, or a Ritz pair that does not pass the residual
 #: check), the structured method falls back to dense eigenvalues up to this
@@ -118,8 +144,21 @@ ARPACK_K: int = 6
 #: ARPACK relative accuracy of the Ritz values.
 ARPACK_TOL: float = 1e-12
 
-#: ARPACK restart limit per run (typical runs need well under 200).
-ARPACK_MAXITER: int = 600
+#: ARPACK restart limit of the first run (retries get half, a quarter). Converging
+#: runs need at most about 25 with :data:`ARPACK_NCV` vectors (lcsys2022-homogeneous,
+#: uncompensated, tau = 12..40); the limit bounds the time a failing run costs.
+ARPACK_MAXITER: int = 100
+
+#: Krylov vectors of the first ARPACK run (each retry doubles it), see
+#: :func:`_arpack_attempts`.
+ARPACK_NCV: int = 80
+
+#: ARPACK retries after a failed first run, each with twice the power and twice the
+#: Krylov space, before the dense fallback.
+ARPACK_RETRIES: int = 2
+
+#: Largest Krylov basis (``8 D ncv`` bytes) ARPACK may keep.
+ARPACK_BASIS_BYTES: int = 256 * 2**20
 
 #: The first ARPACK run works on ``M^ARPACK_POWER`` (fewer, equally informative ARPACK
 #: steps; ``rho(M) = rho(M^q)^(1/q)``), see :func:`_arpack_rho`.
@@ -518,6 +557,8 @@ class _FirstRow:
         B: np.ndarray,
         kind: str = "auto",
     ) -> None:
+        import scipy.sparse as sp
+
         N, n = G.shape[0], G.shape[1]
         self.N, self.n, self.R = N, n, B.shape[0]
         self.Nn = N * n
@@ -685,6 +726,9 @@ def _cyclic_class(row: _FirstRow) -> tuple[int, np.ndarray]:
         ``p`` and the state indices (into the augmented vector) of the smallest
         colour class; ``nodes`` is everything when ``p <= 1``.
     """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import breadth_first_order, connected_components
+
     N, n, R = row.N, row.n, row.R
     V = N * R
     src, dst = row.block_edges
@@ -757,6 +801,29 @@ def _companion_rho(row: _FirstRow, what: str) -> float:
     return _arpack_rho(power, nodes.size, label, q) ** (1.0 / p)
 
 
+def _arpack_attempts(q: int, D: int, k: int) -> list[tuple[int, int]]:
+    """The ``(power, ncv, maxiter)`` of each ARPACK run of :func:`_arpack_rho`, in order.
+
+    The first run uses :data:`ARPACK_NCV` Krylov vectors (fewer if the basis would
+    exceed :data:`ARPACK_BASIS_BYTES`) and :data:`ARPACK_MAXITER` restarts; each retry
+    doubles the power and the Krylov space, which is what separates clustered top
+    moduli (the uncompensated loop of lcsys2022-homogeneous at tau = 30 has its top ten
+    moduli within 2e-4 of each other: ncv = 40 never converged, ncv = 80 does), with
+    half the restarts (a larger space needs fewer). A retry whose Krylov space would
+    exceed ``D / 4`` is not run: the dense fallback is cheaper. This bounds the work of a
+    failure to about three times that of the first run's restart limit.
+    """
+    cap = max(2 * k + 1, ARPACK_BASIS_BYTES // (8 * max(D, 1)))
+    ncv = max(2 * k + 1, min(ARPACK_NCV, cap))
+    out = [(q, min(ncv, D), ARPACK_MAXITER)]
+    for step in range(1, ARPACK_RETRIES + 1):
+        size = min(ncv * 2**step, cap)
+        if size > D // 4:  # a Krylov space this large costs about what dense does
+            break
+        out.append((q * 2**step, size, max(10, ARPACK_MAXITER >> step)))
+    return out
+
+
 def _arpack_rho(
     power: Callable[[int], Callable[[np.ndarray], np.ndarray]],
     D: int,
@@ -773,23 +840,31 @@ def _arpack_rho(
     block. ARPACK's cost per step (Gram-Schmidt against ``ncv`` vectors of length
     ``D``) is several times that of one sparse application of ``M``, so the first run
     works on ``M^q`` (the same ``k`` largest moduli, raised to the power ``q``, and
-    ``q`` times fewer ARPACK steps) and returns ``max |mu|^(1/q)``. The second run,
-    only if the first fails, uses ``M`` itself with a larger Krylov space and another
-    random start vector. A run is accepted only if ARPACK converged and the residual
-    of its top Ritz pair, recomputed with the operator, is at most ``1e-8 max(|mu|,
-    ||M^j x|| / ||x||)``. If both fail: dense eigenvalues of ``M`` up to
-    :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning), else RuntimeError.
+    ``q`` times fewer ARPACK steps) and returns ``max |mu|^(1/q)``. If a run fails,
+    the next (:func:`_arpack_attempts`) doubles the power and the Krylov space, with
+    another random start vector (or, once a power maps the start vector to zero, works
+    on ``M`` itself: nilpotent-like operators); each run has at most :data:`ARPACK_MAXITER`
+    restarts, so a failure costs a bounded time. A run is accepted only if ARPACK
+    converged and the residual of its top Ritz pair, recomputed with the operator,
+    is at most ``1e-8 max(|mu|, ||M^j x|| / ||x||)``. If every run fails: dense
+    eigenvalues of ``M`` up to :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning),
+    else RuntimeError.
     """
     if D <= k + 2:  # ARPACK needs k < D - 1
         return _dense_operator_rho(power(1), D)
+    eigs = _sparse_linalg("eigs")
+    LinearOperator = _sparse_linalg("LinearOperator")  # noqa: N806
+    ArpackError = _sparse_linalg("ArpackError")  # noqa: N806
+    ArpackNoConvergence = _sparse_linalg("ArpackNoConvergence")  # noqa: N806
     rng = np.random.default_rng(seed)
     failures: list[str] = []
-    attempts = [(q, max(2 * k + 1, 40))]
-    attempts.append((1, max(4 * k + 1, 100)))
-    for j, ncv in attempts:
+    annihilated = False  # M^j v0 = 0 happened: the powers are (nearly) nilpotent
+    attempts = _arpack_attempts(q, D, k)
+    for step, (j, ncv, maxiter) in enumerate(attempts):
+        if annihilated:
+            j = 1
         apply = power(j)
         op = LinearOperator((D, D), matvec=apply, matmat=apply, dtype=float)
-        ncv = min(ncv, D)
         v0 = rng.standard_normal(D)
         label = f"M^{j}, ncv={ncv}"
         try:
@@ -799,8 +874,14 @@ def _arpack_rho(
                 if not math.isfinite(norm_est):
                     failures.append(f"{label}: the operator overflows")
                     continue
+                if norm_est == 0.0 and j > 1:
+                    failures.append(f"{label}: M^{j} maps the start vector to zero")
+                    if not annihilated and step == len(attempts) - 1:
+                        attempts.append((1, ncv, ARPACK_MAXITER))  # one run on M itself
+                    annihilated = True
+                    continue
                 vals, vecs = eigs(
-                    op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=ARPACK_MAXITER
+                    op, k=k, which="LM", tol=tol, ncv=ncv, v0=v0, maxiter=maxiter
                 )
         except ArpackNoConvergence as exc:
             failures.append(f"{label}: no convergence ({len(exc.eigenvalues)} of {k} converged)")
@@ -879,6 +960,8 @@ def delay_free_spectral_radius(
     float
         ``rho((I - K D_C-bar)(P kron A))``.
     """
+    import scipy.sparse as sp
+
     if sp.issparse(P):
         # large sparse networks: always the structured operator (no N x N array)
         A_arr = np.asarray(A, dtype=float)

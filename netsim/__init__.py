@@ -36,12 +36,17 @@ def _trace_replay(path):
 # scenario loader its reader of trace-driven delays ([links] delay.distribution = "trace").
 _register_delay_source("trace", _trace_replay)
 
-from importlib import metadata as _metadata  # noqa: E402
 
-try:
-    __version__ = _metadata.version("netsim")
-except _metadata.PackageNotFoundError:  # pragma: no cover - run from a source tree
-    __version__ = "0+unknown"
+
+def _version() -> str:
+    """The installed distribution's version (importlib.metadata costs 20-50 ms to
+    import, so ``__version__`` is looked up on first access)."""
+    from importlib import metadata
+
+    try:
+        return metadata.version("netsim")
+    except metadata.PackageNotFoundError:  # pragma: no cover - run from a source tree
+        return "0+unknown"
 
 _API = (
     "Estimator", "EstimatorFamily", "AgentSetup", "AgentPlan", "FamilyContext",
@@ -54,6 +59,9 @@ __all__ = ["__version__", *_API]
 
 
 def __getattr__(name: str):
+    if name == "__version__":
+        globals()["__version__"] = version = _version()
+        return version
     if name in _API:
         from netsim import api
 
@@ -62,4 +70,4 @@ def __getattr__(name: str):
 
 
 def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_API))
+    return sorted(set(globals()) | set(_API) | {"__version__"})

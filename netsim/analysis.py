@@ -20,7 +20,7 @@ contradicted`` (``AnalysisReport.contradictions``).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -28,14 +28,18 @@ import numpy as np
 
 from netsim.estimators.gains import GainDesign
 from netsim.models.augmented import (
+    DENSE_SIZE_THRESHOLD,
     augmented_spectral_radius,
     delay_bound_lcsys,
     tau_star_report,
 )
 from netsim.models.jsonsafe import json_tree as _jsonable
 from netsim.models.scenario import Scenario
+from netsim.parallel import ordered_map
 
-__all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "BoundRow", "AnalysisReport", "analyze"]
+__all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "DENSE_SECONDS_PER_CUBE",
+           "STRUCTURED_SECONDS_PER_CALL", "STRUCTURED_SECONDS_PER_ROW", "BoundRow",
+           "AnalysisReport", "analysis_seconds", "analyze"]
 
 #: Numerical slack before an exact value above a bound counts as a violation.
 BOUND_SLACK = 1e-9
@@ -127,9 +131,48 @@ class AnalysisReport:
         }
 
 
+def _exact_pair(task: tuple[Any, ...]) -> tuple[float, float, float]:
+    """One delay pattern: (exact rho compensated, uncompensated, eq. (26) bound).
+
+    ``task = (P, A, C, L, delays, depth)``; a module-level function so that
+    :func:`netsim.parallel.ordered_map` can send it to a worker process.
+    """
+    P, A, C, L, delays, depth = task
+    exact_c = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=True)
+    exact_u = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=False)
+    return exact_c, exact_u, float(delay_bound_lcsys(P, A, C, L, depth))
+
+
+#: Seconds per ``D^3`` of a dense eigenvalue call (``D`` rows), and per row of a
+#: structured (ARPACK) call, plus a fixed cost per structured call; measured on the
+#: 2-core development machine (single-threaded BLAS), only used to decide whether
+#: :func:`analyze` starts worker processes.
+DENSE_SECONDS_PER_CUBE = 1.2e-9
+STRUCTURED_SECONDS_PER_ROW = 1.0e-4
+STRUCTURED_SECONDS_PER_CALL = 0.02
+
+
+def analysis_seconds(n_agents: int, n: int, depths: Sequence[int]) -> float:
+    """Estimated serial seconds of :func:`_exact_pair` over delay depths ``depths``.
+
+    Two augmented spectral radii (dimension ``D = N n (depth + 1)``) per depth: dense
+    (``D^3``) up to :data:`netsim.models.augmented.DENSE_SIZE_THRESHOLD`, structured
+    (linear in ``D``) above. A rough model, used only to choose serial or parallel.
+    """
+    total = 0.0
+    for depth in depths:
+        D = n_agents * n * (int(depth) + 1)
+        if D <= DENSE_SIZE_THRESHOLD:
+            total += 2 * DENSE_SECONDS_PER_CUBE * float(D) ** 3
+        else:
+            total += 2 * (STRUCTURED_SECONDS_PER_CALL + STRUCTURED_SECONDS_PER_ROW * D)
+    return total
+
+
 def analyze(
     scenario: Scenario, gains: GainDesign, tau_max: int = DEFAULT_TAU_RANGE, *,
     progress: Callable[[int], None] | None = None,
+    workers: int | None = 1,
 ) -> AnalysisReport:
     """Compute the bounds and exact spectral radii of a scenario's closed loop.
 
@@ -142,6 +185,11 @@ def analyze(
         Homogeneous delays 0..tau_max are analysed.
     progress : callable(int), optional
         Called with 1 after each tau (and once more for the scenario's own delays).
+    workers : int or None, default 1
+        Processes for the independent delay patterns (:func:`netsim.parallel.ordered_map`):
+        1 runs them in this process; ``None`` chooses (the local cores, if the
+        estimated serial work, :func:`analysis_seconds`, is at least
+        :data:`netsim.parallel.PARALLEL_MIN_SECONDS`). The report is the same either way.
 
     Raises
     ------
@@ -184,12 +232,20 @@ def analyze(
         convergence_order_delay_free=_order(rho0),
     )
     edge_mask = (P > 0) & ~np.eye(N, dtype=bool)
-    for tau in range(tau_max + 1):
-        interrupt.check()
-        delays = np.where(edge_mask, tau, 0)
-        exact_c = augmented_spectral_radius(P, A, C, L, delays, tau, compensated=True)
-        exact_u = augmented_spectral_radius(P, A, C, L, delays, tau, compensated=False)
-        b26 = float(delay_bound_lcsys(P, A, C, L, tau))
+    tasks: list[tuple[Any, ...]] = [
+        (P, A, C, L, np.where(edge_mask, tau, 0), tau) for tau in range(tau_max + 1)
+    ]
+    if fixed is not None:
+        tasks.append((P, A, C, L, fixed, int(fixed.max())))
+    depths = [t[-1] for t in tasks]
+    # each worker holds one augmented problem at a time: as many as fit in memory
+    memory, _ = budget.analysis_cost(n, N, depths)
+    fit = max(1, int(budget.memory_limit()[0] // max(memory, 1.0)))
+    results = ordered_map(
+        _exact_pair, tasks, estimated_seconds=analysis_seconds(N, n, depths),
+        workers=workers, max_workers=fit, progress=progress, check=interrupt.check,
+    )
+    for tau, (exact_c, exact_u, b26) in enumerate(results[: tau_max + 1]):
         btol = rho0 ** (1.0 / (tau + 1))
         row = BoundRow(
             tau=tau,
@@ -217,14 +273,10 @@ def analyze(
             report.contradictions.append(
                 f"tau = {tau}: Theorem 1 predicts stability but the exact rho is {exact_c:.6f}"
             )
-        if progress is not None:
-            progress(1)
     delays = fixed
     if delays is not None:
         depth = int(delays.max())
-        exact_c = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=True)
-        exact_u = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=False)
-        b26 = float(delay_bound_lcsys(P, A, C, L, depth))
+        exact_c, exact_u, b26 = results[-1]
         btol = rho0 ** (1.0 / (depth + 1))
         report.realised = {
             "delays": {f"{j}->{i}": int(delays[i, j]) for j, i in scenario.links},
@@ -241,6 +293,4 @@ def analyze(
                 f"scenario delays (max {depth}): eq. (26) bound {b26:.6f} violated by the "
                 f"exact rho {exact_c:.6f}"
             )
-        if progress is not None:
-            progress(1)
     return report

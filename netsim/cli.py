@@ -22,6 +22,7 @@ from netsim.cliutil import (
     EXIT_BAD_INPUT,
     EXIT_DESIGN_FAILED,
     EXIT_INTERRUPTED,
+    REPRODUCE_HELP,
     CommandError,
     OneLineParser,
     analyze_with_progress,
@@ -37,8 +38,34 @@ __all__ = ["main", "build_parser", "CommandError", "EXIT_BAD_INPUT", "EXIT_DESIG
            "EXIT_INTERRUPTED"]
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the argument parser of ``netsim``."""
+#: ``netsim bench``'s line in ``netsim --help`` (the bench parser itself, in
+#: :mod:`netsim.bench.command`, is only built when the command is bench; a test checks
+#: that both say the same).
+_BENCH_HELP = "benchmarks: delay tolerance of each estimator vs the papers' bounds; sweeps"
+
+
+def _command_in(argv: Sequence[str], commands: Sequence[str]) -> str | None:
+    """The subcommand argparse will pick from ``argv``: its first token if that is one
+    of ``commands`` (the top level has no option but ``-h``); ``""`` for no command or
+    ``-h``/``--help``; None otherwise (anything unusual: build everything)."""
+    if not argv or argv[0] in ("-h", "--help"):
+        return ""
+    return argv[0] if argv[0] in commands else None
+
+
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """Return the argument parser of ``netsim``.
+
+    Parameters
+    ----------
+    only : str, optional
+        None (default): the whole parser. A command name: a parser that parses that
+        command exactly as the whole one does; the other commands may lack options
+        whose definitions import heavy modules (the run options of :mod:`netsim.aoi`,
+        the bench subcommands). ``""``: enough for the top-level ``--help`` (every
+        command listed). :func:`main` passes what its arguments need, which keeps
+        ``netsim --help`` and ``netsim run`` from importing what they do not use.
+    """
     parser = OneLineParser(
         prog="netsim",
         description=(
@@ -95,9 +122,10 @@ def build_parser() -> argparse.ArgumentParser:
     run.add_argument("--measurement-noise", type=float, default=None, metavar="VAR",
                      help="measurement noise variance (every R_i = VAR I)")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    from netsim.aoi import add_aoi_arguments
+    if only in (None, "run"):
+        from netsim.aoi import add_aoi_arguments
 
-    add_aoi_arguments(run)
+        add_aoi_arguments(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
     design = sub.add_parser(
@@ -148,7 +176,12 @@ def build_parser() -> argparse.ArgumentParser:
                          "empirical decay rate of the error, each with a verdict)")
     analyze.add_argument("--tau-max", type=int, default=30,
                          help="largest homogeneous delay analysed (default 30)")
+    analyze.add_argument("--workers", type=int, default=None, metavar="W",
+                         help="processes for the independent delay patterns (default: this "
+                         "machine's cores when the estimated work is at least a second, "
+                         "else 1; NETSIM_WORKERS sets the default); the output is the same")
     analyze.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+    analyze.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
     insp = sub.add_parser(
         "inspect",
@@ -283,12 +316,18 @@ def build_parser() -> argparse.ArgumentParser:
                        help="dkfe-example1 only: gamma_11, the probability that the sink "
                        "sends component 1 (eq. 84; default 0.5), in [0, 1] (Figs. 3-4)")
     f_run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    from netsim.bench import add_bench_parser
+    if only in (None, "bench"):
+        from netsim.bench import add_bench_parser
 
-    add_bench_parser(sub)
-    from netsim.reproduce import add_reproduce_parser
+        add_bench_parser(sub)
+    elif only == "":  # the listing only: importing netsim.bench costs 0.2-0.3 s
+        sub.add_parser("bench", help=_BENCH_HELP)
+    if only in (None, "reproduce"):
+        from netsim.reproduce import add_reproduce_parser
 
-    add_reproduce_parser(sub)
+        add_reproduce_parser(sub)
+    elif only == "":  # the listing only: netsim.reproduce imports the claims and plots
+        sub.add_parser("reproduce", help=REPRODUCE_HELP)
     for name, command in sub.choices.items():
         _add_no_cache(name, command)
     return parser
@@ -799,6 +838,14 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
 
     if args.tau_max < 0:
         raise CommandError(f"--tau-max must be a non-negative integer, got {args.tau_max}")
+    if args.workers is not None and args.workers < 1:
+        raise CommandError(f"--workers must be a positive integer, got {args.workers}")
+    from netsim.parallel import env_workers
+
+    try:
+        env_workers()
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
     if args.scenario.endswith(".mcap"):
         from netsim.traces.analysis import analyze_trace
 
@@ -810,7 +857,9 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     except (GainDesignError, ValueError) as exc:
         raise CommandError(f"scenario {args.scenario}: gain design failed: {exc}",
                            EXIT_DESIGN_FAILED) from None
-    report = analyze_with_progress(scenario, gains, args.tau_max, analyze)
+    report = analyze_with_progress(scenario, gains, args.tau_max, analyze,
+                                   disable=True if args.no_progress else None,
+                                   workers=args.workers)
     data = {"gains": _design_dict(gains), **report.to_dict()}
     if args.json:
         json.dump(data, sys.stdout, indent=2, allow_nan=False)
@@ -1056,11 +1105,6 @@ def _cmd_reproduce(args: argparse.Namespace) -> int:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``netsim`` command; returns the exit code."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if args.command is None:
-        parser.print_help(sys.stderr)
-        return EXIT_BAD_INPUT
     handlers = {
         "run": _cmd_run,
         "design": _cmd_design,
@@ -1075,6 +1119,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         "reproduce": _cmd_reproduce,
         "scenarios": _cmd_scenarios,
     }
+    parser = build_parser(_command_in(sys.argv[1:] if argv is None else list(argv), handlers))
+    args = parser.parse_args(argv)
+    if args.command is None:
+        parser.print_help(sys.stderr)
+        return EXIT_BAD_INPUT
     from netsim import gaincache
 
     fresh = gaincache.disabled() if getattr(args, "no_cache", False) else nullcontext()

@@ -18,8 +18,11 @@ from collections.abc import Iterator, Sequence
 from typing import Any, NoReturn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
-           "OneLineParser", "analyze_with_progress", "gains_if_needed",
+           "REPRODUCE_HELP", "OneLineParser", "analyze_with_progress", "gains_if_needed",
            "note_kernel_fallbacks", "scenario_warnings"]
+
+#: ``netsim reproduce``'s one-line help, shared by the full parser and the cheap listing.
+REPRODUCE_HELP = "regenerate every figure and table of the four papers, with a report"
 
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
@@ -100,10 +103,11 @@ def scenario_warnings(command: str) -> Iterator[None]:
 
 
 def analyze_with_progress(scenario: Any, gains: Any, tau_max: int, analyze: Any,
-                          disable: bool | None = None) -> Any:
-    """``analyze(scenario, gains, tau_max)`` with a tqdm bar on stderr (one tick per tau).
+                          disable: bool | None = None, **options: Any) -> Any:
+    """``analyze(scenario, gains, tau_max, **options)`` with a tqdm bar on stderr (one
+    tick per delay pattern, in completion order when the patterns run in parallel).
 
-    The bar shows only on a terminal (``disable=None``); Ctrl-C raises
+    The bar shows only on a terminal (``disable=None``; True: never); Ctrl-C raises
     KeyboardInterrupt as soon as the running eigenvalue computation returns (the
     command line turns it into exit 130).
     """
@@ -112,6 +116,6 @@ def analyze_with_progress(scenario: Any, gains: Any, tau_max: int, analyze: Any,
     bar = tqdm(total=tau_max + 1, desc=f"netsim analyze {scenario.name}", unit="tau",
                disable=disable, file=sys.stderr, leave=False)
     try:  # no graceful handler: nothing is written, Ctrl-C may stop at once
-        return analyze(scenario, gains, tau_max, progress=bar.update)
+        return analyze(scenario, gains, tau_max, progress=bar.update, **options)
     finally:
         bar.close()

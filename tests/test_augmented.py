@@ -5,6 +5,9 @@ delay-tolerant paper eqs. 11, 17, Theorem 1 (and a counterexample to its bound).
 
 from __future__ import annotations
 
+import contextlib
+import warnings
+
 import netsim.models.augmented as aug
 import numpy as np
 import pytest
@@ -818,3 +821,102 @@ def test_sequence_growth_block_mode_tracks_full_mode():
     assert full - block < 10 / k
     one = closed_loop_sequence_growth(P, A, C, L, pats, tau, full_max=0, block=1, seed=2)
     assert one <= full + 1e-12 and full - one < 20 / k
+
+
+# ---------------------------------------------------------------------------
+# ARPACK robustness: clustered top moduli, ill-conditioning, retries
+# ---------------------------------------------------------------------------
+
+
+def _clustered_instance(tau):
+    """Homogeneous delays on a ring with self-loops (delay 0), the shape of
+    lcsys2022-homogeneous: the companion spectrum has many eigenvalues of nearly the
+    same modulus (the case tests/test_analysis.py checks on the scenario itself, where
+    ARPACK with 40 Krylov vectors did not converge)."""
+    rng = np.random.default_rng(7)
+    N, n = 4, 6
+    mask = np.eye(N, dtype=bool) | np.roll(np.eye(N, dtype=bool), 1, axis=1)
+    mask[0, 2] = True
+    P = stoch(rng, mask.astype(float))
+    A = rng.standard_normal((n, n))
+    A *= 1.05 / np.max(np.abs(np.linalg.eigvals(A)))
+    C = [np.eye(n)[[i % n, (i + 3) % n]] for i in range(N)]
+    L = [0.3 * Ci.T for Ci in C]
+    delays = np.full((N, N), tau)
+    np.fill_diagonal(delays, 0)
+    return P, A, C, L, delays
+
+
+@pytest.mark.parametrize("tau,compensated", [(30, False), (30, True), (17, False)])
+def test_structured_agrees_with_dense_on_clustered_spectra(tau, compensated):
+    """Structured equals dense eigvals to 1e-10 without the dense fallback (no warning),
+    where the top moduli are clustered (checked here from the dense spectrum)."""
+    P, A, C, L, delays = _clustered_instance(tau)
+    M = augmented_closed_loop(P, A, C, L, delays, tau, compensated)
+    moduli = np.sort(np.abs(np.linalg.eigvals(M)))[::-1]
+    dense = moduli[0]
+    assert moduli[0] - moduli[7] < 2e-2 * moduli[0]  # a genuinely clustered top
+    with warnings_as_errors():
+        value = augmented_spectral_radius(P, A, C, L, delays, tau, compensated, "structured")
+    assert value == pytest.approx(dense, abs=1e-10)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_structured_agrees_with_dense_when_ill_conditioned(seed):
+    """A non-normal A (a Jordan-like block with large off-diagonal, in a badly scaled
+    basis, condition number ~1e3-1e6): structured equals dense to 1e-10 (relative)."""
+    rng = np.random.default_rng(200 + seed)
+    N, n, tau = 5, 4, 9
+    P, _, C, L, delays = random_instance(300 + seed, N, n, tau, homogeneous=seed % 2 == 0)
+    J = 0.99 * np.eye(n) + np.diag(np.full(n - 1, 10.0 ** (seed % 3)), 1)
+    S = rng.standard_normal((n, n))
+    S[:, 0] *= 1e-3
+    A = S @ J @ np.linalg.inv(S)
+    assert np.linalg.cond(S) > 1e3
+    for comp in (True, False):
+        dense = augmented_spectral_radius(P, A, C, L, delays, tau, comp, "dense")
+        with warnings_as_errors():
+            value = augmented_spectral_radius(P, A, C, L, delays, tau, comp, "structured")
+        assert value == pytest.approx(dense, rel=1e-10, abs=1e-12)
+
+
+def test_arpack_retries_with_a_larger_krylov_space(monkeypatch):
+    """A run that does not converge is retried with twice the power and twice the Krylov
+    space (another start vector) before any dense fallback: the answer comes from ARPACK,
+    with no warning."""
+    from scipy.sparse.linalg import ArpackNoConvergence, eigs
+
+    P, A, C, L, delays = random_instance(5, 16, 4, 9)  # 640 rows: room for a retry
+    dense = augmented_spectral_radius(P, A, C, L, delays, method="dense")
+    calls = []
+
+    def flaky(op, **kwargs):
+        calls.append(kwargs["ncv"])
+        if len(calls) == 1:
+            raise ArpackNoConvergence("ARPACK error -1: No convergence", np.array([]), None)
+        return eigs(op, **kwargs)
+
+    monkeypatch.setattr(aug, "eigs", flaky)
+    monkeypatch.setattr(aug, "_dense_operator_rho", lambda *a: pytest.fail("dense fallback"))
+    with warnings_as_errors():
+        value = augmented_spectral_radius(P, A, C, L, delays, method="structured")
+    assert value == pytest.approx(dense, abs=1e-10)
+    assert len(calls) == 2 and calls[1] >= calls[0]
+    attempts = aug._arpack_attempts(8, 10_000, aug.ARPACK_K)
+    assert [j for j, _, _ in attempts] == [8 * 2**s for s in range(aug.ARPACK_RETRIES + 1)]
+    assert [c for _, c, _ in attempts] == sorted(c for _, c, _ in attempts)
+    assert [m for _, _, m in attempts] == sorted((m for _, _, m in attempts), reverse=True)
+    # no retry whose Krylov space is a quarter of the dimension: dense is cheaper
+    assert all(c <= 744 // 4 for _, c, _ in aug._arpack_attempts(8, 744, aug.ARPACK_K)[1:])
+    # the Krylov basis stays within ARPACK_BASIS_BYTES at large sizes
+    big = 10**7
+    assert all(8 * big * c <= max(aug.ARPACK_BASIS_BYTES, 8 * big * (2 * aug.ARPACK_K + 1))
+               for _, c, _ in aug._arpack_attempts(8, big, aug.ARPACK_K))
+
+
+@contextlib.contextmanager
+def warnings_as_errors():
+    """A RuntimeWarning (the structured method's dense fallback) fails the test."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", RuntimeWarning)
+        yield

@@ -8,6 +8,7 @@ import math
 import sys
 from typing import Any
 
+from netsim.cliutil import REPRODUCE_HELP
 from netsim.reproduce.items import ITEMS, PAPERS
 from netsim.reproduce.report import CLAIM_BUDGET, DEFAULT_TRIALS, reproduce
 
@@ -24,7 +25,7 @@ def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
                         for p in PAPERS)
     rep = subparsers.add_parser(
         "reproduce",
-        help="regenerate every figure and table of the four papers, with a report",
+        help=REPRODUCE_HELP,
         description=(
             "Regenerate the figures and tables of the papers that have data (diagrams "
             f"excepted) -- {listing} -- as PNG plus CSV/JSON data, and write report.md: "

@@ -14,9 +14,16 @@ import zlib
 
 import numpy as np
 
-__all__ = ["SeedLike", "as_seed_sequence", "stream", "child_sequence"]
+__all__ = ["SEED_LAYOUT", "SeedLike", "as_seed_sequence", "stream", "child_sequence"]
 
 SeedLike = int | np.random.SeedSequence | None
+
+#: Version of the layout of the random streams, recorded in every result and trace.
+#: 1: one stream per (trial, link) for per-message link draws; 2: one stream per trial
+#: for the whole link set, drawn as (messages, links) blocks
+#: (:class:`netsim.models.delays.LinkBlockDraws`). The same seed gives other delays
+#: (and so other numbers) under another layout.
+SEED_LAYOUT = 2
 
 
 def as_seed_sequence(seed: SeedLike) -> np.random.SeedSequence:

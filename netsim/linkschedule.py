@@ -73,6 +73,10 @@ class LinkSchedule:
     constant_delay : numpy.ndarray or None, shape (T, L), int
         Set when every link has one constant step delay and drops nothing (the
         per-message arrays are then broadcast views).
+    lossless_steps : bool
+        Every delay is in steps and no link drops anything (``fate`` and
+        ``drop_time`` are broadcast views): a message arrives at the sampling instant
+        s + 1 + d.
     """
 
     links: list[tuple[int, int]]
@@ -84,6 +88,7 @@ class LinkSchedule:
     drop_time: np.ndarray
     reasons: list[str]
     constant_delay: np.ndarray | None = None
+    lossless_steps: bool = False
 
     @cached_property
     def arrival(self) -> np.ndarray:
@@ -110,6 +115,11 @@ class LinkSchedule:
             # s + 1 + d <= end  <=>  s <= end - 1 - d
             limit = np.asarray(ends)[:, None] - 1 - self.constant_delay
             delivered = np.searchsorted(self.send_steps, limit, side="right").sum(axis=1)
+            return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
+                     "delivered": int(n), "dropped": 0, "drop_reasons": {}}
+                    for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
+        if self.lossless_steps:
+            delivered = np.count_nonzero(self.arrival <= end, axis=(1, 2))
             return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
                      "delivered": int(n), "dropped": 0, "drop_reasons": {}}
                     for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
@@ -305,8 +315,6 @@ def build_schedule(
     if static is not None:
         return static
     latency = np.zeros((T, L, S))
-    fate = np.zeros((T, L, S), dtype=np.int16)
-    drop_time = np.full((T, L, S), np.nan)
     in_steps = np.zeros(L, dtype=bool)
     reasons: list[str] = []
     index: dict[str, int] = {}
@@ -319,12 +327,21 @@ def build_schedule(
 
     configured_links = []
     for t, model in enumerate(delay_models):
+        # models that draw a whole link set at once (one stream per trial, seed layout
+        # 2): their links' delays as one (S, L') block
+        blocks: dict[int, tuple[DelayModel, list[int]]] = {}
+        plain = getattr(model, "link", None) is None  # no per-link models to resolve
         for l_, (j, i) in enumerate(links):
-            delays, configured = resolve_link(model, j, i)
+            delays, configured = (model, None) if plain else resolve_link(model, j, i)
             in_steps[l_] = delays.unit == "steps"
-            latency[t, l_] = _draws(delays, j, i, send_steps)
+            if hasattr(delays, "draw_block") and not delays.time_invariant:
+                blocks.setdefault(id(delays), (delays, []))[1].append(l_)
+            else:
+                latency[t, l_] = _draws(delays, j, i, send_steps)
             if configured is not None:
                 configured_links.append((t, l_, configured))
+        for delays, columns in blocks.values():
+            latency[t, columns] = delays.draw_block([links[c] for c in columns], send_steps).T
     # Link._stamp: a step delay d waits 1 + d periods; a latency l waits l / Ts and
     # counts as d = ceil(l / Ts) - 1 (at least 0)
     if not np.all(np.isfinite(latency)) or np.any(latency < 0):
@@ -343,6 +360,16 @@ def build_schedule(
             steps_mask = in_steps[None, :, None]
             delay_steps = np.where(steps_mask, latency.astype(np.int64), delay_steps)
             wait = np.where(steps_mask, delay_steps + 1.0, scaled)
+    if in_steps.all() and not configured_links:
+        # nothing is dropped: the per-message fates are broadcast views
+        shape = (T, L, S)
+        return LinkSchedule(
+            list(links), send_steps, wait, delay_steps, latency,
+            fate=np.broadcast_to(np.zeros((1, 1, 1), dtype=np.int16), shape),
+            drop_time=np.broadcast_to(np.full((1, 1, 1), np.nan), shape),
+            reasons=[], lossless_steps=True)
+    fate = np.zeros((T, L, S), dtype=np.int16)
+    drop_time = np.full((T, L, S), np.nan)
     for t, l_, configured in configured_links:
         _configured_pass(configured, send_steps, wait[t, l_], fate[t, l_], drop_time[t, l_],
                          code)
@@ -390,6 +417,35 @@ def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
     return MessageSelection(chosen, discarded, _max_lag(chosen, send))
 
 
+def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
+    """:func:`select_messages` (freshest rule) for lossless step delays, a message every
+    step.
+
+    Message s of a link is usable from step s + 1 + d_s on, so the receiver holds at
+    step k the largest s with d_s <= k - 1 - s (LCSYS2022 eq. 4's freshest time-stamp).
+    With delays at most D, the message sent at k - 1 - D has always arrived and
+    dominates every older one: held[k] = k - 1 - r for the smallest r in 0..D with
+    d_{k-1-r} <= r (-1 if none), D + 1 whole-array passes instead of a sort.
+    """
+    T, L, S = schedule.delay_steps.shape
+    d = np.ascontiguousarray(np.minimum(schedule.delay_steps, K + 1).transpose(2, 1, 0))
+    D = int(d.max()) if d.size else 0
+    chosen = np.full((K + 1, L, T), -1, dtype=np.int32)
+    sent = np.arange(K + 1, dtype=np.int32)[:, None, None]
+    for r in range(min(D, K - 1), -1, -1):  # smaller r (newer messages) overwrite
+        # steps k = r + 1 .. K hold s = k - 1 - r = 0 .. K - 1 - r if it arrived
+        np.copyto(chosen[r + 1:], sent[: K - r], where=d[: K - r] <= r)
+    discarded = np.zeros((T, L, S), dtype=bool)
+    if S > 1:
+        # freshest rule: discarded on arrival if a newer message arrived before it
+        arrival = schedule.arrival
+        later = np.minimum.accumulate(arrival[:, :, :0:-1], axis=-1)[:, :, ::-1]
+        discarded[:, :, :-1] = later < arrival[:, :, :-1]
+    used = chosen >= 0
+    max_lag = int((np.arange(K + 1)[:, None, None] - chosen)[used].max()) if used.any() else 0
+    return MessageSelection(chosen, discarded, max_lag)
+
+
 def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> MessageSelection:
     """For every link and step, the message its receiver holds at that step's update.
 
@@ -412,6 +468,9 @@ def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> 
     send = schedule.send_steps
     if schedule.constant_delay is not None and S:
         return _select_constant(schedule, K)
+    if (timestamps and schedule.lossless_steps and S == K + 1
+            and bool(np.array_equal(send, np.arange(K + 1)))):
+        return _select_bounded(schedule, K)
     ok = schedule.fate == DELIVERED
     all_ok = bool(ok.all())
     arrival = schedule.arrival if all_ok else np.where(ok, schedule.arrival, np.inf)

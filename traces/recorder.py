@@ -84,6 +84,7 @@ import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType, Writer
 from netsim.models.jsonsafe import json_default
+from netsim.models.seeding import SEED_LAYOUT
 from netsim.traces.schemas import file_descriptor_set, message_classes, schema_name
 
 __all__ = [
@@ -344,6 +345,7 @@ class TraceRecorder:
                 "family": self.family,
                 "trial": str(self.trial),
                 "seed": "" if seed is None else str(seed),
+                "seed_layout": str(SEED_LAYOUT),
                 "sample_period": repr(self.sample_period),
                 "steps": "" if steps is None else str(int(steps)),
                 "time_unit": "log_time/publish_time: integer ns of simulation time, "

@@ -171,8 +171,9 @@ class LinkBlockDraws:
     def _block(self, b: int) -> np.ndarray:
         while len(self._blocks) <= b:
             L = len(self.links)
-            values = np.asarray(self._fn(self._rng, self.rows * L))
-            self._blocks.append(values.reshape(self.rows, L))
+            values = np.array(self._fn(self._rng, self.rows * L)).reshape(self.rows, L)
+            values.flags.writeable = False  # handed out as views (take)
+            self._blocks.append(values)
         return self._blocks[b]
 
     def _values(self, c: int, start: int) -> Iterator[Any]:
@@ -208,6 +209,18 @@ class LinkBlockDraws:
         vectorised engine's case) are sliced from the blocks; others value by value.
         """
         cols = np.array([self.column[(int(j), int(i))] for j, i in links], dtype=np.int64)
+        if (len(cols) == len(self.links) and not self._iters and count
+                and np.array_equal(cols, np.arange(len(cols)))
+                and bool(np.all(self._start == self._start[0]))):
+            # the whole set from one row (the vectorised engine): rows of the blocks
+            start = int(self._start[0])
+            first, last = start // self.rows, (start + count - 1) // self.rows
+            r = start - first * self.rows
+            self._start += count
+            if first == last:
+                return self._block(first)[r:r + count]
+            return np.concatenate([self._block(b) for b in range(first, last + 1)])[
+                r:r + count]
         out = np.empty((count, len(cols)), dtype=self._block(0).dtype)
         fresh = np.array([c not in self._iters for c in cols.tolist()], dtype=bool)
         starts = self._start[cols]

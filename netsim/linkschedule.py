@@ -314,7 +314,10 @@ def build_schedule(
     static = _static_schedule(delay_models, links, send_steps)
     if static is not None:
         return static
-    latency = np.zeros((T, L, S))
+    # stored (message, link, trial), the layout the engine's selection reads; the
+    # schedule's arrays are (T, L, S) views of it
+    stored = np.zeros((S, L, T))
+    latency = stored.transpose(2, 1, 0)
     in_steps = np.zeros(L, dtype=bool)
     reasons: list[str] = []
     index: dict[str, int] = {}
@@ -331,6 +334,10 @@ def build_schedule(
         # 2): their links' delays as one (S, L') block
         blocks: dict[int, tuple[DelayModel, list[int]]] = {}
         plain = getattr(model, "link", None) is None  # no per-link models to resolve
+        if plain and hasattr(model, "draw_block") and not model.time_invariant:
+            in_steps[:] = model.unit == "steps"
+            stored[:, :, t] = model.draw_block(links, send_steps)
+            continue
         for l_, (j, i) in enumerate(links):
             delays, configured = (model, None) if plain else resolve_link(model, j, i)
             in_steps[l_] = delays.unit == "steps"
@@ -341,7 +348,7 @@ def build_schedule(
             if configured is not None:
                 configured_links.append((t, l_, configured))
         for delays, columns in blocks.values():
-            latency[t, columns] = delays.draw_block([links[c] for c in columns], send_steps).T
+            stored[:, columns, t] = delays.draw_block([links[c] for c in columns], send_steps)
     # Link._stamp: a step delay d waits 1 + d periods; a latency l waits l / Ts and
     # counts as d = ceil(l / Ts) - 1 (at least 0)
     if not np.all(np.isfinite(latency)) or np.any(latency < 0):
@@ -428,21 +435,26 @@ def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
     d_{k-1-r} <= r (-1 if none), D + 1 whole-array passes instead of a sort.
     """
     T, L, S = schedule.delay_steps.shape
-    d = np.ascontiguousarray(np.minimum(schedule.delay_steps, K + 1).transpose(2, 1, 0))
+    d = np.ascontiguousarray(schedule.delay_steps.transpose(2, 1, 0))  # (S, L, T)
     D = int(d.max()) if d.size else 0
     chosen = np.full((K + 1, L, T), -1, dtype=np.int32)
+    pending = np.ones((K + 1, L, T), dtype=bool)  # nothing chosen yet
     sent = np.arange(K + 1, dtype=np.int32)[:, None, None]
-    for r in range(min(D, K - 1), -1, -1):  # smaller r (newer messages) overwrite
-        # steps k = r + 1 .. K hold s = k - 1 - r = 0 .. K - 1 - r if it arrived
-        np.copyto(chosen[r + 1:], sent[: K - r], where=d[: K - r] <= r)
+    max_lag = 0
+    for r in range(min(D, K - 1) + 1):  # newest first: s = k - 1 - r
+        # steps k = r + 1 .. K hold s = 0 .. K - 1 - r if it arrived and nothing newer did
+        hit = d[: K - r] <= r
+        hit &= pending[r + 1:]
+        if hit.any():
+            max_lag = r + 1
+            np.copyto(chosen[r + 1:], sent[: K - r], where=hit)
+            pending[r + 1:] &= ~hit
     discarded = np.zeros((T, L, S), dtype=bool)
     if S > 1:
         # freshest rule: discarded on arrival if a newer message arrived before it
         arrival = schedule.arrival
         later = np.minimum.accumulate(arrival[:, :, :0:-1], axis=-1)[:, :, ::-1]
         discarded[:, :, :-1] = later < arrival[:, :, :-1]
-    used = chosen >= 0
-    max_lag = int((np.arange(K + 1)[:, None, None] - chosen)[used].max()) if used.any() else 0
     return MessageSelection(chosen, discarded, max_lag)
 
 

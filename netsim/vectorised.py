@@ -244,10 +244,73 @@ def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
     return (x.reshape(-1, x.shape[-1]) @ M).reshape(*x.shape[:-1], M.shape[1])
 
 
+@dataclass(frozen=True)
+class _Terms:
+    """The consensus terms of LCSYS2022 eq. (4): every (i, j) with p_ij > 0, j != i.
+
+    Attributes (all shape (E,), in row order of P)
+    ----------
+    i, j : numpy.ndarray, int
+        Receiver i and sender j.
+    weight : numpy.ndarray, float
+        p_ij.
+    link : numpy.ndarray, int
+        Index of link (j, i) in the schedule's links, -1 when there is none.
+    """
+
+    i: np.ndarray
+    j: np.ndarray
+    weight: np.ndarray
+    link: np.ndarray
+
+
+def _consensus_terms(P: np.ndarray, links: Sequence[tuple[int, int]]) -> _Terms:
+    """The terms of eq. (4) and their links, from the weights and the link list.
+
+    The one place the engine looks at the network: everything per link after this
+    is an array of shape (E,) or (L,).
+    """
+    rows, cols = np.nonzero(P)
+    keep = rows != cols
+    term_i, term_j = rows[keep], cols[keep]
+    N = P.shape[0]
+    pairs = np.array(links, dtype=np.int64).reshape(-1, 2)
+    keys = pairs[:, 0] * N + pairs[:, 1]  # link (j, i) as j N + i
+    order = np.argsort(keys, kind="stable")
+    want = term_j.astype(np.int64) * N + term_i
+    at = np.minimum(np.searchsorted(keys[order], want), max(len(keys) - 1, 0))
+    found = keys[order][at] == want if len(keys) else np.zeros(len(want), dtype=bool)
+    link = np.where(found, order[at] if len(keys) else 0, -1).astype(np.int64)
+    return _Terms(term_i, term_j, P[term_i, term_j], link)
+
+
 def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
                    steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
-    """Run a consensus family; returns the outputs and the steps with an update."""
+    """Run a consensus family; returns the outputs and the steps with an update.
+
+    Estimates are (N, T, n) arrays (agent, trial, state). The prior of LCSYS2022
+    eq. (4),
+
+        x^i_{k|k-1} = p_ii A x^i_{k-1|k-1} + sum_j p_ij A^(k - s_j) x^j_{s_j|s_j},
+
+    (with agent i's own prediction standing in for a neighbour j from whom nothing
+    has arrived yet, DESIGN.md) is one sparse product per step over a ring of past
+    estimates that already carry their compensation, so no per-lag work remains:
+
+    * one constant delay d on every link (``uniform``): the ring keeps, per past step
+      s, A x(s) and A^(d+1) x(s) (one product each when x(s) is computed), and the
+      prior is one sparse (N x ring) product selecting p_ii A x^i(k-1) and
+      p_ij A^(d+1) x^j(k-1-d);
+    * otherwise: a ring Z of compensated estimates, Z[s] = A^(k - s) x(s), advanced
+      by one product per step (Z <- A Z); the message each term holds is gathered
+      from it (one ``take``) and summed by one sparse (N x (N + E)) product.
+
+    The delay-tolerant rule (eq. 6, no compensation) applies A once to the sum; the
+    block rule (eqs. 15-16) updates every tau+1 steps with A^(tau+1) on the own term
+    and propagates with A^(k - block step) in between. Eq. (5),
+    x^i_{k|k} = x^i_{k|k-1} + L_i (y^i_k - C_i x^i_{k|k-1}), is a stacked product.
+    """
     plant = scenario.plant
     A = plant.A
     n = plant.n_states
@@ -257,43 +320,23 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     N = P.shape[0]
     Cp, Lp = _pad_outputs(scenario, gains)
     Y = _agent_measurements(batch, Cp.shape[1])
-    link_index = {link: q for q, link in enumerate(schedule.links)}
-    # consensus terms: every (i, j) with p_ij > 0, j != i, in row order
-    rows, cols = np.nonzero(P)
-    keep = rows != cols
-    term_i, term_j = rows[keep], cols[keep]
-    term_w = P[term_i, term_j]
-    term_link = np.array([link_index.get((int(j), int(i)), -1)
-                          for i, j in zip(term_i, term_j, strict=True)], dtype=np.int64)
-    E = len(term_i)
-    aggregate = sp.csr_matrix((term_w, (term_i, np.arange(E))), shape=(N, E))
-    # one constant delay d on every link, a message every step: from step d + 1 on,
-    # every term uses the estimate of step k - 1 - d, so the neighbour sum is one
-    # sparse product with P minus its diagonal
-    uniform = selection.uniform_delay if not np.any(term_link < 0) else None
-    neighbour_matrix = sp.csr_matrix((term_w, (term_i, term_j)), shape=(N, N))
-    own_weight = np.diag(P)[:, None, None]
+    terms = _consensus_terms(P, schedule.links)
+    E = len(terms.i)
+    own_weight = np.diag(P).copy()
     block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
+    # one constant delay d on every link, a message every step (see the docstring)
+    uniform = (selection.uniform_delay if not block and not np.any(terms.link < 0)
+               else None)
     # the delay horizon that can matter: a power A^r with r > K is never applied (a
     # message delayed past the last step never arrives; a block period beyond K only
-    # propagates the step-0 estimate, with A^(k - 0), k <= K), so the ring of past
-    # estimates and the powers stop there however large the delays are
-    horizon = min(max(selection.max_lag, period), K)
-    depth = horizon + 1
-    powers = _powers(A, horizon)
-    powers_T = np.ascontiguousarray(powers.transpose(0, 2, 1))
-    A_T = A.T
-    history = np.zeros((depth, N, T, n))
-    flat_history = history.reshape(-1, n)
-    trials = np.arange(T)[None, :]
-    no_link = term_link < 0
-    term_row = np.maximum(term_link, 0)
-
+    # propagates the step-0 estimate, with A^(k - 0), k <= K), so the rings stop
+    # there however large the delays are
+    horizon = max(1, min(max(selection.max_lag, period), K))
+    A_T = np.ascontiguousarray(A.T)
     Cp_T = np.ascontiguousarray(Cp.transpose(0, 2, 1))  # (N, n, m)
     Lp_T = np.ascontiguousarray(Lp.transpose(0, 2, 1))  # (N, m, n)
-
     # one output per agent (m = 1): L_i (y - C_i x) is one product per entry, here
     # against the gain repeated over the trials (the same numbers as the (T, 1) @
     # (1, n) matmul, at half its time)
@@ -305,54 +348,105 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T
         innovation = Y[k] - prior @ Cp_T
         if gain_rows is not None:
-            return prior + innovation * gain_rows
+            innovation = innovation * gain_rows
+            innovation += prior
+            return innovation
         return prior + innovation @ Lp_T
 
-    def uniform_prior(k: int, own: np.ndarray) -> np.ndarray:
-        # every term holds the estimate of step s = k - 1 - d: one sparse product on
-        # the ring slot, then A^(k - s) (eq. 4) or A (eq. 6)
-        sent_step = k - 1 - uniform
-        summed = (neighbour_matrix @ history[sent_step % depth].reshape(N, -1)
-                  ).reshape(N, T, n)
-        power = k - sent_step if rule.compensate else 1
-        return own_weight * own + _times(summed, powers_T[power])
+    if uniform is not None:
+        # ring U[s % depth] = (A x(s), A^(d+1) x(s)) (one column when d = 0 or for
+        # eq. 6, where both are A x(s)); rows (slot, column, agent) of T n values
+        d = uniform
+        depth = d + 1
+        lag = min(d + 1, K) if rule.compensate else 1
+        far = _powers(A, lag)[lag] if lag > 1 else A
+        ring_maps = [A_T] if lag == 1 else [A_T, np.ascontiguousarray(far.T)]
+        columns = len(ring_maps)
+        ring = np.zeros((depth, columns, N, T, n))
+        rows_of = ring.reshape(depth * columns * N, T * n)
+        far_column = columns - 1
+        row_sum = P.sum(axis=1)
+        agents = np.arange(N)
+        cached: dict[int, sp.csr_matrix] = {}
 
-    def scheduled_prior(k: int, own: np.ndarray) -> np.ndarray:
-        # the message each term holds at step k, from the link schedule
-        held = selection.chosen[k][term_row]  # (E, T)
-        held[no_link] = -1
-        missing = held < 0
-        sent = send[np.maximum(held, 0)]
-        # x-hat^j_{s|s} of every term, from the ring of past estimates
-        slot = ((sent % depth) * N + term_j[:, None]) * T + trials
-        payload = flat_history.take(slot, axis=0)  # (E, T, n)
-        own_total = own_weight
-        if missing.any():
-            # nothing from j yet: agent i's own prediction stands in, so j's weight
-            # joins p_ii and j's term is zero
-            payload = payload * ~missing[:, :, None]
-            own_total = own_weight + (aggregate @ missing.astype(float))[:, :, None]
-        prior = own_total * own
-        # The terms are summed per lag before the power is applied:
-        # sum_j p_ij A^r x_j = A^r (sum_j p_ij x_j), one product per distinct lag on
-        # (N, T, n) rather than on every (term, trial).
-        if not rule.compensate:
-            groups = [(1, payload)]  # eq. (6): A, whatever the delay
-        else:
-            lag = np.where(missing, 0, k - sent)  # eq. (4): A^(k - s_j)
-            lags = np.flatnonzero(np.bincount(lag.reshape(-1)))
-            lags = lags[lags > 0]
-            groups = [(r, payload if len(lags) == 1 else payload * (lag == r)[:, :, None])
-                      for r in lags]
-        for r, part in groups:
-            summed = (aggregate @ part.reshape(E, -1)).reshape(N, T, n)
-            prior = prior + _times(summed, powers_T[r])
-        return prior
+        def prior_matrix(k: int) -> sp.csr_matrix:
+            # row i: p_ii on A x^i(k-1); p_ij on A^(d+1) x^j(k-1-d) once it arrived,
+            # before that (k <= d) the own prediction with the whole row's weight
+            key = k % depth if k > d else -1 - k % depth
+            matrix = cached.get(key)
+            if matrix is None:
+                own_col = ((k - 1) % depth * columns) * N + agents
+                if k <= d:
+                    matrix = sp.csr_matrix((row_sum, (agents, own_col)),
+                                           shape=(N, rows_of.shape[0]))
+                else:
+                    far_col = ((k - 1 - d) % depth * columns + far_column) * N + terms.j
+                    matrix = sp.csr_matrix(
+                        (np.concatenate([own_weight, terms.weight]),
+                         (np.concatenate([agents, terms.i]), np.concatenate([own_col, far_col]))),
+                        shape=(N, rows_of.shape[0]))
+                if depth <= 64:
+                    cached[key] = matrix
+            return matrix
+
+        def store(k: int, estimate: np.ndarray) -> None:
+            x = estimate.reshape(-1, n)
+            for c, M_T in enumerate(ring_maps):
+                np.matmul(x, M_T, out=ring[k % depth, c].reshape(-1, n))
+
+        def prior_at(k: int) -> np.ndarray:
+            return (prior_matrix(k) @ rows_of).reshape(N, T, n)
+    else:
+        # ring Z[s % depth]: eq. (4) A^(k - s) x(s) (advanced by A every step), or
+        # x(s) itself for eq. (6); gathered per (term, trial), own term first
+        depth = horizon
+        ring = np.zeros((depth, N, T, n))
+        spare = np.empty_like(ring)
+        agg = sp.csr_matrix(
+            (np.concatenate([own_weight, terms.weight]),
+             (np.concatenate([np.arange(N), terms.i]), np.arange(N + E))), shape=(N, N + E))
+        trials = np.arange(T, dtype=np.int64)[None, :]
+        no_link = terms.link < 0
+        any_no_link = bool(no_link.any())
+        term_row = np.maximum(terms.link, 0)
+        term_j = terms.j.astype(np.int64)[:, None]
+        own_agent = np.arange(N, dtype=np.int64)[:, None]
+        chunk = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
+        index_chunk: list[np.ndarray] = []
+        chunk_start = [0]
+
+        def gather_index(k0: int, k1: int) -> np.ndarray:
+            # (k1 - k0, N + E, T) rows of the ring: the own term (the slot of step
+            # k - period) and the message each term holds (sent at s, slot s), or the
+            # own term's row when nothing has arrived from j yet
+            ks = np.arange(k0, k1, dtype=np.int64)[:, None, None]
+            held = selection.chosen[k0:k1][:, term_row].astype(np.int64)  # (c, E, T)
+            if any_no_link:
+                held[:, no_link] = -1
+            sent = send[np.maximum(held, 0)]
+            own_rows = (((ks - period) % depth) * N + own_agent) * T + trials  # (c, N, T)
+            rows = ((sent % depth) * N + term_j) * T + trials
+            rows = np.where(held < 0, own_rows[:, terms.i], rows)
+            return np.concatenate([own_rows, rows], axis=1)
+
+        def prior_at(k: int) -> np.ndarray:
+            if not index_chunk or k >= chunk_start[0] + len(index_chunk[0]):
+                chunk_start[0] = k
+                index_chunk[:] = [gather_index(k, min(k + chunk, K + 1))]
+            index = index_chunk[0][k - chunk_start[0]]
+            payload = ring.reshape(-1, n).take(index.reshape(-1), axis=0)
+            prior = (agg @ payload.reshape(N + E, T * n)).reshape(N, T, n)
+            if not rule.compensate:
+                prior = _times(prior, A_T)  # eq. (6): A on every term
+            return prior
+
+        def store(k: int, estimate: np.ndarray) -> None:
+            ring[k % depth] = estimate
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
     estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0)
-    block_estimate, block_step = estimate, 0
-    history[0] = estimate
+    block_step = 0
+    store(0, estimate)
     updated = [0]
     alive = outputs.record(0, estimate, batch.states[0])
     with np.errstate(all="ignore"):
@@ -360,22 +454,18 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             if not alive:
                 break
             interrupt.check()  # a requested Ctrl-C stops here, between steps
+            if uniform is None and rule.compensate:
+                # Z <- A Z: every past estimate gains one power of A (eq. 4's A^(k - s))
+                np.matmul(ring.reshape(-1, n), A_T, out=spare.reshape(-1, n))
+                ring, spare = spare, ring
             if block and k % period:
-                estimate = _times(block_estimate, powers_T[k - block_step])
+                # between block steps: A^(k - block step) x(block step), from the ring
+                estimate = ring[block_step % depth].copy()
             else:
-                # eq. (15)'s own term A^(tau+1) x-hat^i at the last block step, or A x-hat^i
-                own = (_times(block_estimate, powers_T[period]) if block
-                       else _times(estimate, A_T))
-                if not E:
-                    prior = own_weight * own
-                elif uniform is not None and k > uniform:
-                    prior = uniform_prior(k, own)
-                else:
-                    prior = scheduled_prior(k, own)
-                estimate = innovate(prior, k)
-                block_estimate, block_step = estimate, k
+                estimate = innovate(prior_at(k), k)
+                block_step = k
                 updated.append(k)
-            history[k % depth] = estimate
+                store(k, estimate)
             alive = outputs.record(k, estimate, batch.states[k])
     return outputs, np.asarray(updated)
 

@@ -397,7 +397,8 @@ class AsynchronousRandomDelays:
         self.max_delay = int(tau)
         self._seed = seed
         high = self.max_delay + 1
-        self._fn = lambda g, n: g.integers(0, high, size=n)
+        # int32 draws (the table is (messages x links) of them: half the memory)
+        self._fn = lambda g, n: g.integers(0, high, size=n, dtype=np.int32)
         #: the link set's block stream (None without links)
         self.block = (LinkBlockDraws(stream(seed, "delays/asynchronous"), self._fn, links)
                       if links is not None else None)
@@ -406,8 +407,10 @@ class AsynchronousRandomDelays:
     def _source(self, sender: int, receiver: int) -> BatchedDraws:
         source = self._sources.get((sender, receiver))
         if source is None:
+            high = self.max_delay + 1
             source = self._sources[(sender, receiver)] = BatchedDraws(
-                stream(self._seed, f"delays/link/{sender}-{receiver}"), self._fn)
+                stream(self._seed, f"delays/link/{sender}-{receiver}"),
+                lambda g, n: g.integers(0, high, size=n))
         return source
 
     def _in_block(self, sender: int, receiver: int) -> bool:
@@ -436,7 +439,7 @@ class AsynchronousRandomDelays:
         (len(send_steps), len(links)): the same numbers and state as :meth:`draw_many`
         link by link."""
         if self.block is not None and all(link in self.block.column for link in links):
-            return self.block.take(links, len(send_steps)).astype(np.int64, copy=False)
+            return self.block.take(links, len(send_steps))
         return np.stack([self.draw_many(j, i, send_steps) for j, i in links], axis=1) \
             if len(links) else np.zeros((len(send_steps), 0), dtype=np.int64)
 

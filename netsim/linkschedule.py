@@ -119,7 +119,9 @@ class LinkSchedule:
                      "delivered": int(n), "dropped": 0, "drop_reasons": {}}
                     for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
         if self.lossless_steps:
-            delivered = np.count_nonzero(self.arrival <= end, axis=(1, 2))
+            # s + 1 + d <= end, in integers
+            limit = np.asarray(ends, dtype=np.int64)[:, None, None] - 1 - self.send_steps
+            delivered = np.count_nonzero(self.delay_steps <= limit, axis=(1, 2))
             return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
                      "delivered": int(n), "dropped": 0, "drop_reasons": {}}
                     for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
@@ -178,7 +180,10 @@ class MessageSelection:
         if schedule.constant_delay is not None:
             return np.zeros(len(ends), dtype=np.int64)
         end = np.asarray(ends)[:, None, None]
-        arrived = (schedule.arrival <= end) & (schedule.send_steps[None, None, :] <= end)
+        if schedule.lossless_steps:
+            arrived = schedule.delay_steps <= end - 1 - schedule.send_steps
+        else:
+            arrived = (schedule.arrival <= end) & (schedule.send_steps[None, None, :] <= end)
         return np.count_nonzero(self.discarded & arrived, axis=(1, 2))
 
 
@@ -316,7 +321,10 @@ def build_schedule(
         return static
     # stored (message, link, trial), the layout the engine's selection reads; the
     # schedule's arrays are (T, L, S) views of it
-    stored = np.zeros((S, L, T))
+    # whole-set integer step draws (asynchronous delays): kept as integers
+    integer = all(getattr(m, "link", None) is None and hasattr(m, "draw_block")
+                  and not m.time_invariant and m.unit == "steps" for m in delay_models)
+    stored = np.zeros((S, L, T), dtype=np.int32 if integer else float)
     latency = stored.transpose(2, 1, 0)
     in_steps = np.zeros(L, dtype=bool)
     reasons: list[str] = []
@@ -351,6 +359,13 @@ def build_schedule(
             stored[:, columns, t] = delays.draw_block([links[c] for c in columns], send_steps)
     # Link._stamp: a step delay d waits 1 + d periods; a latency l waits l / Ts and
     # counts as d = ceil(l / Ts) - 1 (at least 0)
+    if integer and (not stored.size or stored.min() >= 0):
+        shape = (T, L, S)
+        return LinkSchedule(
+            list(links), send_steps, latency + 1.0, latency, latency,
+            fate=np.broadcast_to(np.zeros((1, 1, 1), dtype=np.int16), shape),
+            drop_time=np.broadcast_to(np.full((1, 1, 1), np.nan), shape),
+            reasons=[], lossless_steps=True)
     if not np.all(np.isfinite(latency)) or np.any(latency < 0):
         t, l_, q = np.argwhere(~(np.isfinite(latency) & (latency >= 0)))[0]
         j, i = links[l_]
@@ -449,13 +464,14 @@ def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
             max_lag = r + 1
             np.copyto(chosen[r + 1:], sent[: K - r], where=hit)
             pending[r + 1:] &= ~hit
-    discarded = np.zeros((T, L, S), dtype=bool)
+    # freshest rule: discarded on arrival if a newer message arrived before it (at
+    # s' + 1 + d_s' < s + 1 + d_s for some s' > s)
+    stale = np.zeros((S, L, T), dtype=bool)
     if S > 1:
-        # freshest rule: discarded on arrival if a newer message arrived before it
-        arrival = schedule.arrival
-        later = np.minimum.accumulate(arrival[:, :, :0:-1], axis=-1)[:, :, ::-1]
-        discarded[:, :, :-1] = later < arrival[:, :, :-1]
-    return MessageSelection(chosen, discarded, max_lag)
+        arrives = d + np.arange(S, dtype=d.dtype)[:, None, None]
+        later = np.minimum.accumulate(arrives[:0:-1], axis=0)[::-1]
+        np.less(later, arrives[:-1], out=stale[:-1])
+    return MessageSelection(chosen, stale.transpose(2, 1, 0), max_lag)
 
 
 def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> MessageSelection:

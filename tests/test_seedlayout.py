@@ -18,7 +18,8 @@ def test_table_is_rows_of_one_stream():
     got = model.draw_block(LINKS, np.arange(steps))
     rng = np.random.Generator(np.random.PCG64(child_sequence(seed, "delays/asynchronous")))
     rows = BLOCK_ELEMENTS // len(LINKS)
-    blocks = [rng.integers(0, tau + 1, size=rows * len(LINKS)).reshape(rows, len(LINKS))
+    blocks = [rng.integers(0, tau + 1, size=rows * len(LINKS), dtype=np.int32).reshape(
+        rows, len(LINKS))
               for _ in range(-(-steps // rows))]
     assert np.array_equal(got, np.concatenate(blocks)[:steps])
 

@@ -175,6 +175,27 @@ class _Outputs:
         self.all_alive = True
         self.threshold_sq = squared_threshold(threshold)
 
+    def record_many(self, k0: int, estimates: np.ndarray, states: np.ndarray) -> bool:
+        """Record steps k0, k0 + 1, ... (estimates (c, N, T, n), states (c, T, n)).
+
+        The same as :meth:`record` step by step; False when all trials have diverged
+        (the steps after that are not recorded).
+        """
+        if self.all_alive:
+            err = estimates - states[:, None]
+            sq = np.einsum("kitj,kitj->kti", err, err)
+            worst = sq.max(initial=0.0)
+            if worst <= self.threshold_sq and worst < np.inf:
+                # every error of the chunk finite and within the threshold
+                self.sq[k0:k0 + len(sq)] = sq
+                if self.estimates is not None:
+                    self.estimates[k0:k0 + len(sq)] = estimates.transpose(0, 2, 1, 3)
+                return True
+        for c in range(len(estimates)):
+            if not self.record(k0 + c, estimates[c], states[c]):
+                return False
+        return True
+
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
         err = estimates - state[None]
@@ -222,12 +243,13 @@ def _pad_outputs(scenario: Scenario, gains: GainDesign) -> tuple[np.ndarray, np.
 def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
     """Measurements per agent, shape (K+1, N, T, m), zero-padded."""
     K1, T, _ = batch.measurements.shape
-    N = len(batch.offsets) - 1
-    out = np.zeros((K1, N, T, m))
-    for i in range(N):
-        a, b = batch.offsets[i], batch.offsets[i + 1]
-        out[:, i, :, : b - a] = batch.measurements[:, :, a:b]
-    return out
+    offsets = np.asarray(batch.offsets)
+    # column of output r of agent i in the stacked measurements, or a zero column
+    column = offsets[:-1, None] + np.arange(m)[None, :]  # (N, m)
+    padded = np.arange(m)[None, :] >= np.diff(offsets)[:, None]
+    stacked = np.concatenate([batch.measurements, np.zeros((K1, T, 1))], axis=2)
+    column = np.where(padded, stacked.shape[2] - 1, column)
+    return np.ascontiguousarray(stacked[:, :, column].transpose(0, 2, 1, 3))
 
 
 def _powers(A: np.ndarray, count: int) -> np.ndarray:
@@ -343,15 +365,16 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     gain_rows = (np.ascontiguousarray(np.broadcast_to(Lp_T, (N, T, n)))
                  if Lp_T.shape[1] == 1 else None)
 
-    def innovate(prior: np.ndarray, k: int) -> np.ndarray:
+    def innovate(prior: np.ndarray, k: int, out: np.ndarray) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a
-        # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T
+        # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T; into ``out``
         innovation = Y[k] - prior @ Cp_T
         if gain_rows is not None:
-            innovation = innovation * gain_rows
-            innovation += prior
-            return innovation
-        return prior + innovation @ Lp_T
+            np.multiply(innovation, gain_rows, out=out)
+            out += prior
+        else:
+            np.add(prior, innovation @ Lp_T, out=out)
+        return out
 
     if uniform is not None:
         # ring U[s % depth] = (A x(s), A^(d+1) x(s)) (one column when d = 0 or for
@@ -411,9 +434,9 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         term_row = np.maximum(terms.link, 0)
         term_j = terms.j.astype(np.int64)[:, None]
         own_agent = np.arange(N, dtype=np.int64)[:, None]
-        chunk = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
+        index_steps = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
         index_chunk: list[np.ndarray] = []
-        chunk_start = [0]
+        index_start = [0]
 
         def gather_index(k0: int, k1: int) -> np.ndarray:
             # (k1 - k0, N + E, T) rows of the ring: the own term (the slot of step
@@ -430,10 +453,10 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             return np.concatenate([own_rows, rows], axis=1)
 
         def prior_at(k: int) -> np.ndarray:
-            if not index_chunk or k >= chunk_start[0] + len(index_chunk[0]):
-                chunk_start[0] = k
-                index_chunk[:] = [gather_index(k, min(k + chunk, K + 1))]
-            index = index_chunk[0][k - chunk_start[0]]
+            if not index_chunk or k >= index_start[0] + len(index_chunk[0]):
+                index_start[0] = k
+                index_chunk[:] = [gather_index(k, min(k + index_steps, K + 1))]
+            index = index_chunk[0][k - index_start[0]]
             payload = ring.reshape(-1, n).take(index.reshape(-1), axis=0)
             prior = (agg @ payload.reshape(N + E, T * n)).reshape(N, T, n)
             if not rule.compensate:
@@ -444,29 +467,38 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             ring[k % depth] = estimate
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
-    estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0)
+    # estimates are recorded (squared errors, divergence test) a chunk of steps at a
+    # time; a chunk whose trials have all diverged ends the run
+    chunk_steps = max(1, min(32, 2_000_000 // max(1, N * T * n)))
+    chunk = np.empty((chunk_steps, N, T, n))
+    chunk_start = 0
+    estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0, chunk[0])
     block_step = 0
     store(0, estimate)
     updated = [0]
-    alive = outputs.record(0, estimate, batch.states[0])
+    alive = True
     with np.errstate(all="ignore"):
-        for k in range(1, K + 1):
-            if not alive:
+        for k in range(1, K + 2):
+            if k - chunk_start == chunk_steps or k == K + 1:
+                alive = outputs.record_many(chunk_start, chunk[: k - chunk_start],
+                                            batch.states[chunk_start:k])
+                chunk_start = k
+            if not alive or k > K:
                 break
             interrupt.check()  # a requested Ctrl-C stops here, between steps
             if uniform is None and rule.compensate:
                 # Z <- A Z: every past estimate gains one power of A (eq. 4's A^(k - s))
                 np.matmul(ring.reshape(-1, n), A_T, out=spare.reshape(-1, n))
                 ring, spare = spare, ring
+            estimate = chunk[k - chunk_start]
             if block and k % period:
                 # between block steps: A^(k - block step) x(block step), from the ring
-                estimate = ring[block_step % depth].copy()
+                np.copyto(estimate, ring[block_step % depth])
             else:
-                estimate = innovate(prior_at(k), k)
+                innovate(prior_at(k), k, estimate)
                 block_step = k
                 updated.append(k)
                 store(k, estimate)
-            alive = outputs.record(k, estimate, batch.states[k])
     return outputs, np.asarray(updated)
 
 
@@ -594,15 +626,18 @@ def run_batch(
         all_counts = schedule.counts(ends)
         all_discarded = selection.discarded_by(schedule, ends)
     results = []
+    # per trial, contiguous (K+1, .) arrays, NaN after the trial's last step
+    after_end = np.arange(K + 1)[None, :] > ends[:, None]  # (T, K+1)
+    all_states = batch.states.transpose(1, 0, 2).copy()
+    all_states[after_end] = np.nan
+    all_measurements = batch.measurements.transpose(1, 0, 2).copy()
+    all_measurements[after_end] = np.nan
+    sensors = [slice(int(a), int(b)) for a, b in zip(batch.offsets[:-1], batch.offsets[1:],
+                                                    strict=True)]
     for t in range(T):
         end = int(ends[t])
-        states = batch.states[:, t].copy()
-        states[end + 1:] = np.nan
-        measurements = []
-        for i in range(len(batch.offsets) - 1):
-            y = batch.measurements[:, t, batch.offsets[i]:batch.offsets[i + 1]].copy()
-            y[end + 1:] = np.nan
-            measurements.append(y)
+        states = all_states[t]
+        measurements = [all_measurements[t][:, rows] for rows in sensors]
         estimates = (outputs.estimates[:, t] if outputs.estimates is not None
                      else np.zeros((0, N, n)))
         counts: dict[str, Any] = {"sent": 0, "delivered": 0, "dropped": 0, "drop_reasons": {}}

@@ -134,8 +134,8 @@ class LinkBlockDraws:
     """Per-message draws of a link set from one stream, one (rows, L) block at a time.
 
     Row q of the (endless) table holds the value of message q (the q-th message sent)
-    of every link; column c is link ``links[c]``. Blocks of R = max(1,
-    BLOCK_ELEMENTS // L) rows are drawn in order as ``fn(rng, R * L)`` laid out row
+    of every link; column c is link ``links[c]``. Blocks of R = max(1, min(BATCH_SIZE,
+    BLOCK_ELEMENTS // L)) rows are drawn in order as ``fn(rng, R * L)`` laid out row
     by row, so the table depends only on the stream, ``fn`` and the link set, never on
     who reads it or in which order: the event kernel reads a link's column one value
     at a time (:meth:`sampler`, :meth:`next`), the vectorised engine many rows of many
@@ -161,7 +161,7 @@ class LinkBlockDraws:
         self.column = {link: c for c, link in enumerate(self.links)}
         if len(self.column) != len(self.links):
             raise ValueError("the links of a block stream must be distinct")
-        self.rows = max(1, BLOCK_ELEMENTS // max(1, len(self.links)))
+        self.rows = max(1, min(BATCH_SIZE, BLOCK_ELEMENTS // max(1, len(self.links))))
         self._blocks: list[np.ndarray] = []
         #: the next row of each column not yet read by a sampler (see ``_iters``)
         self._start = np.zeros(len(self.links), dtype=np.int64)

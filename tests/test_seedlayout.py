@@ -4,7 +4,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from netsim.models.delays import BLOCK_ELEMENTS, AsynchronousRandomDelays, LinkBlockDraws
+from netsim.models.delays import (
+    BATCH_SIZE,
+    BLOCK_ELEMENTS,
+    AsynchronousRandomDelays,
+    LinkBlockDraws,
+)
 from netsim.models.seeding import SEED_LAYOUT, child_sequence, stream
 
 LINKS = [(j, i) for j in range(5) for i in range(5) if i != j]
@@ -13,11 +18,11 @@ LINKS = [(j, i) for j in range(5) for i in range(5) if i != j]
 def test_table_is_rows_of_one_stream():
     """Entry (q, c) is draw q * L + c of the trial's one stream, in blocks of R rows
     (computed here from numpy directly, not through the class)."""
-    tau, seed, steps = 4, 7, 3 * (BLOCK_ELEMENTS // len(LINKS)) + 5
+    tau, seed, steps = 4, 7, 3 * min(BATCH_SIZE, BLOCK_ELEMENTS // len(LINKS)) + 5
     model = AsynchronousRandomDelays(tau, seed, LINKS)
     got = model.draw_block(LINKS, np.arange(steps))
     rng = np.random.Generator(np.random.PCG64(child_sequence(seed, "delays/asynchronous")))
-    rows = BLOCK_ELEMENTS // len(LINKS)
+    rows = min(BATCH_SIZE, BLOCK_ELEMENTS // len(LINKS))
     blocks = [rng.integers(0, tau + 1, size=rows * len(LINKS), dtype=np.int32).reshape(
         rows, len(LINKS))
               for _ in range(-(-steps // rows))]

@@ -244,6 +244,9 @@ def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
     """Measurements per agent, shape (K+1, N, T, m), zero-padded."""
     K1, T, _ = batch.measurements.shape
     offsets = np.asarray(batch.offsets)
+    if m == 1 and np.array_equal(offsets, np.arange(len(offsets))):
+        # one output per agent: a view of the stacked measurements
+        return batch.measurements.transpose(0, 2, 1)[..., None]
     # column of output r of agent i in the stacked measurements, or a zero column
     column = offsets[:-1, None] + np.arange(m)[None, :]  # (N, m)
     padded = np.arange(m)[None, :] >= np.diff(offsets)[:, None]
@@ -626,12 +629,13 @@ def run_batch(
         all_counts = schedule.counts(ends)
         all_discarded = selection.discarded_by(schedule, ends)
     results = []
-    # per trial, contiguous (K+1, .) arrays, NaN after the trial's last step
-    after_end = np.arange(K + 1)[None, :] > ends[:, None]  # (T, K+1)
-    all_states = batch.states.transpose(1, 0, 2).copy()
-    all_states[after_end] = np.nan
-    all_measurements = batch.measurements.transpose(1, 0, 2).copy()
-    all_measurements[after_end] = np.nan
+    # per trial, views of the batch's arrays (owned by this run), NaN after the trial's
+    # last step
+    for t in np.flatnonzero(ends < K).tolist():
+        batch.states[ends[t] + 1:, t] = np.nan
+        batch.measurements[ends[t] + 1:, t] = np.nan
+    all_states = batch.states.transpose(1, 0, 2)
+    all_measurements = batch.measurements.transpose(1, 0, 2)
     sensors = [slice(int(a), int(b)) for a, b in zip(batch.offsets[:-1], batch.offsets[1:],
                                                     strict=True)]
     for t in range(T):

@@ -214,7 +214,8 @@ def numpy_anchor(A, C, L, P, tau, x0_mean, F0, FQ, FR, plant_seeds, steps):
     for k in range(1, K1):
         x[k] = x[k - 1] @ A.T + noise[k, :, :n] @ FQ.T
     zeta = noise[:, :, n:].reshape(K1, T, N, m)
-    y = np.einsum("imn,ktn->kitm", C, x) + np.einsum("imr,ktir->kitm", FR, zeta)
+    y = ((x @ C.reshape(N * m, n).T).reshape(K1, T, N, m)
+         + np.einsum("imr,ktir->ktim", FR, zeta)).transpose(0, 2, 1, 3)  # (K+1, N, T, m)
     A_d = np.linalg.matrix_power(A, tau + 1)
     own, rest = np.diag(P)[:, None, None], P - np.diag(np.diag(P))
     C_T, L_T = C.transpose(0, 2, 1), L.transpose(0, 2, 1)

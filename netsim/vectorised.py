@@ -23,8 +23,11 @@ Only the order of floating-point additions differs (the neighbour sum is a spars
 matrix product), so estimates agree with the kernel's to round-off; the
 differential tests (tests/test_vectorised.py) hold them to 1e-9 relative.
 
-Past estimates are kept in a ring buffer as deep as the largest lag k - s any
-receiver uses (known from the schedule), and powers A^r are precomputed once.
+Past estimates are kept in a ring as deep as the largest lag k - s any receiver uses
+(known from the schedule), already multiplied by the powers of A they will need (see
+:func:`_consensus_run`), so the neighbour sum of LCSYS2022 eq. (4) is one gather and
+one sparse product per step, whatever the delays; squared errors and the divergence
+test are computed a chunk of steps at a time.
 """
 
 from __future__ import annotations

@@ -95,3 +95,27 @@ def test_seed_layout_in_results_and_traces(tmp_path):
     traces = sorted(tmp_path.glob("*.mcap"))
     assert traces, "no trace written"
     assert read_trace(traces[0]).run["seed_layout"] == str(SEED_LAYOUT)
+
+
+@pytest.mark.parametrize(("tau", "steps", "trials"), [(3, 60, 4), (0, 10, 2), (7, 30, 3),
+                                                      (5, 3, 2), (2, 0, 2)])
+def test_bounded_selection_equals_the_general_one(tau, steps, trials):
+    """The freshest-message selection for lossless step delays (D + 1 passes) against
+    the general one (suffix minima and counts) on the same schedule."""
+    import dataclasses
+
+    from netsim.linkschedule import build_schedule, select_messages
+
+    models = [AsynchronousRandomDelays(tau, s, LINKS) for s in range(trials)]
+    schedule = build_schedule(models, LINKS, np.arange(steps + 1))
+    assert schedule.lossless_steps
+    fast = select_messages(schedule, steps, timestamps=True)
+    general = select_messages(dataclasses.replace(schedule, lossless_steps=False), steps,
+                              timestamps=True)
+    assert np.array_equal(fast.chosen, general.chosen)
+    assert np.array_equal(fast.discarded, general.discarded)
+    assert fast.max_lag == general.max_lag
+    ends = np.full(trials, steps)
+    assert np.array_equal(fast.discarded_by(schedule, ends),
+                          general.discarded_by(dataclasses.replace(
+                              schedule, lossless_steps=False), ends))

@@ -171,7 +171,7 @@ class LinkBlockDraws:
     def _block(self, b: int) -> np.ndarray:
         while len(self._blocks) <= b:
             L = len(self.links)
-            values = np.array(self._fn(self._rng, self.rows * L)).reshape(self.rows, L)
+            values = np.asarray(self._fn(self._rng, self.rows * L)).reshape(self.rows, L)
             values.flags.writeable = False  # handed out as views (take)
             self._blocks.append(values)
         return self._blocks[b]

@@ -453,17 +453,13 @@ def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
     d = np.ascontiguousarray(schedule.delay_steps.transpose(2, 1, 0))  # (S, L, T)
     D = int(d.max()) if d.size else 0
     chosen = np.full((K + 1, L, T), -1, dtype=np.int32)
-    pending = np.ones((K + 1, L, T), dtype=bool)  # nothing chosen yet
     sent = np.arange(K + 1, dtype=np.int32)[:, None, None]
-    max_lag = 0
-    for r in range(min(D, K - 1) + 1):  # newest first: s = k - 1 - r
-        # steps k = r + 1 .. K hold s = 0 .. K - 1 - r if it arrived and nothing newer did
-        hit = d[: K - r] <= r
-        hit &= pending[r + 1:]
-        if hit.any():
-            max_lag = r + 1
-            np.copyto(chosen[r + 1:], sent[: K - r], where=hit)
-            pending[r + 1:] &= ~hit
+    for r in range(min(D, K - 1), -1, -1):  # oldest first: newer messages overwrite
+        # steps k = r + 1 .. K hold s = k - 1 - r = 0 .. K - 1 - r if it arrived
+        np.copyto(chosen[r + 1:], sent[: K - r], where=d[: K - r] <= r)
+    lag = sent - chosen  # k - s where a message is held
+    max_lag = int(np.max(lag, where=chosen >= 0, initial=0))
+    del lag
     # freshest rule: discarded on arrival if a newer message arrived before it (at
     # s' + 1 + d_s' < s + 1 + d_s for some s' > s)
     stale = np.zeros((S, L, T), dtype=bool)

@@ -434,12 +434,15 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         agg = sp.csr_matrix(
             (np.concatenate([own_weight, terms.weight]),
              (np.concatenate([np.arange(N), terms.i]), np.arange(N + E))), shape=(N, N + E))
-        trials = np.arange(T, dtype=np.int64)[None, :]
+        # ring rows fit int32 below 2^31 (halves the index arrays)
+        index_type = np.int32 if depth * N * T < 2**31 - 1 else np.int64
+        trials = np.arange(T, dtype=index_type)[None, :]
         no_link = terms.link < 0
         any_no_link = bool(no_link.any())
         term_row = np.maximum(terms.link, 0)
-        term_j = terms.j.astype(np.int64)[:, None]
-        own_agent = np.arange(N, dtype=np.int64)[:, None]
+        term_j = terms.j.astype(index_type)[:, None]
+        own_agent = np.arange(N, dtype=index_type)[:, None]
+        every_step = period == 1 and bool(np.array_equal(send, np.arange(len(send))))
         index_steps = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
         index_chunk: list[np.ndarray] = []
         index_start = [0]
@@ -448,11 +451,12 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             # (k1 - k0, N + E, T) rows of the ring: the own term (the slot of step
             # k - period) and the message each term holds (sent at s, slot s), or the
             # own term's row when nothing has arrived from j yet
-            ks = np.arange(k0, k1, dtype=np.int64)[:, None, None]
-            held = selection.chosen[k0:k1][:, term_row].astype(np.int64)  # (c, E, T)
+            ks = np.arange(k0, k1, dtype=index_type)[:, None, None]
+            held = selection.chosen[k0:k1][:, term_row].astype(index_type)  # (c, E, T)
             if any_no_link:
                 held[:, no_link] = -1
-            sent = send[np.maximum(held, 0)]
+            # the time-stamp s of the held message (its index when every step sends)
+            sent = held if every_step else send[np.maximum(held, 0)].astype(index_type)
             own_rows = (((ks - period) % depth) * N + own_agent) * T + trials  # (c, N, T)
             rows = ((sent % depth) * N + term_j) * T + trials
             rows = np.where(held < 0, own_rows[:, terms.i], rows)

@@ -453,20 +453,31 @@ def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
     d = np.ascontiguousarray(schedule.delay_steps.transpose(2, 1, 0))  # (S, L, T)
     D = int(d.max()) if d.size else 0
     chosen = np.full((K + 1, L, T), -1, dtype=np.int32)
-    sent = np.arange(K + 1, dtype=np.int32)[:, None, None]
-    for r in range(min(D, K - 1), -1, -1):  # oldest first: newer messages overwrite
-        # steps k = r + 1 .. K hold s = k - 1 - r = 0 .. K - 1 - r if it arrived
-        np.copyto(chosen[r + 1:], sent[: K - r], where=d[: K - r] <= r)
-    lag = sent - chosen  # k - s where a message is held
-    max_lag = int(np.max(lag, where=chosen >= 0, initial=0))
-    del lag
-    # freshest rule: discarded on arrival if a newer message arrived before it (at
-    # s' + 1 + d_s' < s + 1 + d_s for some s' > s)
     stale = np.zeros((S, L, T), dtype=bool)
-    if S > 1:
-        arrives = d + np.arange(S, dtype=d.dtype)[:, None, None]
-        later = np.minimum.accumulate(arrives[:0:-1], axis=0)[::-1]
-        np.less(later, arrives[:-1], out=stale[:-1])
+    sent = np.arange(K + 1, dtype=np.int32)[:, None, None]
+    max_lag = 0
+    # a few hundred thousand entries at a time, so that the D + 1 passes stay in cache
+    width = max(1, (1 << 18) // max(1, L * T))
+    for k0 in range(1, K + 1, width):
+        k1 = min(k0 + width, K + 1)
+        part = chosen[k0:k1]
+        for r in range(min(D, k1 - 2), -1, -1):  # oldest first: newer ones overwrite
+            # step k holds s = k - 1 - r (if s >= 0) when it has arrived: d_s <= r
+            lo = max(k0, r + 1)
+            np.copyto(part[lo - k0:], sent[lo - 1 - r:k1 - 1 - r],
+                      where=d[lo - 1 - r:k1 - 1 - r] <= r)
+        lag = sent[k0:k1] - part
+        max_lag = max(max_lag, int(np.max(lag, where=part >= 0, initial=0)))
+    # freshest rule: message s is discarded on arrival if a newer one s' = s + r
+    # arrived before it: s' + 1 + d_s' < s + 1 + d_s, i.e. d_(s+r) + r < d_s (r <= D)
+    for s0 in range(0, S, width):
+        s1 = min(s0 + width, S)
+        out = stale[s0:s1]
+        for r in range(1, D + 1):
+            if s0 + r >= S:
+                break
+            top = min(s1, S - r)  # s + r must exist
+            out[: top - s0] |= d[s0 + r:top + r] + r < d[s0:top]
     return MessageSelection(chosen, stale.transpose(2, 1, 0), max_lag)
 
 

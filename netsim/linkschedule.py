@@ -58,8 +58,10 @@ class LinkSchedule:
     send_steps : numpy.ndarray, shape (S,), int
         Steps at which every link sends; message ``q`` of a link is its ``q``-th
         (sequence number q).
-    wait : numpy.ndarray, shape (T, L, S), float
-        Time from sending to arrival, in sampling periods (arrival at s + wait).
+    wait : numpy.ndarray, shape (T, L, S), float, or None
+        Time from sending to arrival, in sampling periods (arrival at s + wait); None
+        for integer step delays without drops (``lossless_steps``), where it is
+        ``delay_steps + 1`` (:meth:`wait_of`).
     delay_steps : numpy.ndarray, shape (T, L, S), int
         Step delay d of each message (usable at s + 1 + d).
     latency : numpy.ndarray, shape (T, L, S), float
@@ -81,7 +83,7 @@ class LinkSchedule:
 
     links: list[tuple[int, int]]
     send_steps: np.ndarray
-    wait: np.ndarray
+    wait: np.ndarray | None
     delay_steps: np.ndarray
     latency: np.ndarray
     fate: np.ndarray
@@ -90,9 +92,17 @@ class LinkSchedule:
     constant_delay: np.ndarray | None = None
     lossless_steps: bool = False
 
+    def wait_of(self, trial: int) -> np.ndarray:
+        """``wait`` of one trial, shape (L, S), float."""
+        if self.wait is None:
+            return self.delay_steps[trial] + 1.0
+        return self.wait[trial]
+
     @cached_property
     def arrival(self) -> np.ndarray:
         """Arrival times s + wait, shape (T, L, S), in sampling periods."""
+        if self.wait is None:
+            return (self.send_steps + 1.0) + self.delay_steps
         return self.send_steps.astype(float) + self.wait
 
     def counts(self, ends: np.ndarray) -> list[dict[str, object]]:
@@ -362,7 +372,7 @@ def build_schedule(
     if integer and (not stored.size or stored.min() >= 0):
         shape = (T, L, S)
         return LinkSchedule(
-            list(links), send_steps, latency + 1.0, latency, latency,
+            list(links), send_steps, None, latency, latency,
             fate=np.broadcast_to(np.zeros((1, 1, 1), dtype=np.int16), shape),
             drop_time=np.broadcast_to(np.full((1, 1, 1), np.nan), shape),
             reasons=[], lossless_steps=True)

@@ -150,7 +150,7 @@ def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
     send_at = {s: q for q, s in enumerate(send_list)}
     fate = schedule.fate[t, :, :n_sends]
     arrival = schedule.arrival[t, :, :n_sends]
-    wait = schedule.wait[t, :, :n_sends]
+    wait = schedule.wait_of(t)[:, :n_sends]
     delay_steps = schedule.delay_steps[t, :, :n_sends]
     drop_time = schedule.drop_time[t, :, :n_sends]
     discarded = selection.discarded[t, :, :n_sends]

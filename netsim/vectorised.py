@@ -177,6 +177,7 @@ class _Outputs:
         self.alive = np.ones(T, dtype=bool)
         self.all_alive = True
         self.threshold_sq = squared_threshold(threshold)
+        self._scratch: np.ndarray | None = None  # record_many's errors
 
     def record_many(self, k0: int, estimates: np.ndarray, states: np.ndarray) -> bool:
         """Record steps k0, k0 + 1, ... (estimates (c, N, T, n), states (c, T, n)).
@@ -185,7 +186,11 @@ class _Outputs:
         (the steps after that are not recorded).
         """
         if self.all_alive:
-            err = estimates - states[:, None]
+            c = len(estimates)
+            if self._scratch is None or len(self._scratch) < c or \
+                    self._scratch.shape[1:] != estimates.shape[1:]:
+                self._scratch = np.empty_like(estimates)
+            err = np.subtract(estimates, states[:, None], out=self._scratch[:c])
             sq = np.einsum("kitj,kitj->kti", err, err)
             worst = sq.max(initial=0.0)
             if worst <= self.threshold_sq and worst < np.inf:

@@ -281,13 +281,13 @@ def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
 class _Terms:
     """The consensus terms of LCSYS2022 eq. (4): every (i, j) with p_ij > 0, j != i.
 
-    Attributes (all shape (E,), in row order of P)
+    Attributes
     ----------
-    i, j : numpy.ndarray, int
-        Receiver i and sender j.
-    weight : numpy.ndarray, float
+    i, j : numpy.ndarray, shape (E,), int
+        Receiver i and sender j, in row order of P.
+    weight : numpy.ndarray, shape (E,), float
         p_ij.
-    link : numpy.ndarray, int
+    link : numpy.ndarray, shape (E,), int
         Index of link (j, i) in the schedule's links, -1 when there is none.
     """
 
@@ -300,8 +300,18 @@ class _Terms:
 def _consensus_terms(P: np.ndarray, links: Sequence[tuple[int, int]]) -> _Terms:
     """The terms of eq. (4) and their links, from the weights and the link list.
 
-    The one place the engine looks at the network: everything per link after this
-    is an array of shape (E,) or (L,).
+    Parameters
+    ----------
+    P : numpy.ndarray, shape (N, N)
+        Consensus weights.
+    links : sequence of (int, int), length L
+        The schedule's links (sender, receiver).
+
+    Returns
+    -------
+    _Terms
+        The one place the engine looks at the network: everything per link after
+        this is an array of shape (E,) or (L,).
     """
     rows, cols = np.nonzero(P)
     keep = rows != cols

@@ -11,7 +11,8 @@ Every random model owns its generator(s), derived from one seed by name
 of a link set (asynchronous delays) come from one stream per trial for the whole set,
 drawn as (messages, links) blocks (:class:`LinkBlockDraws`, seed layout 2,
 :data:`netsim.models.seeding.SEED_LAYOUT`), which the event kernel reads one value at
-a time and the vectorised engine as whole arrays.
+a time and the vectorised engine as whole arrays. Adding or removing a link of the set
+changes the draws of the others (the table's rows are the set's width).
 """
 
 from __future__ import annotations

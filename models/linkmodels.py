@@ -2,8 +2,11 @@
 
 Everything here is plain numpy (and scipy for quantiles); the event kernel
 (:mod:`netsim.links`) applies it. Every random sampler owns its generator, derived
-by name from a seed with :func:`netsim.models.seeding.stream`, so adding a link, a loss
-model or a delay model never changes the numbers another one sees.
+by name from a seed with :func:`netsim.models.seeding.stream`, so adding a loss model
+or a delay model never changes the numbers another one sees. The asynchronous delays of
+the links sharing a configuration come from one stream per trial as a (messages x
+links) table (seed layout 2), so adding or removing one of those links changes the
+others' draws.
 
 Delays
 ------
@@ -27,7 +30,8 @@ message by per-link sequence number).
 delay-tolerant paper's Fig. 2:
 
 * ``"asynchronous"`` (time-varying): an independent draw per link per message, from
-  the link's own stream; messages can be reordered;
+  the trial's one stream of the links sharing the configuration (a link with a delay
+  of its own: its own stream); messages can be reordered;
 * ``"synchronous"`` (time-varying): one draw per sending step, shared by every link
   using the model;
 * ``"fixed"`` (asynchronous, time-invariant): one draw per link, made once from a

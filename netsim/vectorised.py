@@ -398,48 +398,33 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         return out
 
     if uniform is not None:
-        # ring U[s % depth] = (A x(s), A^(d+1) x(s)) (one column when d = 0 or for
-        # eq. 6, where both are A x(s)); rows (slot, column, agent) of T n values
+        # A x(k-1) (the own term) and a ring of A^(d+1) x(s) (eq. 6: A x(s)), each one
+        # product when x is computed; the prior is p_ii A x^i(k-1) plus one sparse
+        # product of P minus its diagonal with the ring slot of s = k - 1 - d
         d = uniform
         depth = d + 1
         lag = min(d + 1, K) if rule.compensate else 1
-        far = _powers(A, lag)[lag] if lag > 1 else A
-        ring_maps = [A_T] if lag == 1 else [A_T, np.ascontiguousarray(far.T)]
-        columns = len(ring_maps)
-        ring = np.zeros((depth, columns, N, T, n))
-        rows_of = ring.reshape(depth * columns * N, T * n)
-        far_column = columns - 1
-        row_sum = P.sum(axis=1)
-        agents = np.arange(N)
-        cached: dict[int, sp.csr_matrix] = {}
-
-        def prior_matrix(k: int) -> sp.csr_matrix:
-            # row i: p_ii on A x^i(k-1); p_ij on A^(d+1) x^j(k-1-d) once it arrived,
-            # before that (k <= d) the own prediction with the whole row's weight
-            key = k % depth if k > d else -1 - k % depth
-            matrix = cached.get(key)
-            if matrix is None:
-                own_col = ((k - 1) % depth * columns) * N + agents
-                if k <= d:
-                    matrix = sp.csr_matrix((row_sum, (agents, own_col)),
-                                           shape=(N, rows_of.shape[0]))
-                else:
-                    far_col = ((k - 1 - d) % depth * columns + far_column) * N + terms.j
-                    matrix = sp.csr_matrix(
-                        (np.concatenate([own_weight, terms.weight]),
-                         (np.concatenate([agents, terms.i]), np.concatenate([own_col, far_col]))),
-                        shape=(N, rows_of.shape[0]))
-                if depth <= 64:
-                    cached[key] = matrix
-            return matrix
+        far_T = np.ascontiguousarray(_powers(A, lag)[lag].T) if lag > 1 else A_T
+        own_prediction = np.zeros((N, T, n))
+        ring = np.zeros((depth, N, T, n))
+        neighbours = sp.csr_matrix((terms.weight, (terms.i, terms.j)), shape=(N, N))
+        own_weight3 = own_weight[:, None, None]
+        row_sum3 = P.sum(axis=1)[:, None, None]
+        scratch = np.empty((N, T, n))
 
         def store(k: int, estimate: np.ndarray) -> None:
             x = estimate.reshape(-1, n)
-            for c, M_T in enumerate(ring_maps):
-                np.matmul(x, M_T, out=ring[k % depth, c].reshape(-1, n))
+            np.matmul(x, A_T, out=own_prediction.reshape(-1, n))
+            np.matmul(x, far_T, out=ring[k % depth].reshape(-1, n))
 
         def prior_at(k: int) -> np.ndarray:
-            return (prior_matrix(k) @ rows_of).reshape(N, T, n)
+            if k <= d:
+                # nothing has arrived: the own prediction with the whole row's weight
+                return row_sum3 * own_prediction
+            sent = ring[(k - 1 - d) % depth].reshape(N, T * n)
+            prior = (neighbours @ sent).reshape(N, T, n)
+            prior += np.multiply(own_weight3, own_prediction, out=scratch)
+            return prior
     else:
         # ring Z[s % depth]: eq. (4) A^(k - s) x(s) (advanced by A every step), or
         # x(s) itself for eq. (6); gathered per (term, trial), own term first

@@ -214,7 +214,8 @@ def build_agents(scn: Scenario, estimator: str) -> list[AgentSpec]:
 
 
 def delay_model(scn: Scenario) -> DelayModel:
-    return AsynchronousRandomDelays(scn.tau, seed=scn.seed)
+    # seed layout 2: the link set's delays from one stream, as netsim's scenarios build it
+    return AsynchronousRandomDelays(scn.tau, seed=scn.seed, links=sorted(scn.graph.edges))
 
 
 # ------------------------------------------------------------ process-per-message link

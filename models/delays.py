@@ -7,13 +7,18 @@ s + 1 + d, DESIGN.md); models in *time* return a continuous latency l >= 0 in th
 unit of the sampling period Ts, which maps to d = ceil(l / Ts) - 1 clamped at 0.
 
 Every random model owns its generator(s), derived from one seed by name
-(:mod:`netsim.models.seeding`), so two models, or two links, never share a stream.
+(:mod:`netsim.models.seeding`), so two models never share a stream. Per-message draws
+of a link set (asynchronous delays) come from one stream per trial for the whole set,
+drawn as (messages, links) blocks (:class:`LinkBlockDraws`, seed layout 2,
+:data:`netsim.models.seeding.SEED_LAYOUT`), which the event kernel reads one value at
+a time and the vectorised engine as whole arrays. Adding or removing a link of the set
+changes the draws of the others (the table's rows are the set's width).
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import partial
 from itertools import chain, islice
@@ -25,7 +30,9 @@ from netsim.models.seeding import SeedLike, stream
 
 __all__ = [
     "BATCH_SIZE",
+    "BLOCK_ELEMENTS",
     "BatchedDraws",
+    "LinkBlockDraws",
     "DelayModel",
     "FixedDelays",
     "SynchronousRandomDelays",
@@ -118,6 +125,117 @@ class BatchedDraws:
             batches.append(batch)
             need -= len(batch)
         return np.concatenate([np.array(head, dtype=self._dtype), *batches])
+
+
+#: A block of :class:`LinkBlockDraws` holds about this many values (at least one row).
+BLOCK_ELEMENTS = 1 << 16
+
+
+class LinkBlockDraws:
+    """Per-message draws of a link set from one stream, one (rows, L) block at a time.
+
+    Row q of the (endless) table holds the value of message q (the q-th message sent)
+    of every link; column c is link ``links[c]``. Blocks of R = max(1, min(BATCH_SIZE,
+    BLOCK_ELEMENTS // L)) rows are drawn in order as ``fn(rng, R * L)`` laid out row
+    by row, so the table depends only on the stream, ``fn`` and the link set, never on
+    who reads it or in which order: the event kernel reads a link's column one value
+    at a time (:meth:`sampler`, :meth:`next`), the vectorised engine many rows of many
+    columns at once (:meth:`take`), and both get the same numbers.
+
+    Parameters
+    ----------
+    rng : numpy.random.Generator
+        The stream (owned by this object from now on).
+    fn : callable(rng, size) -> numpy.ndarray
+        ``size`` draws, shape (size,).
+    links : sequence of (int, int)
+        The link set, in column order.
+    """
+
+    __slots__ = ("_rng", "_fn", "links", "column", "rows", "_blocks", "_start", "_iters")
+
+    def __init__(self, rng: np.random.Generator, fn: Any, links: Iterable[Link]) -> None:
+        self._rng = rng
+        self._fn = fn
+        self.links = [(int(j), int(i)) for j, i in links]
+        #: column of each link
+        self.column = {link: c for c, link in enumerate(self.links)}
+        if len(self.column) != len(self.links):
+            raise ValueError("the links of a block stream must be distinct")
+        self.rows = max(1, min(BATCH_SIZE, BLOCK_ELEMENTS // max(1, len(self.links))))
+        self._blocks: list[np.ndarray] = []
+        #: the next row of each column not yet read by a sampler (see ``_iters``)
+        self._start = np.zeros(len(self.links), dtype=np.int64)
+        #: per-column iterators of the one-at-a-time readers (created on first use)
+        self._iters: dict[int, Iterator[Any]] = {}
+
+    def _block(self, b: int) -> np.ndarray:
+        while len(self._blocks) <= b:
+            L = len(self.links)
+            values = np.asarray(self._fn(self._rng, self.rows * L)).reshape(self.rows, L)
+            values.flags.writeable = False  # handed out as views (take)
+            self._blocks.append(values)
+        return self._blocks[b]
+
+    def _values(self, c: int, start: int) -> Iterator[Any]:
+        b, r = divmod(int(start), self.rows)
+        while True:
+            yield from self._block(b)[r:, c].tolist()
+            b, r = b + 1, 0
+
+    def _iter(self, link: Link) -> Iterator[Any]:
+        c = self.column[link]
+        it = self._iters.get(c)
+        if it is None:
+            it = self._iters[c] = self._values(c, int(self._start[c]))
+        return it
+
+    def next(self, link: Link) -> Any:
+        """The next value of ``link``'s column (a Python scalar)."""
+        return next(self._iter(link))
+
+    def sampler(self, link: Link) -> Any:
+        """``link``'s next value as a callable send_step -> value (one C call).
+
+        ``next(values, send_step)``: the default argument of ``next`` is never used,
+        the column never ends.
+        """
+        return partial(next, self._iter(link))
+
+    def take(self, links: Sequence[Link], count: int) -> np.ndarray:
+        """The next ``count`` values of each of ``links``, shape (count, len(links)).
+
+        The same numbers, and the same state afterwards, as ``count`` calls of
+        :meth:`next` per link. Columns read as a whole from the same row (the
+        vectorised engine's case) are sliced from the blocks; others value by value.
+        """
+        cols = np.array([self.column[(int(j), int(i))] for j, i in links], dtype=np.int64)
+        if (len(cols) == len(self.links) and not self._iters and count
+                and np.array_equal(cols, np.arange(len(cols)))
+                and bool(np.all(self._start == self._start[0]))):
+            # the whole set from one row (the vectorised engine): rows of the blocks
+            start = int(self._start[0])
+            first, last = start // self.rows, (start + count - 1) // self.rows
+            r = start - first * self.rows
+            self._start += count
+            if first == last:
+                return self._block(first)[r:r + count]
+            return np.concatenate([self._block(b) for b in range(first, last + 1)])[
+                r:r + count]
+        out = np.empty((count, len(cols)), dtype=self._block(0).dtype)
+        fresh = np.array([c not in self._iters for c in cols.tolist()], dtype=bool)
+        starts = self._start[cols]
+        for start in np.unique(starts[fresh]).tolist():
+            which = np.flatnonzero(fresh & (starts == start))
+            first, last = start // self.rows, (start + count - 1) // self.rows
+            rows = np.concatenate([self._block(b) for b in range(first, last + 1)]) \
+                if count else self._block(0)[:0]
+            r = start - first * self.rows
+            out[:, which] = rows[r:r + count][:, cols[which]]
+            self._start[cols[which]] += count
+        for w in np.flatnonzero(~fresh).tolist():
+            out[:, w] = list(islice(self._iters[int(cols[w])], count))
+        return out
 
 
 def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:
@@ -281,18 +399,29 @@ class SynchronousRandomDelays:
 class AsynchronousRandomDelays:
     """Time-varying bounded delay, an independent uniform draw per link per message.
 
-    The delay-tolerant paper's "asynchronous time-varying" case: each link has its
-    own stream ``"delays/link/<sender>-<receiver>"``, so messages can be reordered.
+    The delay-tolerant paper's "asynchronous time-varying" case: every message of
+    every link has its own draw, so messages can be reordered. The draws of the link
+    set ``links`` come from the trial's one stream ``"delays/asynchronous"`` as
+    (messages, links) blocks (:class:`LinkBlockDraws`; seed layout 2): message q of
+    link ``links[c]`` gets entry (q, c). A link outside ``links`` (or every link, when
+    ``links`` is not given) draws from a stream of its own,
+    ``"delays/link/<sender>-<receiver>"`` (the layout-1 stream of that link).
     """
 
     unit: Literal["steps", "time"] = "steps"
     time_invariant = False
 
-    def __init__(self, tau: int, seed: SeedLike) -> None:
+    def __init__(self, tau: int, seed: SeedLike, links: Iterable[Link] | None = None) -> None:
         if int(tau) != tau or tau < 0:
             raise ValueError(f"delay bound tau must be a non-negative integer, got {tau}")
         self.max_delay = int(tau)
         self._seed = seed
+        high = self.max_delay + 1
+        # int32 draws (the table is (messages x links) of them: half the memory)
+        self._fn = lambda g, n: g.integers(0, high, size=n, dtype=np.int32)
+        #: the link set's block stream (None without links)
+        self.block = (LinkBlockDraws(stream(seed, "delays/asynchronous"), self._fn, links)
+                      if links is not None else None)
         self._sources: dict[Link, BatchedDraws] = {}
 
     def _source(self, sender: int, receiver: int) -> BatchedDraws:
@@ -301,20 +430,38 @@ class AsynchronousRandomDelays:
             high = self.max_delay + 1
             source = self._sources[(sender, receiver)] = BatchedDraws(
                 stream(self._seed, f"delays/link/{sender}-{receiver}"),
-                lambda g, n: g.integers(0, high, size=n),
-            )
+                lambda g, n: g.integers(0, high, size=n))
         return source
 
+    def _in_block(self, sender: int, receiver: int) -> bool:
+        return self.block is not None and (sender, receiver) in self.block.column
+
     def draw(self, sender: int, receiver: int, send_step: int) -> int:
+        if self._in_block(sender, receiver):
+            return int(self.block.next((sender, receiver)))
         return int(self._source(sender, receiver).next())
 
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's draw as one callable send_step -> delay (the same sequence)."""
+        if self._in_block(sender, receiver):
+            return self.block.sampler((sender, receiver))
         return self._source(sender, receiver).sampler
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """Delays of the link's next len(send_steps) messages."""
+        if self._in_block(sender, receiver):
+            return self.block.take([(sender, receiver)], len(send_steps))[:, 0].astype(
+                np.int64, copy=False)
         return self._source(sender, receiver).take(len(send_steps)).astype(np.int64, copy=False)
+
+    def draw_block(self, links: Sequence[Link], send_steps: np.ndarray) -> np.ndarray:
+        """Delays of the next len(send_steps) messages of each of ``links``, shape
+        (len(send_steps), len(links)): the same numbers and state as :meth:`draw_many`
+        link by link."""
+        if self.block is not None and all(link in self.block.column for link in links):
+            return self.block.take(links, len(send_steps))
+        return np.stack([self.draw_many(j, i, send_steps) for j, i in links], axis=1) \
+            if len(links) else np.zeros((len(send_steps), 0), dtype=np.int64)
 
 
 @dataclass(frozen=True)

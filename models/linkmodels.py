@@ -2,8 +2,11 @@
 
 Everything here is plain numpy (and scipy for quantiles); the event kernel
 (:mod:`netsim.links`) applies it. Every random sampler owns its generator, derived
-by name from a seed with :func:`netsim.models.seeding.stream`, so adding a link, a loss
-model or a delay model never changes the numbers another one sees.
+by name from a seed with :func:`netsim.models.seeding.stream`, so adding a loss model
+or a delay model never changes the numbers another one sees. The asynchronous delays of
+the links sharing a configuration come from one stream per trial as a (messages x
+links) table (seed layout 2), so adding or removing one of those links changes the
+others' draws.
 
 Delays
 ------
@@ -27,7 +30,8 @@ message by per-link sequence number).
 delay-tolerant paper's Fig. 2:
 
 * ``"asynchronous"`` (time-varying): an independent draw per link per message, from
-  the link's own stream; messages can be reordered;
+  the trial's one stream of the links sharing the configuration (a link with a delay
+  of its own: its own stream); messages can be reordered;
 * ``"synchronous"`` (time-varying): one draw per sending step, shared by every link
   using the model;
 * ``"fixed"`` (asynchronous, time-invariant): one draw per link, made once from a
@@ -94,7 +98,7 @@ from pathlib import Path
 from typing import Any, Literal
 
 import numpy as np
-from netsim.models.delays import BatchedDraws, DelayModel, latency_to_steps
+from netsim.models.delays import BatchedDraws, DelayModel, LinkBlockDraws, latency_to_steps
 from netsim.models.delaysources import delay_source
 from netsim.models.seeding import SeedLike, stream
 
@@ -500,7 +504,10 @@ class DistributionDelays:
     ----------
     distribution : DelayDistribution
     mode : str
-        ``asynchronous`` (a draw per link per message, stream ``(seed, name, "j-i")``),
+        ``asynchronous`` (a draw per link per message: for the links of ``links``
+        from the trial's one stream ``(seed, name, "asynchronous")`` as (messages,
+        links) blocks, :class:`netsim.models.delays.LinkBlockDraws`, seed layout 2;
+        a link outside ``links`` from its own stream ``(seed, name, "j-i")``),
         ``synchronous`` (a draw per sending step shared by all links, stream
         ``(seed, name, "synchronous")``) or ``fixed`` (one draw per link, stream
         ``(static_seed, name, "fixed", "j-i")``, the same in every trial).
@@ -512,11 +519,13 @@ class DistributionDelays:
         Stream name prefix.
     sample_period : float
         Ts (for the step bound of latencies).
+    links : sequence of (int, int), optional
+        The link set whose asynchronous draws share one block stream.
     """
 
     def __init__(self, distribution: DelayDistribution, mode: str = "asynchronous",
                  seed: SeedLike = 0, static_seed: SeedLike = 0, *, name: str = "links/delay",
-                 sample_period: float = 1.0) -> None:
+                 sample_period: float = 1.0, links: Sequence[Link] | None = None) -> None:
         if mode not in DELAY_MODES:
             raise ValueError(f"unknown delay mode {mode!r}; expected one of "
                              f"{', '.join(DELAY_MODES)}")
@@ -531,6 +540,13 @@ class DistributionDelays:
         self._per_link: dict[Link, Any] = {}
         self._steps: list = []
         self._sync: BatchedDraws | None = None
+        #: the link set's block stream (asynchronous mode with links)
+        self.block = (LinkBlockDraws(stream(seed, name, "asynchronous"), distribution.sample,
+                                     links)
+                      if mode == "asynchronous" and links is not None else None)
+
+    def _in_block(self, sender: int, receiver: int) -> bool:
+        return self.block is not None and (sender, receiver) in self.block.column
 
     def _sampler(self, sender: int, receiver: int) -> BatchedDraws:
         sampler = self._per_link.get((sender, receiver))
@@ -550,6 +566,8 @@ class DistributionDelays:
     def draw(self, sender: int, receiver: int, send_step: int) -> float:
         mode = self.mode
         if mode == "asynchronous":
+            if self._in_block(sender, receiver):
+                return self.block.next((sender, receiver))
             return self._sampler(sender, receiver).next()
         if mode == "synchronous":
             self._sync_steps(send_step)
@@ -563,6 +581,8 @@ class DistributionDelays:
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's ``draw`` as one callable send_step -> delay."""
         if self.mode == "asynchronous":
+            if self._in_block(sender, receiver):
+                return self.block.sampler((sender, receiver))
             return self._sampler(sender, receiver).sampler
         return lambda send_step: self.draw(sender, receiver, send_step)
 
@@ -570,6 +590,8 @@ class DistributionDelays:
         """The delays ``draw`` gives for messages sent at ``send_steps``, in order."""
         count = len(send_steps)
         if self.mode == "asynchronous":
+            if self._in_block(sender, receiver):
+                return self.block.take([(sender, receiver)], count)[:, 0]
             return self._sampler(sender, receiver).take(count)
         if self.mode == "synchronous":
             steps = np.asarray(send_steps, dtype=np.int64)
@@ -578,6 +600,15 @@ class DistributionDelays:
             self._sync_steps(int(steps.max()))
             return np.asarray(self._steps)[steps]
         return np.full(count, self.draw(sender, receiver, 0))
+
+    def draw_block(self, links: Sequence[Link], send_steps: np.ndarray) -> np.ndarray:
+        """:meth:`draw_many` of each of ``links``, shape (len(send_steps), len(links))."""
+        if self.block is not None and all(link in self.block.column for link in links):
+            return self.block.take(links, len(send_steps))
+        if not len(links):
+            return np.zeros((len(send_steps), 0))
+        return np.stack([np.asarray(self.draw_many(j, i, send_steps)) for j, i in links],
+                        axis=1)
 
 
 class SerialisedDelays:
@@ -1111,6 +1142,12 @@ class LinksSpec:
         shared: dict[int, DelayModel] = {}
         replays: dict[int, TraceDelays] = {}
         out: dict[Link, LinkModel] = {}
+        # the links sharing each default delay configuration: one block stream each
+        sharing: dict[int, list[Link]] = {}
+        for link in links:
+            cfg = self.config(link)
+            if cfg.delay is not None and cfg.delay is self.default.delay:
+                sharing.setdefault(id(cfg.delay), []).append(link)
         for link in links:
             j, i = link
             cfg = self.config(link)
@@ -1132,7 +1169,8 @@ class LinksSpec:
                     if own or key not in shared:
                         name = f"links/link/{j}-{i}/delay" if own else "links/delay"
                         model = DistributionDelays(dist, cfg.delay.mode, trial_seed, self.seed,
-                                                   name=name, sample_period=sample_period)
+                                                   name=name, sample_period=sample_period,
+                                                   links=[link] if own else sharing[key])
                         if not own:
                             shared[key] = model
                     else:

@@ -537,7 +537,7 @@ class Scenario:
         if spec.model == "synchronous":
             return SynchronousRandomDelays(spec.tau, trial_seed)
         if spec.model == "asynchronous":
-            return AsynchronousRandomDelays(spec.tau, trial_seed)
+            return AsynchronousRandomDelays(spec.tau, trial_seed, links)
         raise ScenarioError("delays.model", f"unknown model {spec.model!r}")
 
     def summary(self) -> dict[str, Any]:

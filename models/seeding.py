@@ -1,11 +1,12 @@
 """One seed, spawned into independent named random streams.
 
-Every random component of a run (the plant noise, the initial state, each link's
-delay sampler, the random consensus weights, ...) draws from its own
-:class:`numpy.random.Generator`, derived from one root seed by
+Every random component of a run (the plant noise, the initial state, a link set's
+per-message delays, each link's loss, the random consensus weights, ...) draws from
+its own :class:`numpy.random.Generator`, derived from one root seed by
 :class:`numpy.random.SeedSequence`. Streams are addressed by *name* rather than by
 spawn order, so adding a component never changes the numbers another component
-sees. numpy's global random state is never touched.
+sees (the links of one set share their stream, :data:`SEED_LAYOUT`). numpy's global
+random state is never touched.
 """
 
 from __future__ import annotations
@@ -14,9 +15,16 @@ import zlib
 
 import numpy as np
 
-__all__ = ["SeedLike", "as_seed_sequence", "stream", "child_sequence"]
+__all__ = ["SEED_LAYOUT", "SeedLike", "as_seed_sequence", "stream", "child_sequence"]
 
 SeedLike = int | np.random.SeedSequence | None
+
+#: Version of the layout of the random streams, recorded in every result and trace.
+#: 1: one stream per (trial, link) for per-message link draws; 2: one stream per trial
+#: for the whole link set, drawn as (messages, links) blocks
+#: (:class:`netsim.models.delays.LinkBlockDraws`). The same seed gives other delays
+#: (and so other numbers) under another layout.
+SEED_LAYOUT = 2
 
 
 def as_seed_sequence(seed: SeedLike) -> np.random.SeedSequence:

@@ -206,6 +206,11 @@ class RunResult:
         """Per family: :class:`netsim.runner.EstimatorSummary`."""
         return self.monte_carlo.estimators
 
+    @property
+    def seed_layout(self) -> int:
+        """Layout of the random streams (:data:`netsim.models.seeding.SEED_LAYOUT`)."""
+        return self.monte_carlo.seed_layout
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON-ready summary (the same as ``netsim run --json``)."""
         return self.monte_carlo.to_dict()

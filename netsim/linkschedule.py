@@ -59,8 +59,10 @@ class LinkSchedule:
     send_steps : numpy.ndarray, shape (S,), int
         Steps at which every link sends; message ``q`` of a link is its ``q``-th
         (sequence number q).
-    wait : numpy.ndarray, shape (T, L, S), float
-        Time from sending to arrival, in sampling periods (arrival at s + wait).
+    wait : numpy.ndarray, shape (T, L, S), float, or None
+        Time from sending to arrival, in sampling periods (arrival at s + wait); None
+        for integer step delays without drops (``lossless_steps``), where it is
+        ``delay_steps + 1`` (:meth:`wait_of`).
     delay_steps : numpy.ndarray, shape (T, L, S), int
         Step delay d of each message (usable at s + 1 + d).
     latency : numpy.ndarray, shape (T, L, S), float
@@ -74,21 +76,34 @@ class LinkSchedule:
     constant_delay : numpy.ndarray or None, shape (T, L), int
         Set when every link has one constant step delay and drops nothing (the
         per-message arrays are then broadcast views).
+    lossless_steps : bool
+        Every delay is in steps and no link drops anything (``fate`` and
+        ``drop_time`` are broadcast views): a message arrives at the sampling instant
+        s + 1 + d.
     """
 
     links: list[tuple[int, int]]
     send_steps: np.ndarray
-    wait: np.ndarray
+    wait: np.ndarray | None
     delay_steps: np.ndarray
     latency: np.ndarray
     fate: np.ndarray
     drop_time: np.ndarray
     reasons: list[str]
     constant_delay: np.ndarray | None = None
+    lossless_steps: bool = False
+
+    def wait_of(self, trial: int) -> np.ndarray:
+        """``wait`` of one trial, shape (L, S), float."""
+        if self.wait is None:
+            return self.delay_steps[trial] + 1.0
+        return self.wait[trial]
 
     @cached_property
     def arrival(self) -> np.ndarray:
         """Arrival times s + wait, shape (T, L, S), in sampling periods."""
+        if self.wait is None:
+            return (self.send_steps + 1.0) + self.delay_steps
         return self.send_steps.astype(float) + self.wait
 
     def counts(self, ends: np.ndarray) -> list[dict[str, object]]:
@@ -111,6 +126,13 @@ class LinkSchedule:
             # s + 1 + d <= end  <=>  s <= end - 1 - d
             limit = np.asarray(ends)[:, None] - 1 - self.constant_delay
             delivered = np.searchsorted(self.send_steps, limit, side="right").sum(axis=1)
+            return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
+                     "delivered": int(n), "dropped": 0, "drop_reasons": {}}
+                    for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
+        if self.lossless_steps:
+            # s + 1 + d <= end, in integers
+            limit = np.asarray(ends, dtype=np.int64)[:, None, None] - 1 - self.send_steps
+            delivered = np.count_nonzero(self.delay_steps <= limit, axis=(1, 2))
             return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
                      "delivered": int(n), "dropped": 0, "drop_reasons": {}}
                     for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
@@ -169,7 +191,10 @@ class MessageSelection:
         if schedule.constant_delay is not None:
             return np.zeros(len(ends), dtype=np.int64)
         end = np.asarray(ends)[:, None, None]
-        arrived = (schedule.arrival <= end) & (schedule.send_steps[None, None, :] <= end)
+        if schedule.lossless_steps:
+            arrived = schedule.delay_steps <= end - 1 - schedule.send_steps
+        else:
+            arrived = (schedule.arrival <= end) & (schedule.send_steps[None, None, :] <= end)
         return np.count_nonzero(self.discarded & arrived, axis=(1, 2))
 
 
@@ -315,9 +340,13 @@ def build_schedule(
     static = _static_schedule(delay_models, links, send_steps)
     if static is not None:
         return static
-    latency = np.zeros((T, L, S))
-    fate = np.zeros((T, L, S), dtype=np.int16)
-    drop_time = np.full((T, L, S), np.nan)
+    # stored (message, link, trial), the layout the engine's selection reads; the
+    # schedule's arrays are (T, L, S) views of it
+    # whole-set integer step draws (asynchronous delays): kept as integers
+    integer = all(getattr(m, "link", None) is None and hasattr(m, "draw_block")
+                  and not m.time_invariant and m.unit == "steps" for m in delay_models)
+    stored = np.zeros((S, L, T), dtype=np.int32 if integer else float)
+    latency = stored.transpose(2, 1, 0)
     in_steps = np.zeros(L, dtype=bool)
     reasons: list[str] = []
     index: dict[str, int] = {}
@@ -330,14 +359,34 @@ def build_schedule(
 
     configured_links = []
     for t, model in enumerate(delay_models):
+        # models that draw a whole link set at once (one stream per trial, seed layout
+        # 2): their links' delays as one (S, L') block
+        blocks: dict[int, tuple[DelayModel, list[int]]] = {}
+        plain = getattr(model, "link", None) is None  # no per-link models to resolve
+        if plain and hasattr(model, "draw_block") and not model.time_invariant:
+            in_steps[:] = model.unit == "steps"
+            stored[:, :, t] = model.draw_block(links, send_steps)
+            continue
         for l_, (j, i) in enumerate(links):
-            delays, configured = resolve_link(model, j, i)
+            delays, configured = (model, None) if plain else resolve_link(model, j, i)
             in_steps[l_] = delays.unit == "steps"
-            latency[t, l_] = _draws(delays, j, i, send_steps)
+            if hasattr(delays, "draw_block") and not delays.time_invariant:
+                blocks.setdefault(id(delays), (delays, []))[1].append(l_)
+            else:
+                latency[t, l_] = _draws(delays, j, i, send_steps)
             if configured is not None:
                 configured_links.append((t, l_, configured))
+        for delays, columns in blocks.values():
+            stored[:, columns, t] = delays.draw_block([links[c] for c in columns], send_steps)
     # Link._stamp: a step delay d waits 1 + d periods; a latency l waits l / Ts and
     # counts as d = ceil(l / Ts) - 1 (at least 0)
+    if integer and (not stored.size or stored.min() >= 0):
+        shape = (T, L, S)
+        return LinkSchedule(
+            list(links), send_steps, None, latency, latency,
+            fate=np.broadcast_to(np.zeros((1, 1, 1), dtype=np.int16), shape),
+            drop_time=np.broadcast_to(np.full((1, 1, 1), np.nan), shape),
+            reasons=[], lossless_steps=True)
     if not np.all(np.isfinite(latency)) or np.any(latency < 0):
         t, l_, q = np.argwhere(~(np.isfinite(latency) & (latency >= 0)))[0]
         j, i = links[l_]
@@ -354,6 +403,16 @@ def build_schedule(
             steps_mask = in_steps[None, :, None]
             delay_steps = np.where(steps_mask, latency.astype(np.int64), delay_steps)
             wait = np.where(steps_mask, delay_steps + 1.0, scaled)
+    if in_steps.all() and not configured_links:
+        # nothing is dropped: the per-message fates are broadcast views
+        shape = (T, L, S)
+        return LinkSchedule(
+            list(links), send_steps, wait, delay_steps, latency,
+            fate=np.broadcast_to(np.zeros((1, 1, 1), dtype=np.int16), shape),
+            drop_time=np.broadcast_to(np.full((1, 1, 1), np.nan), shape),
+            reasons=[], lossless_steps=True)
+    fate = np.zeros((T, L, S), dtype=np.int16)
+    drop_time = np.full((T, L, S), np.nan)
     for t, l_, configured in configured_links:
         _configured_pass(configured, send_steps, wait[t, l_], fate[t, l_], drop_time[t, l_],
                          code)
@@ -401,6 +460,48 @@ def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
     return MessageSelection(chosen, discarded, _max_lag(chosen, send))
 
 
+def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
+    """:func:`select_messages` (freshest rule) for lossless step delays, a message every
+    step.
+
+    Message s of a link is usable from step s + 1 + d_s on, so the receiver holds at
+    step k the largest s with d_s <= k - 1 - s (LCSYS2022 eq. 4's freshest time-stamp).
+    With delays at most D, the message sent at k - 1 - D has always arrived and
+    dominates every older one: held[k] = k - 1 - r for the smallest r in 0..D with
+    d_{k-1-r} <= r (-1 if none), D + 1 whole-array passes instead of a sort.
+    """
+    T, L, S = schedule.delay_steps.shape
+    d = np.ascontiguousarray(schedule.delay_steps.transpose(2, 1, 0))  # (S, L, T)
+    D = int(d.max()) if d.size else 0
+    chosen = np.full((K + 1, L, T), -1, dtype=np.int32)
+    stale = np.zeros((S, L, T), dtype=bool)
+    sent = np.arange(K + 1, dtype=np.int32)[:, None, None]
+    max_lag = 0
+    # a few hundred thousand entries at a time, so that the D + 1 passes stay in cache
+    width = max(1, (1 << 18) // max(1, L * T))
+    for k0 in range(1, K + 1, width):
+        k1 = min(k0 + width, K + 1)
+        part = chosen[k0:k1]
+        for r in range(min(D, k1 - 2), -1, -1):  # oldest first: newer ones overwrite
+            # step k holds s = k - 1 - r (if s >= 0) when it has arrived: d_s <= r
+            lo = max(k0, r + 1)
+            np.copyto(part[lo - k0:], sent[lo - 1 - r:k1 - 1 - r],
+                      where=d[lo - 1 - r:k1 - 1 - r] <= r)
+        lag = sent[k0:k1] - part
+        max_lag = max(max_lag, int(np.max(lag, where=part >= 0, initial=0)))
+    # freshest rule: message s is discarded on arrival if a newer one s' = s + r
+    # arrived before it: s' + 1 + d_s' < s + 1 + d_s, i.e. d_(s+r) + r < d_s (r <= D)
+    for s0 in range(0, S, width):
+        s1 = min(s0 + width, S)
+        out = stale[s0:s1]
+        for r in range(1, D + 1):
+            if s0 + r >= S:
+                break
+            top = min(s1, S - r)  # s + r must exist
+            out[: top - s0] |= d[s0 + r:top + r] + r < d[s0:top]
+    return MessageSelection(chosen, stale.transpose(2, 1, 0), max_lag)
+
+
 def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> MessageSelection:
     """For every link and step, the message its receiver holds at that step's update.
 
@@ -423,6 +524,9 @@ def select_messages(schedule: LinkSchedule, steps: int, *, timestamps: bool) -> 
     send = schedule.send_steps
     if schedule.constant_delay is not None and S:
         return _select_constant(schedule, K)
+    if (timestamps and schedule.lossless_steps and S == K + 1
+            and bool(np.array_equal(send, np.arange(K + 1)))):
+        return _select_bounded(schedule, K)
     ok = schedule.fate == DELIVERED
     all_ok = bool(ok.all())
     arrival = schedule.arrival if all_ok else np.where(ok, schedule.arrival, np.inf)

@@ -39,7 +39,7 @@ from netsim.models.delays import latency_to_steps
 from netsim.models.jsonsafe import json_number as _json_float
 from netsim.models.jsonsafe import json_tree as _json_tree
 from netsim.models.scenario import Scenario
-from netsim.models.seeding import SeedLike, child_sequence, stream
+from netsim.models.seeding import SEED_LAYOUT, SeedLike, child_sequence, stream
 
 __all__ = [
     "GROWTH_TOLERANCE",
@@ -463,6 +463,10 @@ class MonteCarloResult:
     engines: dict[str, str] = field(default_factory=dict)
     #: Every trial's result per family (with ``keep_trials``), else empty.
     runs: dict[str, list[TrialResult]] = field(default_factory=dict)
+    #: Layout of the random streams the seed was spawned into
+    #: (:data:`netsim.models.seeding.SEED_LAYOUT`): the same seed gives other numbers
+    #: under another layout.
+    seed_layout: int = SEED_LAYOUT
 
     def to_dict(self) -> dict[str, Any]:
         gains = None
@@ -481,6 +485,7 @@ class MonteCarloResult:
             "steps": self.steps,
             "trials": self.trials,
             "seed": self.seed,
+            "seed_layout": self.seed_layout,
             "engine": self.engine,
             **({"engines": dict(self.engines)} if self.engine == "mixed" else {}),
             "gains": gains,

@@ -23,8 +23,11 @@ Only the order of floating-point additions differs (the neighbour sum is a spars
 matrix product), so estimates agree with the kernel's to round-off; the
 differential tests (tests/test_vectorised.py) hold them to 1e-9 relative.
 
-Past estimates are kept in a ring buffer as deep as the largest lag k - s any
-receiver uses (known from the schedule), and powers A^r are precomputed once.
+Past estimates are kept in a ring as deep as the largest lag k - s any receiver uses
+(known from the schedule), already multiplied by the powers of A they will need (see
+:func:`_consensus_run`), so the neighbour sum of LCSYS2022 eq. (4) is one gather and
+one sparse product per step, whatever the delays; squared errors and the divergence
+test are computed a chunk of steps at a time.
 """
 
 from __future__ import annotations
@@ -175,6 +178,32 @@ class _Outputs:
         self.alive = np.ones(T, dtype=bool)
         self.all_alive = True
         self.threshold_sq = squared_threshold(threshold)
+        self._scratch: np.ndarray | None = None  # record_many's errors
+
+    def record_many(self, k0: int, estimates: np.ndarray, states: np.ndarray) -> bool:
+        """Record steps k0, k0 + 1, ... (estimates (c, N, T, n), states (c, T, n)).
+
+        The same as :meth:`record` step by step; False when all trials have diverged
+        (the steps after that are not recorded).
+        """
+        if self.all_alive:
+            c = len(estimates)
+            if self._scratch is None or len(self._scratch) < c or \
+                    self._scratch.shape[1:] != estimates.shape[1:]:
+                self._scratch = np.empty_like(estimates)
+            err = np.subtract(estimates, states[:, None], out=self._scratch[:c])
+            sq = np.einsum("kitj,kitj->kti", err, err)
+            worst = sq.max(initial=0.0)
+            if worst <= self.threshold_sq and worst < np.inf:
+                # every error of the chunk finite and within the threshold
+                self.sq[k0:k0 + len(sq)] = sq
+                if self.estimates is not None:
+                    self.estimates[k0:k0 + len(sq)] = estimates.transpose(0, 2, 1, 3)
+                return True
+        for c in range(len(estimates)):
+            if not self.record(k0 + c, estimates[c], states[c]):
+                return False
+        return True
 
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
@@ -206,12 +235,85 @@ class _Outputs:
         return bool(np.any(self.alive))
 
 
+def _pad_outputs(scenario: Scenario, gains: GainDesign) -> tuple[np.ndarray, np.ndarray]:
+    """C_i (N, m, n) and L_i (N, n, m), zero-padded to the largest m_i."""
+    C = scenario.plant.C
+    m = max(Ci.shape[0] for Ci in C)
+    n = scenario.plant.n_states
+    N = len(C)
+    if all(Ci.shape[0] == m for Ci in C):
+        return (np.stack(C).astype(float, copy=False).reshape(N, m, n),
+                np.stack([np.asarray(Li, dtype=float) for Li in gains.L]).reshape(N, n, m))
+    Cp = np.zeros((N, m, n))
+    Lp = np.zeros((N, n, m))
+    for i, Ci in enumerate(C):
+        Cp[i, : Ci.shape[0]] = Ci
+        Lp[i, :, : Ci.shape[0]] = np.asarray(gains.L[i])
+    return Cp, Lp
+
+
+def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
+    """Measurements per agent, shape (K+1, N, T, m), zero-padded."""
+    K1, T, _ = batch.measurements.shape
+    offsets = np.asarray(batch.offsets)
+    if m == 1 and np.array_equal(offsets, np.arange(len(offsets))):
+        # one output per agent: a view of the stacked measurements
+        return batch.measurements.transpose(0, 2, 1)[..., None]
+    # column of output r of agent i in the stacked measurements, or a zero column
+    column = offsets[:-1, None] + np.arange(m)[None, :]  # (N, m)
+    padded = np.arange(m)[None, :] >= np.diff(offsets)[:, None]
+    stacked = np.concatenate([batch.measurements, np.zeros((K1, T, 1))], axis=2)
+    column = np.where(padded, stacked.shape[2] - 1, column)
+    return np.ascontiguousarray(stacked[:, :, column].transpose(0, 2, 1, 3))
+
+
+def _powers(A: np.ndarray, count: int) -> np.ndarray:
+    """A^0 .. A^count, shape (count+1, n, n), by the estimators' recursion A @ A^(r-1)."""
+    out = [np.eye(A.shape[0]), A]
+    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a divergence
+        while len(out) <= count:
+            out.append(A @ out[-1])
+    return np.stack(out[: count + 1])
+
+
+def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
+    """Return x @ M over the last axis as one 2-D product (x: (..., n), M: (n, p))."""
+    return (x.reshape(-1, x.shape[-1]) @ M).reshape(*x.shape[:-1], M.shape[1])
+
+
+@dataclass(frozen=True)
+class _Terms:
+    """The consensus terms of LCSYS2022 eq. (4): every (i, j) with p_ij > 0, j != i.
+
+    Attributes
+    ----------
+    i, j : numpy.ndarray, shape (E,), int
+        Receiver i and sender j, in row order of P.
+    weight : numpy.ndarray, shape (E,), float
+        p_ij.
+    link : numpy.ndarray, shape (E,), int
+        Index of link (j, i) in the schedule's links, -1 when there is none.
+    diagonal : numpy.ndarray, shape (N,), float
+        The self weights p_ii.
+    """
+
+    i: np.ndarray
+    j: np.ndarray
+    weight: np.ndarray
+    link: np.ndarray
+    diagonal: np.ndarray
+
+    def __iter__(self):
+        return iter((self.i, self.j, self.weight, self.link, self.diagonal))
+
+
 def _link_positions(schedule_links: Sequence[tuple[int, int]], scenario: Scenario,
                     src: np.ndarray, dst: np.ndarray) -> np.ndarray:
     """Index into ``schedule_links`` of each link (src[e], dst[e]), -1 if absent, shape (E,).
 
     The schedule's links are normally the scenario's (its :attr:`Scenario.link_table`,
-    sorted by sender then receiver): then a search on the sorted keys, no dictionary.
+    sorted by sender then receiver): then a counting sort through a CSR matrix, no
+    dictionary and no N x N array.
     """
     N = scenario.n_agents
     table = scenario.link_table
@@ -241,14 +343,23 @@ def _link_positions(schedule_links: Sequence[tuple[int, int]], scenario: Scenari
     return np.where(found, order[at] if len(keys) else -1, -1).astype(np.int64)
 
 
-def _consensus_terms(scenario: Scenario, schedule: LinkSchedule
-                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """The consensus terms from the sparse weights (never an N x N array).
+def _consensus_terms(scenario: Scenario, schedule: LinkSchedule) -> _Terms:
+    """The terms of eq. (4) and their links, from the sparse weights and the schedule.
 
-    Returns every (i, j) with p_ij > 0, j != i, in row order (the order of the
-    neighbour sums): receivers ``term_i``, senders ``term_j``, weights ``term_w``,
-    the schedule link of each term ``term_link`` (-1 if none), all shape (E,), and
-    the self weights p_ii, shape (N,).
+    Parameters
+    ----------
+    scenario : Scenario
+        Its :attr:`Scenario.weights_sparse` (CSR, never an N x N array).
+    schedule : LinkSchedule
+        Its links (sender, receiver), length L.
+
+    Returns
+    -------
+    _Terms
+        The one place the engine looks at the network: every (i, j) with p_ij > 0,
+        j != i, in row order (the order of the neighbour sums), and the self weights
+        p_ii; everything per link after this is an array of shape (E,), (L,) or (N,).
+        Unpacks as ``(i, j, weight, link, diagonal)``.
     """
     W = scenario.weights_sparse
     N = W.shape[0]
@@ -257,59 +368,37 @@ def _consensus_terms(scenario: Scenario, schedule: LinkSchedule
     vals = W.data
     keep = (rows != cols) & (vals != 0)
     term_i, term_j, term_w = rows[keep], cols[keep], vals[keep]
-    term_link = _link_positions(schedule.links, scenario, term_j, term_i)
-    return term_i, term_j, term_w, term_link, W.diagonal()
-
-
-def _pad_outputs(scenario: Scenario, gains: GainDesign) -> tuple[np.ndarray, np.ndarray]:
-    """C_i (N, m, n) and L_i (N, n, m), zero-padded to the largest m_i."""
-    C = scenario.plant.C
-    m = max(Ci.shape[0] for Ci in C)
-    n = scenario.plant.n_states
-    N = len(C)
-    if all(Ci.shape[0] == m for Ci in C):
-        return (np.stack(C).astype(float, copy=False).reshape(N, m, n),
-                np.stack([np.asarray(Li, dtype=float) for Li in gains.L]).reshape(N, n, m))
-    Cp = np.zeros((N, m, n))
-    Lp = np.zeros((N, n, m))
-    for i, Ci in enumerate(C):
-        Cp[i, : Ci.shape[0]] = Ci
-        Lp[i, :, : Ci.shape[0]] = np.asarray(gains.L[i])
-    return Cp, Lp
-
-
-def _agent_measurements(batch: PlantBatch, m: int) -> np.ndarray:
-    """Measurements per agent, shape (K+1, N, T, m), zero-padded."""
-    K1, T, _ = batch.measurements.shape
-    N = len(batch.offsets) - 1
-    if N and batch.measurements.shape[2] == N * m:  # every agent has m outputs
-        return np.ascontiguousarray(
-            batch.measurements.reshape(K1, T, N, m).transpose(0, 2, 1, 3))
-    out = np.zeros((K1, N, T, m))
-    for i in range(N):
-        a, b = batch.offsets[i], batch.offsets[i + 1]
-        out[:, i, :, : b - a] = batch.measurements[:, :, a:b]
-    return out
-
-
-def _powers(A: np.ndarray, count: int) -> np.ndarray:
-    """A^0 .. A^count, shape (count+1, n, n), by the estimators' recursion A @ A^(r-1)."""
-    out = [np.eye(A.shape[0]), A]
-    with np.errstate(over="ignore", invalid="ignore"):  # an overflow is a divergence
-        while len(out) <= count:
-            out.append(A @ out[-1])
-    return np.stack(out[: count + 1])
-
-
-def _times(x: np.ndarray, M: np.ndarray) -> np.ndarray:
-    """Return x @ M over the last axis as one 2-D product (x: (..., n), M: (n, p))."""
-    return (x.reshape(-1, x.shape[-1]) @ M).reshape(*x.shape[:-1], M.shape[1])
+    link = _link_positions(schedule.links, scenario, term_j, term_i)
+    return _Terms(term_i, term_j, term_w, link, np.asarray(W.diagonal(), dtype=float))
 
 
 def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
                    steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
-    """Run a consensus family; returns the outputs and the steps with an update."""
+    """Run a consensus family; returns the outputs and the steps with an update.
+
+    Estimates are (N, T, n) arrays (agent, trial, state). The prior of LCSYS2022
+    eq. (4),
+
+        x^i_{k|k-1} = p_ii A x^i_{k-1|k-1} + sum_j p_ij A^(k - s_j) x^j_{s_j|s_j},
+
+    (with agent i's own prediction standing in for a neighbour j from whom nothing
+    has arrived yet, DESIGN.md) is one sparse product per step over a ring of past
+    estimates that already carry their compensation, so no per-lag work remains:
+
+    * one constant delay d on every link (``uniform``): the ring keeps, per past step
+      s, A x(s) and A^(d+1) x(s) (one product each when x(s) is computed), and the
+      prior is one sparse (N x ring) product selecting p_ii A x^i(k-1) and
+      p_ij A^(d+1) x^j(k-1-d);
+    * otherwise: a ring Z of compensated estimates, Z[s] = A^(k - s) x(s), advanced
+      by one product per step (Z <- A Z); the message each term holds is gathered
+      from it (one ``take``) and summed by one sparse (N x (N + E)) product.
+
+    The delay-tolerant rule (eq. 6, no compensation) applies A once to the sum; the
+    block rule (eqs. 15-16) updates every tau+1 steps with A^(tau+1) on the own term
+    and propagates with A^(k - block step) in between. Eq. (5),
+    x^i_{k|k} = x^i_{k|k-1} + L_i (y^i_k - C_i x^i_{k|k-1}), is a stacked product.
+    """
     plant = scenario.plant
     A = plant.A
     n = plant.n_states
@@ -318,119 +407,152 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     N = scenario.n_agents
     Cp, Lp = _pad_outputs(scenario, gains)
     Y = _agent_measurements(batch, Cp.shape[1])
-    term_i, term_j, term_w, term_link, diagonal = _consensus_terms(scenario, schedule)
-    E = len(term_i)
-    aggregate = sp.csr_matrix((term_w, (term_i, np.arange(E))), shape=(N, E))
-    # one constant delay d on every link, a message every step: from step d + 1 on,
-    # every term uses the estimate of step k - 1 - d, so the neighbour sum is one
-    # sparse product with P minus its diagonal
-    uniform = selection.uniform_delay if not np.any(term_link < 0) else None
-    neighbour_matrix = sp.csr_matrix((term_w, (term_i, term_j)), shape=(N, N))
-    own_weight = diagonal[:, None, None]
+    terms = _consensus_terms(scenario, schedule)
+    E = len(terms.i)
+    own_weight = terms.diagonal.copy()
     block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
+    # one constant delay d on every link, a message every step (see the docstring)
+    uniform = (selection.uniform_delay if not block and not np.any(terms.link < 0)
+               else None)
     # the delay horizon that can matter: a power A^r with r > K is never applied (a
     # message delayed past the last step never arrives; a block period beyond K only
-    # propagates the step-0 estimate, with A^(k - 0), k <= K), so the ring of past
-    # estimates and the powers stop there however large the delays are
-    horizon = min(max(selection.max_lag, period), K)
-    depth = horizon + 1
-    powers = _powers(A, horizon)
-    powers_T = np.ascontiguousarray(powers.transpose(0, 2, 1))
-    A_T = A.T
-    history = np.zeros((depth, N, T, n))
-    flat_history = history.reshape(-1, n)
-    trials = np.arange(T)[None, :]
-    no_link = term_link < 0
-    term_row = np.maximum(term_link, 0)
-
+    # propagates the step-0 estimate, with A^(k - 0), k <= K), so the rings stop
+    # there however large the delays are
+    horizon = max(1, min(max(selection.max_lag, period), K))
+    A_T = np.ascontiguousarray(A.T)
     Cp_T = np.ascontiguousarray(Cp.transpose(0, 2, 1))  # (N, n, m)
     Lp_T = np.ascontiguousarray(Lp.transpose(0, 2, 1))  # (N, m, n)
-
     # one output per agent (m = 1): L_i (y - C_i x) is one product per entry, here
     # against the gain repeated over the trials (the same numbers as the (T, 1) @
     # (1, n) matmul, at half its time)
     gain_rows = (np.ascontiguousarray(np.broadcast_to(Lp_T, (N, T, n)))
                  if Lp_T.shape[1] == 1 else None)
 
-    def innovate(prior: np.ndarray, k: int) -> np.ndarray:
+    def innovate(prior: np.ndarray, k: int, out: np.ndarray) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a
-        # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T
+        # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T; into ``out``
         innovation = Y[k] - prior @ Cp_T
         if gain_rows is not None:
-            return prior + innovation * gain_rows
-        return prior + innovation @ Lp_T
-
-    def uniform_prior(k: int, own: np.ndarray) -> np.ndarray:
-        # every term holds the estimate of step s = k - 1 - d: one sparse product on
-        # the ring slot, then A^(k - s) (eq. 4) or A (eq. 6)
-        sent_step = k - 1 - uniform
-        summed = (neighbour_matrix @ history[sent_step % depth].reshape(N, -1)
-                  ).reshape(N, T, n)
-        power = k - sent_step if rule.compensate else 1
-        return own_weight * own + _times(summed, powers_T[power])
-
-    def scheduled_prior(k: int, own: np.ndarray) -> np.ndarray:
-        # the message each term holds at step k, from the link schedule
-        held = selection.chosen[k][term_row]  # (E, T)
-        held[no_link] = -1
-        missing = held < 0
-        sent = send[np.maximum(held, 0)]
-        # x-hat^j_{s|s} of every term, from the ring of past estimates
-        slot = ((sent % depth) * N + term_j[:, None]) * T + trials
-        payload = flat_history.take(slot, axis=0)  # (E, T, n)
-        own_total = own_weight
-        if missing.any():
-            # nothing from j yet: agent i's own prediction stands in, so j's weight
-            # joins p_ii and j's term is zero
-            payload = payload * ~missing[:, :, None]
-            own_total = own_weight + (aggregate @ missing.astype(float))[:, :, None]
-        prior = own_total * own
-        # The terms are summed per lag before the power is applied:
-        # sum_j p_ij A^r x_j = A^r (sum_j p_ij x_j), one product per distinct lag on
-        # (N, T, n) rather than on every (term, trial).
-        if not rule.compensate:
-            groups = [(1, payload)]  # eq. (6): A, whatever the delay
+            np.multiply(innovation, gain_rows, out=out)
+            out += prior
         else:
-            lag = np.where(missing, 0, k - sent)  # eq. (4): A^(k - s_j)
-            lags = np.flatnonzero(np.bincount(lag.reshape(-1)))
-            lags = lags[lags > 0]
-            groups = [(r, payload if len(lags) == 1 else payload * (lag == r)[:, :, None])
-                      for r in lags]
-        for r, part in groups:
-            summed = (aggregate @ part.reshape(E, -1)).reshape(N, T, n)
-            prior = prior + _times(summed, powers_T[r])
-        return prior
+            np.add(prior, innovation @ Lp_T, out=out)
+        return out
+
+    if uniform is not None:
+        # A x(k-1) (the own term) and a ring of A^(d+1) x(s) (eq. 6: A x(s)), each one
+        # product when x is computed; the prior is p_ii A x^i(k-1) plus one sparse
+        # product of P minus its diagonal with the ring slot of s = k - 1 - d
+        d = uniform
+        depth = d + 1
+        lag = min(d + 1, K) if rule.compensate else 1
+        far_T = np.ascontiguousarray(_powers(A, lag)[lag].T) if lag > 1 else A_T
+        own_prediction = np.zeros((N, T, n))
+        ring = np.zeros((depth, N, T, n))
+        neighbours = sp.csr_matrix((terms.weight, (terms.i, terms.j)), shape=(N, N))
+        own_weight3 = own_weight[:, None, None]
+        row_sum3 = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1, 1)
+        scratch = np.empty((N, T, n))
+
+        def store(k: int, estimate: np.ndarray) -> None:
+            x = estimate.reshape(-1, n)
+            np.matmul(x, A_T, out=own_prediction.reshape(-1, n))
+            np.matmul(x, far_T, out=ring[k % depth].reshape(-1, n))
+
+        def prior_at(k: int) -> np.ndarray:
+            if k <= d:
+                # nothing has arrived: the own prediction with the whole row's weight
+                return row_sum3 * own_prediction
+            sent = ring[(k - 1 - d) % depth].reshape(N, T * n)
+            prior = (neighbours @ sent).reshape(N, T, n)
+            prior += np.multiply(own_weight3, own_prediction, out=scratch)
+            return prior
+    else:
+        # ring Z[s % depth]: eq. (4) A^(k - s) x(s) (advanced by A every step), or
+        # x(s) itself for eq. (6); gathered per (term, trial), own term first
+        depth = horizon
+        ring = np.zeros((depth, N, T, n))
+        spare = np.empty_like(ring)
+        agg = sp.csr_matrix(
+            (np.concatenate([own_weight, terms.weight]),
+             (np.concatenate([np.arange(N), terms.i]), np.arange(N + E))), shape=(N, N + E))
+        # ring rows fit int32 below 2^31 (halves the index arrays)
+        index_type = np.int32 if depth * N * T < 2**31 - 1 else np.int64
+        trials = np.arange(T, dtype=index_type)[None, :]
+        no_link = terms.link < 0
+        any_no_link = bool(no_link.any())
+        term_row = np.maximum(terms.link, 0)
+        term_j = terms.j.astype(index_type)[:, None]
+        own_agent = np.arange(N, dtype=index_type)[:, None]
+        every_step = period == 1 and bool(np.array_equal(send, np.arange(len(send))))
+        index_steps = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
+        index_chunk: list[np.ndarray] = []
+        index_start = [0]
+
+        def gather_index(k0: int, k1: int) -> np.ndarray:
+            # (k1 - k0, N + E, T) rows of the ring: the own term (the slot of step
+            # k - period) and the message each term holds (sent at s, slot s), or the
+            # own term's row when nothing has arrived from j yet
+            ks = np.arange(k0, k1, dtype=index_type)[:, None, None]
+            held = selection.chosen[k0:k1][:, term_row].astype(index_type)  # (c, E, T)
+            if any_no_link:
+                held[:, no_link] = -1
+            # the time-stamp s of the held message (its index when every step sends)
+            sent = held if every_step else send[np.maximum(held, 0)].astype(index_type)
+            own_rows = (((ks - period) % depth) * N + own_agent) * T + trials  # (c, N, T)
+            rows = ((sent % depth) * N + term_j) * T + trials
+            rows = np.where(held < 0, own_rows[:, terms.i], rows)
+            return np.concatenate([own_rows, rows], axis=1)
+
+        def prior_at(k: int) -> np.ndarray:
+            if not index_chunk or k >= index_start[0] + len(index_chunk[0]):
+                index_start[0] = k
+                index_chunk[:] = [gather_index(k, min(k + index_steps, K + 1))]
+            index = index_chunk[0][k - index_start[0]]
+            payload = ring.reshape(-1, n).take(index.reshape(-1), axis=0)
+            prior = (agg @ payload.reshape(N + E, T * n)).reshape(N, T, n)
+            if not rule.compensate:
+                prior = _times(prior, A_T)  # eq. (6): A on every term
+            return prior
+
+        def store(k: int, estimate: np.ndarray) -> None:
+            ring[k % depth] = estimate
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
-    estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0)
-    block_estimate, block_step = estimate, 0
-    history[0] = estimate
+    # estimates are recorded (squared errors, divergence test) a chunk of steps at a
+    # time; a chunk whose trials have all diverged ends the run
+    chunk_steps = max(1, min(32, 2_000_000 // max(1, N * T * n)))
+    chunk = np.empty((chunk_steps, N, T, n))
+    chunk_start = 0
+    estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0, chunk[0])
+    block_step = 0
+    store(0, estimate)
     updated = [0]
-    alive = outputs.record(0, estimate, batch.states[0])
+    alive = True
     with np.errstate(all="ignore"):
-        for k in range(1, K + 1):
-            if not alive:
+        for k in range(1, K + 2):
+            if k - chunk_start == chunk_steps or k == K + 1:
+                alive = outputs.record_many(chunk_start, chunk[: k - chunk_start],
+                                            batch.states[chunk_start:k])
+                chunk_start = k
+            if not alive or k > K:
                 break
             interrupt.check()  # a requested Ctrl-C stops here, between steps
+            if uniform is None and rule.compensate:
+                # Z <- A Z: every past estimate gains one power of A (eq. 4's A^(k - s))
+                np.matmul(ring.reshape(-1, n), A_T, out=spare.reshape(-1, n))
+                ring, spare = spare, ring
+            estimate = chunk[k - chunk_start]
             if block and k % period:
-                estimate = _times(block_estimate, powers_T[k - block_step])
+                # between block steps: A^(k - block step) x(block step), from the ring
+                np.copyto(estimate, ring[block_step % depth])
             else:
-                # eq. (15)'s own term A^(tau+1) x-hat^i at the last block step, or A x-hat^i
-                own = (_times(block_estimate, powers_T[period]) if block
-                       else _times(estimate, A_T))
-                if not E:
-                    prior = own_weight * own
-                elif uniform is not None and k > uniform:
-                    prior = uniform_prior(k, own)
-                else:
-                    prior = scheduled_prior(k, own)
-                estimate = innovate(prior, k)
-                block_estimate, block_step = estimate, k
+                innovate(prior_at(k), k, estimate)
+                block_step = k
                 updated.append(k)
-            history[k % depth] = estimate
-            alive = outputs.record(k, estimate, batch.states[k])
+                store(k, estimate)
     return outputs, np.asarray(updated)
 
 
@@ -502,11 +624,11 @@ def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
                       ) -> np.ndarray:
     """r_ij[k] of one trial as the kernel records it, shape (K+1, N, N) (from the
     per-link record :func:`effective_delays_per_link`)."""
-    term_i, term_j, _, term_link, _ = _consensus_terms(scenario, schedule)
-    per_link = effective_delays_per_link(selection, schedule, term_link, updated, trial, end)
+    terms = _consensus_terms(scenario, schedule)
+    per_link = effective_delays_per_link(selection, schedule, terms.link, updated, trial, end)
     N = scenario.n_agents
     out = np.full((per_link.shape[0], N, N), NOT_USED, dtype=np.int32)
-    out[:, term_i, term_j] = per_link
+    out[:, terms.i, terms.j] = per_link
     return out
 
 
@@ -581,15 +703,19 @@ def run_batch(
         all_counts = schedule.counts(ends)
         all_discarded = selection.discarded_by(schedule, ends)
     results = []
+    # per trial, views of the batch's arrays (owned by this run), NaN after the trial's
+    # last step
+    for t in np.flatnonzero(ends < K).tolist():
+        batch.states[ends[t] + 1:, t] = np.nan
+        batch.measurements[ends[t] + 1:, t] = np.nan
+    all_states = batch.states.transpose(1, 0, 2)
+    all_measurements = batch.measurements.transpose(1, 0, 2)
+    sensors = [slice(int(a), int(b)) for a, b in zip(batch.offsets[:-1], batch.offsets[1:],
+                                                    strict=True)]
     for t in range(T):
         end = int(ends[t])
-        states = batch.states[:, t].copy()
-        states[end + 1:] = np.nan
-        measurements = []
-        for i in range(len(batch.offsets) - 1):
-            y = batch.measurements[:, t, batch.offsets[i]:batch.offsets[i + 1]].copy()
-            y[end + 1:] = np.nan
-            measurements.append(y)
+        states = all_states[t]
+        measurements = [all_measurements[t][:, rows] for rows in sensors]
         estimates = (outputs.estimates[:, t] if outputs.estimates is not None
                      else np.zeros((0, N, n)))
         counts: dict[str, Any] = {"sent": 0, "delivered": 0, "dropped": 0, "drop_reasons": {}}

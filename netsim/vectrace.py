@@ -150,7 +150,7 @@ def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
     send_at = {s: q for q, s in enumerate(send_list)}
     fate = schedule.fate[t, :, :n_sends]
     arrival = schedule.arrival[t, :, :n_sends]
-    wait = schedule.wait[t, :, :n_sends]
+    wait = schedule.wait_of(t)[:, :n_sends]
     delay_steps = schedule.delay_steps[t, :, :n_sends]
     drop_time = schedule.drop_time[t, :, :n_sends]
     discarded = selection.discarded[t, :, :n_sends]
@@ -443,7 +443,7 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
     L = len(links)
     send = np.asarray(schedule.send_steps)[:n_sends]
     fate = np.asarray(schedule.fate[t, :, :n_sends])
-    wait = np.asarray(schedule.wait[t, :, :n_sends], dtype=float)
+    wait = np.asarray(schedule.wait_of(t)[:, :n_sends], dtype=float)
     delay = np.asarray(schedule.delay_steps[t, :, :n_sends], dtype=np.int64)
     drop_step = np.asarray(schedule.drop_time[t, :, :n_sends])
     discarded = np.asarray(selection.discarded[t, :, :n_sends])

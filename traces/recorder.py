@@ -78,6 +78,7 @@ import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap.writer import CompressionType
 from netsim.models.jsonsafe import json_default
+from netsim.models.seeding import SEED_LAYOUT
 from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.traces.schemas import (
     DEFAULT_TIME_ORIGIN_NS,
@@ -335,6 +336,7 @@ class TraceRecorder:
                 "family": self.family,
                 "trial": str(self.trial),
                 "seed": "" if seed is None else str(seed),
+                "seed_layout": str(SEED_LAYOUT),
                 "sample_period": repr(self.sample_period),
                 "steps": "" if steps is None else str(int(steps)),
                 "time_origin_ns": str(self.time_origin_ns),

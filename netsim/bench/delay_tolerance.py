@@ -19,6 +19,7 @@ from netsim.estimators.registry import (
     EstimatorFamily,
 )
 from netsim.models.scenario import Scenario
+from netsim.models.seeding import SEED_LAYOUT
 
 __all__ = ["SCAN_TAU_MIN", "run_delay_tolerance"]
 
@@ -152,6 +153,7 @@ def run_delay_tolerance(
         "trials": trials,
         "steps": steps,
         "seed": seed,
+        "seed_layout": SEED_LAYOUT,
         "engine": engine,
         **({"engines": engines} if engine == "mixed" else {}),
         "analysis": scan_result,

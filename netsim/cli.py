@@ -1079,11 +1079,18 @@ def _cmd_claims(args: argparse.Namespace) -> int:
         chosen = select(args.names)
     except ValueError as exc:
         raise CommandError(str(exc)) from None
-    bar = tqdm(total=len(chosen), desc="netsim claims", unit="claim", file=sys.stderr,
-               leave=False, disable=True if args.no_progress else None)
+    from netsim.claims.report import search_names
+
+    # one tick per search or run the checks read (they go first, up to --budget seconds
+    # each, on the local cores) and one per claim checked
+    bar = tqdm(total=len(search_names(chosen)) + len(chosen), desc="netsim claims",
+               unit="job", file=sys.stderr, leave=False,
+               disable=True if args.no_progress else None)
     try:
         report = run_claims(chosen, seed=args.seed, budget=args.budget, out=args.out,
-                            progress=lambda _: bar.update(1))
+                            progress=lambda _: bar.update(1),
+                            search_progress=lambda name: (bar.set_postfix_str(name),
+                                                          bar.update(1)))
     except OSError as exc:
         raise CommandError(f"--out {args.out}: {exc.strerror or exc}") from None
     finally:

@@ -196,3 +196,18 @@ def test_bench_statements_come_from_the_registry():
     assert set(CLAIMS) <= set(REGISTRY)
     assert CLAIMS["L-eq26"] is REGISTRY["L-eq26"].bench
     assert FAILS in VERDICTS
+
+
+def test_progress_counts_every_search_then_every_claim():
+    """The progress callbacks tick once per search the checks read, then once per claim
+    (so the bar moves during the search phase); the counts are known before the run."""
+    from netsim.claims.report import run_claims, search_names
+
+    chosen = select(["L-theorem1", "L-decay"])
+    names = search_names(chosen)
+    assert names and len(names) == len(set(names))
+    order: list[tuple[str, str]] = []
+    run_claims(chosen, seed=1, budget=1.0, workers=1,
+               search_progress=lambda n: order.append(("search", n)),
+               progress=lambda c: order.append(("claim", c)))
+    assert order == [("search", n) for n in names] + [("claim", c.id) for c in chosen]

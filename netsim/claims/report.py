@@ -12,7 +12,7 @@ from typing import Any
 
 from netsim.claims.core import FAILS, HOLDS, NOT_CHECKABLE, Claim, Context, Outcome
 
-__all__ = ["ClaimResult", "ClaimsReport", "run_claims", "run_searches"]
+__all__ = ["ClaimResult", "ClaimsReport", "run_claims", "run_searches", "search_names"]
 
 
 def _jsonable(v: Any) -> Any:
@@ -121,31 +121,47 @@ def _search_key(name: str) -> str:
     return "search" if name == "L-theorem1" else f"search:{name}"
 
 
+def search_names(claims: Sequence[Claim]) -> list[str]:
+    """The distinct searches and runs (``Claim.searches``) the checks of ``claims`` read."""
+    return list(dict.fromkeys(n for c in claims for n in c.searches))
+
+
 def run_searches(names: Sequence[str], seed: int, budget: float,
-                 workers: int = 2) -> dict[str, Any]:
+                 workers: int = 2,
+                 progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     """Run the counterexample searches ``names`` (each with ``budget`` seconds), in up to
     ``workers`` worker processes (forkserver, as :mod:`netsim.sweep`); returns the
-    :class:`~netsim.claims.core.Context` cache entries by key."""
+    :class:`~netsim.claims.core.Context` cache entries by key. ``progress`` is called
+    with each name as its search finishes."""
     from netsim.claims.searches import run_search
 
     names = list(dict.fromkeys(names))
+    tick = progress if progress is not None else (lambda _name: None)
     if workers <= 1 or len(names) <= 1:
-        return {_search_key(n): run_search(n, seed, budget) for n in names}
+        found = {}
+        for n in names:
+            found[_search_key(n)] = run_search(n, seed, budget)
+            tick(n)
+        return found
     import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures import ProcessPoolExecutor, as_completed
 
     ctx = multiprocessing.get_context("forkserver")
     # the counterexample searches (budget seconds each) first, then the shorter jobs
     names.sort(key=lambda n: n.startswith(("bench:", "fusion:")))
     with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
-        futures = {n: pool.submit(run_search, n, seed, budget) for n in names}
-        return {_search_key(n): f.result() for n, f in futures.items()}
+        futures = {pool.submit(run_search, n, seed, budget): n for n in names}
+        for future in as_completed(futures):
+            future.result()  # a failed search fails loudly here
+            tick(futures[future])
+        return {_search_key(n): f.result() for f, n in futures.items()}
 
 
 def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
                out: str | Path | None = None,
                progress: Callable[[str], None] | None = None,
-               workers: int = 2) -> ClaimsReport:
+               workers: int = 2,
+               search_progress: Callable[[str], None] | None = None) -> ClaimsReport:
     """Run the checks of ``claims``; write ``claims.md`` and counterexamples into ``out``.
 
     Parameters
@@ -162,6 +178,8 @@ def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
     workers : int
         Worker processes for the counterexample searches the claims read (they run
         first, ``budget`` seconds each; 1: in this process).
+    search_progress : callable(str), optional
+        Called with each search's name (:func:`search_names`) as it finishes.
 
     Returns
     -------
@@ -170,8 +188,8 @@ def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float = 20.0,
     folder = None if out is None else Path(out)
     context = Context(seed=seed, budget=budget, out=folder)
     start = time.monotonic()
-    context.cache.update(run_searches([n for c in claims for n in c.searches], seed, budget,
-                                      workers))
+    context.cache.update(run_searches(search_names(claims), seed, budget, workers,
+                                      search_progress))
     results = []
     for claim in claims:
         t0 = time.monotonic()

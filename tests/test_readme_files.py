@@ -46,3 +46,21 @@ def test_fixture_files_are_tracked():
         if path.is_file() and path.suffix != ".pyc":
             rel = path.relative_to(ROOT).as_posix()
             assert rel in tracked, f"{rel} exists but is not committed"
+
+
+def test_every_package_is_listed_in_pyproject():
+    """A non-editable install (``pip install .``) ships only the listed packages: every
+    folder with an ``__init__.py`` under the package roots must be one of them."""
+    import tomllib
+
+    config = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
+    listed = set(config["packages"])
+    roots = {name: ROOT / folder for name, folder in config["package-dir"].items()}
+    found = set()
+    for name, folder in roots.items():
+        for init in folder.rglob("__init__.py"):
+            rel = init.parent.relative_to(folder).parts
+            if "scenarios" in rel or any(p.startswith((".", "_")) for p in rel):
+                continue
+            found.add(".".join((name, *rel)))
+    assert found <= listed, f"not in pyproject's packages: {sorted(found - listed)}"

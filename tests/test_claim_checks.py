@@ -408,3 +408,32 @@ def test_corollary1_against_the_hand_built_delay_free_loop():
     hand = rho(augmented_by_hand(P, inst["A"], inst["C"], inst["L"], np.zeros(P.shape, int)))
     out = REGISTRY["L-corollary1"].run(ctx)
     assert out.numbers["rho_delay_free"] == pytest.approx(hand, abs=1e-4) and hand < 1
+
+
+def test_dkfe_eq94_weights_minimise_the_fused_covariance_independently():
+    """D-eq94's computed weights, recomputed here from the steady stacked covariance Xi
+    (cross blocks included; Xi itself is checked against Monte Carlo in test_fusion) as
+    the minimiser of tr(Omega Xi Omega^T) subject to Omega_1 + Omega_2 = I, written as
+    its own KKT solve; and no feasible perturbation lowers that trace."""
+    from netsim.models import dkfe as dk
+
+    from netsim.fusion import covariances_for
+
+    setup = dk.example2()
+    Xi = covariances_for(setup)[0].steady_state().Xi
+    n, L = setup.n, 2
+    Xi = 0.5 * (Xi + Xi.T)
+    # minimise sum_r w_r^T Xi w_r over the rows w_r of Omega, subject to sum_i Omega_i = I:
+    # Lagrangian stationarity 2 Xi W^T + E Lambda = 0 with E = [I; I]
+    E = np.vstack([np.eye(n)] * L)
+    kkt = np.block([[2 * Xi, E], [E.T, np.zeros((n, n))]])
+    sol = np.linalg.solve(kkt, np.vstack([np.zeros((L * n, n)), np.eye(n)]))
+    Omega = sol[: L * n].T  # (n, L n)
+    ours = np.hstack([np.array(w) for w in REGISTRY["D-eq94"].run(Context()).numbers["ours"]])
+    np.testing.assert_allclose(ours, Omega, atol=1e-4)  # the registry rounds to 4 places
+    best = np.trace(Omega @ Xi @ Omega.T)
+    rng = np.random.default_rng(0)
+    for _ in range(20):
+        D = rng.standard_normal((n, n))
+        delta = np.hstack([D, -D]) * 1e-2
+        assert np.trace((Omega + delta) @ Xi @ (Omega + delta).T) >= best - 1e-12

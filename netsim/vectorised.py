@@ -529,8 +529,9 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
     # estimates are recorded (squared errors, divergence test) a chunk of steps at a
-    # time; a chunk whose trials have all diverged ends the run
-    chunk_steps = max(1, min(32, 2_000_000 // max(1, N * T * n)))
+    # time, about 100,000 numbers (the chunk just written is still in cache); a chunk
+    # whose trials have all diverged ends the run
+    chunk_steps = max(1, min(32, 100_000 // max(1, N * T * n)))
     chunk = np.empty((chunk_steps, N, T, n))
     chunk_start = 0
     estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0, chunk[0])

@@ -392,10 +392,10 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     has arrived yet, DESIGN.md) is one sparse product per step over a ring of past
     estimates that already carry their compensation, so no per-lag work remains:
 
-    * one constant delay d on every link (``uniform``): the ring keeps, per past step
-      s, A x(s) and A^(d+1) x(s) (one product each when x(s) is computed), and the
-      prior is one sparse (N x ring) product selecting p_ii A x^i(k-1) and
-      p_ij A^(d+1) x^j(k-1-d);
+    * one constant delay d on every link (``uniform``): ring slot s keeps the pair
+      A^(d+1) x(s), A x(s + d) (one product each when an estimate is computed), and
+      the prior is one sparse (N x 2N) product [P - diag | diag(p_ii)] with the slot
+      of s = k - 1 - d, i.e. p_ij A^(d+1) x^j(k-1-d) and p_ii A x^i(k-1);
     * otherwise: a ring Z of compensated estimates, Z[s] = A^(k - s) x(s), advanced
       by one product per step (Z <- A Z); the message each term holds is gathered
       from it (one ``take``) and summed by one sparse (N x (N + E)) product.
@@ -435,15 +435,18 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     # (1, n) matmul, at half its time)
     gain_rows = (np.ascontiguousarray(np.broadcast_to(Lp_T, (N, T, n)))
                  if Lp_T.shape[1] == 1 else None)
+    residual = np.empty((N, T, 1))  # y - C_i x_{k|k-1} of one step (m = 1)
 
     def innovate(prior: np.ndarray, k: int, out: np.ndarray) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a
         # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T; into ``out``
-        innovation = Y[k] - prior @ Cp_T
         if gain_rows is not None:
+            innovation = np.matmul(prior, Cp_T, out=residual)
+            np.subtract(Y[k], innovation, out=innovation)
             np.multiply(innovation, gain_rows, out=out)
             out += prior
         else:
+            innovation = Y[k] - prior @ Cp_T
             np.add(prior, innovation @ Lp_T, out=out)
         return out
 

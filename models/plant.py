@@ -135,14 +135,20 @@ class LinearPlant:
         """Standard normals one step draws: n process noise, then sum m_i sensor noise."""
         return self.n_states + sum(C.shape[0] for C in self.C)
 
-    def standard_noise(self, rng: np.random.Generator, steps: int) -> np.ndarray:
+    def standard_noise(self, rng: np.random.Generator, steps: int,
+                       out: np.ndarray | None = None) -> np.ndarray:
         """Draw the standard normals of steps 0..``steps``, shape (steps+1, n+M).
 
         Row k holds step k's draws in the order :meth:`step` (:meth:`sample_initial`
         at k = 0) and :meth:`measure_stacked` take them from ``rng``, so the rows are
-        the numbers a step-by-step simulation with the same stream draws.
+        the numbers a step-by-step simulation with the same stream draws. ``out``, a
+        C-contiguous float array of shape (steps+1, n+M), receives the same numbers
+        (no temporary).
         """
         width = self.noise_width
+        if out is not None:
+            rng.standard_normal(out=out.reshape((steps + 1) * width))
+            return out
         return rng.standard_normal((steps + 1) * width).reshape(steps + 1, width)
 
     def simulate(self, noise: np.ndarray) -> PlantTrajectory:
@@ -178,11 +184,12 @@ class LinearPlant:
         F0, FQ, FR = self._factors
         F0_T, FQ_T, A_T = (np.array(F.T, order="C") for F in (F0, FQ, self.A))
         C_T = np.array(self.C_stacked.T, order="C")
-        noise = np.require(noise, dtype=float, requirements=["C", "A"])
+        # any layout (a trial-major block seen as (K+1, T, n+M) is not copied)
+        noise = np.require(noise, dtype=float, requirements=["A"])
         K1, T, _ = noise.shape
         states = np.empty((K1, T, n))
         states[0] = np.array(self.x0_mean, dtype=float) + noise[0, :, :n] @ F0_T
-        process = (noise[1:, :, :n].reshape(-1, n) @ FQ_T).reshape(K1 - 1, T, n)
+        process = np.matmul(noise[1:, :, :n], FQ_T)  # (K, T, n)
         # x_k = x_{k-1} A^T + nu_k row by row, written in place; ndarray.dot is the
         # same BLAS product as ``@`` (bit for bit) at under half its call overhead
         previous = states[0]
@@ -191,12 +198,21 @@ class LinearPlant:
             current += nu
             previous = current
         M = C_T.shape[1]
-        measurements = (states.reshape(-1, n) @ C_T).reshape(K1, T, M)
         z = noise[:, :, n:]
         _, factor, diagonal, _ = self._stacked_measurement
         if diagonal:  # one output per sensor: the factor is a vector
-            measurements += z * factor
-        elif M:
+            # C x_k + F_R z a block of steps at a time, into the output: the
+            # temporaries stay in cache
+            measurements = np.empty((K1, T, M))
+            rows = max(1, 32768 // max(1, T * M))
+            scaled = np.empty((min(rows, K1), T, M))
+            for k in range(0, K1, rows):
+                part = measurements[k:k + rows]
+                np.matmul(states[k:k + rows].reshape(-1, n), C_T, out=part.reshape(-1, M))
+                part += np.multiply(z[k:k + rows], factor, out=scaled[:len(part)])
+            return PlantTrajectory(states, measurements)
+        measurements = (states.reshape(-1, n) @ C_T).reshape(K1, T, M)
+        if M:
             # the block-diagonal noise factor as a sparse matrix: M can be thousands
             z = z.reshape(K1 * T, M)
             measurements += (sp.block_diag(FR, format="csr") @ z.T).T.reshape(K1, T, M)

@@ -133,10 +133,11 @@ def simulate_plant(scenario: Scenario, trial_seeds: Sequence[SeedLike], steps: i
     """
     plant = scenario.plant
     sizes = [C.shape[0] for C in plant.C]
-    noise = np.empty((int(steps) + 1, len(trial_seeds), plant.noise_width))
+    # trial-major: each trial's draws land in place, read by the plant as (K+1, T, n+M)
+    noise = np.empty((len(trial_seeds), int(steps) + 1, plant.noise_width))
     for t, seed in enumerate(trial_seeds):
-        noise[:, t, :] = plant.standard_noise(stream(seed, "plant"), int(steps))
-    trajectory = plant.simulate(noise)
+        plant.standard_noise(stream(seed, "plant"), int(steps), out=noise[t])
+    trajectory = plant.simulate(noise.transpose(1, 0, 2))
     states, measurements = trajectory.states, trajectory.measurements
     return PlantBatch(states, measurements, np.concatenate([[0], np.cumsum(sizes)]))
 
@@ -179,6 +180,7 @@ class _Outputs:
         self.all_alive = True
         self.threshold_sq = squared_threshold(threshold)
         self._scratch: np.ndarray | None = None  # record_many's errors
+        self._ones = np.ones(n)
 
     def record_many(self, k0: int, estimates: np.ndarray, states: np.ndarray) -> bool:
         """Record steps k0, k0 + 1, ... (estimates (c, N, T, n), states (c, T, n)).
@@ -191,15 +193,19 @@ class _Outputs:
             if self._scratch is None or len(self._scratch) < c or \
                     self._scratch.shape[1:] != estimates.shape[1:]:
                 self._scratch = np.empty_like(estimates)
+            # ||x^i_k - x_k||^2: squares summed by one product with a vector of ones,
+            # written straight into the (K+1, T, N) record
             err = np.subtract(estimates, states[:, None], out=self._scratch[:c])
-            sq = np.einsum("kitj,kitj->kti", err, err)
+            np.square(err, out=err)
+            sq = self.sq[k0:k0 + c]
+            np.matmul(err, self._ones, out=sq.transpose(0, 2, 1))
             worst = sq.max(initial=0.0)
             if worst <= self.threshold_sq and worst < np.inf:
                 # every error of the chunk finite and within the threshold
-                self.sq[k0:k0 + len(sq)] = sq
                 if self.estimates is not None:
-                    self.estimates[k0:k0 + len(sq)] = estimates.transpose(0, 2, 1, 3)
+                    self.estimates[k0:k0 + c] = estimates.transpose(0, 2, 1, 3)
                 return True
+            sq[...] = np.nan  # recorded again step by step below
         for c in range(len(estimates)):
             if not self.record(k0 + c, estimates[c], states[c]):
                 return False
@@ -386,10 +392,10 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     has arrived yet, DESIGN.md) is one sparse product per step over a ring of past
     estimates that already carry their compensation, so no per-lag work remains:
 
-    * one constant delay d on every link (``uniform``): the ring keeps, per past step
-      s, A x(s) and A^(d+1) x(s) (one product each when x(s) is computed), and the
-      prior is one sparse (N x ring) product selecting p_ii A x^i(k-1) and
-      p_ij A^(d+1) x^j(k-1-d);
+    * one constant delay d on every link (``uniform``): ring slot s keeps the pair
+      A^(d+1) x(s), A x(s + d) (one product each when an estimate is computed), and
+      the prior is one sparse (N x 2N) product [P - diag | diag(p_ii)] with the slot
+      of s = k - 1 - d, i.e. p_ij A^(d+1) x^j(k-1-d) and p_ii A x^i(k-1);
     * otherwise: a ring Z of compensated estimates, Z[s] = A^(k - s) x(s), advanced
       by one product per step (Z <- A Z); the message each term holds is gathered
       from it (one ``take``) and summed by one sparse (N x (N + E)) product.
@@ -429,46 +435,50 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     # (1, n) matmul, at half its time)
     gain_rows = (np.ascontiguousarray(np.broadcast_to(Lp_T, (N, T, n)))
                  if Lp_T.shape[1] == 1 else None)
+    residual = np.empty((N, T, 1))  # y - C_i x_{k|k-1} of one step (m = 1)
 
     def innovate(prior: np.ndarray, k: int, out: np.ndarray) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a
         # stacked product over the trials: (T, n) @ C_i^T, (T, m) @ L_i^T; into ``out``
-        innovation = Y[k] - prior @ Cp_T
         if gain_rows is not None:
+            innovation = np.matmul(prior, Cp_T, out=residual)
+            np.subtract(Y[k], innovation, out=innovation)
             np.multiply(innovation, gain_rows, out=out)
             out += prior
         else:
+            innovation = Y[k] - prior @ Cp_T
             np.add(prior, innovation @ Lp_T, out=out)
         return out
 
     if uniform is not None:
-        # A x(k-1) (the own term) and a ring of A^(d+1) x(s) (eq. 6: A x(s)), each one
-        # product when x is computed; the prior is p_ii A x^i(k-1) plus one sparse
-        # product of P minus its diagonal with the ring slot of s = k - 1 - d
+        # eq. (4) with one delay d: prior(k) = p_ii A x^i(k-1) + sum_j p_ij A^(d+1)
+        # x^j(k-1-d) (eq. 6: A x^j(k-1-d)). Ring slot s holds the pair
+        # [A^(d+1) x(s) ; A x(s+d)] as one (2N, T n) block, so the prior is ONE
+        # sparse product of [P minus its diagonal | diag(p_ii)] with slot k-1-d;
+        # each x(k) costs two products into the ring when it is stored
         d = uniform
         depth = d + 1
         lag = min(d + 1, K) if rule.compensate else 1
         far_T = np.ascontiguousarray(_powers(A, lag)[lag].T) if lag > 1 else A_T
-        own_prediction = np.zeros((N, T, n))
-        ring = np.zeros((depth, N, T, n))
-        neighbours = sp.csr_matrix((terms.weight, (terms.i, terms.j)), shape=(N, N))
-        own_weight3 = own_weight[:, None, None]
+        ring = np.zeros((depth, 2, N, T, n))
+        pair = sp.csr_matrix(
+            (np.concatenate([terms.weight, own_weight]),
+             (np.concatenate([terms.i, np.arange(N)]),
+              np.concatenate([terms.j, N + np.arange(N)]))), shape=(N, 2 * N))
+        pair.sort_indices()  # p_ij x^j summed in the order of j, then p_ii A x^i
         row_sum3 = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1, 1)
-        scratch = np.empty((N, T, n))
 
         def store(k: int, estimate: np.ndarray) -> None:
             x = estimate.reshape(-1, n)
-            np.matmul(x, A_T, out=own_prediction.reshape(-1, n))
-            np.matmul(x, far_T, out=ring[k % depth].reshape(-1, n))
+            np.matmul(x, far_T, out=ring[k % depth, 0].reshape(-1, n))
+            np.matmul(x, A_T, out=ring[(k - d) % depth, 1].reshape(-1, n))
 
         def prior_at(k: int) -> np.ndarray:
+            slot = ring[(k - 1 - d) % depth]
             if k <= d:
                 # nothing has arrived: the own prediction with the whole row's weight
-                return row_sum3 * own_prediction
-            sent = ring[(k - 1 - d) % depth].reshape(N, T * n)
-            prior = (neighbours @ sent).reshape(N, T, n)
-            prior += np.multiply(own_weight3, own_prediction, out=scratch)
-            return prior
+                return row_sum3 * slot[1]
+            return (pair @ slot.reshape(2 * N, T * n)).reshape(N, T, n)
     else:
         # ring Z[s % depth]: eq. (4) A^(k - s) x(s) (advanced by A every step), or
         # x(s) itself for eq. (6); gathered per (term, trial), own term first
@@ -522,8 +532,9 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
     # estimates are recorded (squared errors, divergence test) a chunk of steps at a
-    # time; a chunk whose trials have all diverged ends the run
-    chunk_steps = max(1, min(32, 2_000_000 // max(1, N * T * n)))
+    # time, about 100,000 numbers (the chunk just written is still in cache); a chunk
+    # whose trials have all diverged ends the run
+    chunk_steps = max(1, min(32, 100_000 // max(1, N * T * n)))
     chunk = np.empty((chunk_steps, N, T, n))
     chunk_start = 0
     estimate = innovate(np.broadcast_to(plant.x0_mean, (N, T, n)).copy(), 0, chunk[0])

@@ -556,4 +556,6 @@ def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
                                    np.arange(hi - lo, dtype=np.int64) * size,
                                    ids[lo:hi], log_time[lo:hi])
         recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 2 < len(edges) else end
-        recorder.flush()
+        # chunks compress in the background while the next window is added; the last
+        # window waits for all of them
+        recorder.flush(wait=w + 2 >= len(edges))

@@ -486,19 +486,20 @@ class BulkMcapWriter:
         return channel_id
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        """Write a Metadata record (and index it in the summary)."""
+        """Write a Metadata record (and index it in the summary); handed to the OS with
+        the next chunk or :meth:`flush`."""
         self._check_open()
         offset = self._position
         record = _record(OP_METADATA, _string(name) + _string_map(data))
         self._write(record)
         self._metadata_indexes.append(_record(OP_METADATA_INDEX, struct.pack(
             "<QQ", offset, len(record)) + _string(name)))
-        self._stream.flush()
 
     def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str,
                        data: bytes) -> None:
         """Write an Attachment record (CRC set; indexed in the summary); the arguments
-        of ``mcap.writer.Writer.add_attachment``."""
+        of ``mcap.writer.Writer.add_attachment``; handed to the OS with the next chunk
+        or :meth:`flush`."""
         self._check_open()
         offset = self._position
         body = (struct.pack("<QQ", log_time, create_time) + _string(name)
@@ -508,7 +509,6 @@ class BulkMcapWriter:
         self._attachment_indexes.append(_record(OP_ATTACHMENT_INDEX, struct.pack(
             "<QQQQQ", offset, len(record), log_time, create_time, len(data))
             + _string(name) + _string(media_type)))
-        self._stream.flush()
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """:meth:`add_schema` under ``mcap.writer.Writer``'s name."""

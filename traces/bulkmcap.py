@@ -665,9 +665,11 @@ class BulkMcapWriter:
         chunk = self._chunk
         if chunk.count:
             self._chunk = _ChunkBuilder()
-            pieces = chunk.pieces if len(chunk.pieces) <= 64 else [chunk.content()]
-            pieces = [p if isinstance(p, bytes) else memoryview(p) for p in pieces]
             level = self.level if self.compression else None
+            # one buffer: the worker then needs the GIL only to start and to return
+            # (zlib.crc32 and ZstdCompressor.compress release it)
+            pieces = [chunk.content()] if level is not None else [
+                p if isinstance(p, bytes) else memoryview(p) for p in chunk.pieces]
             job: Any = None
             if self.background:
                 try:

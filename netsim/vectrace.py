@@ -290,11 +290,11 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     The messages are those :func:`replay_trial` makes the recorder write, with the same
     topics, fields, times and per-topic order; each type's messages are encoded at once
     straight into MCAP Message records (:meth:`netsim.traces.bulkproto.BulkEncoder.records`)
-    and written per window of steps (one chunk each, of about ``chunk_size`` bytes;
-    each chunk is written and flushed as soon as it is compressed, on a background
-    thread, at most two chunks behind the one being filled: the simulation is over by
-    then, so ``flush_every``, which bounds what a killed event-kernel run loses, does not
-    apply) through the recorder's
+    and written per window of steps (one chunk each: ``flush_every`` steps, or fewer if
+    a chunk would exceed ``chunk_size``, as the recorder closes chunks for the event
+    kernel, so that a damaged chunk loses as few steps as there; each chunk is
+    compressed on a background thread while the next window is added, and written and
+    flushed as soon as it is done, at most two chunks behind) through the recorder's
     bulk writer (:meth:`netsim.traces.recorder.TraceRecorder.bulk_channels`). Within a
     window the file holds the messages grouped by type, so messages of different topics
     at the same log_time may be in another order than the kernel's (each topic's are
@@ -533,13 +533,14 @@ def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
     """Write the groups window by window (about one chunk each), flushing each: every
     group is encoded once into Message records, each window adds a slice of them."""
     writer = recorder.writer
-    # windows of about one chunk (chunk_size bytes)
+    # windows as the recorder closes chunks for the event kernel: every flush_every
+    # steps, or sooner when a chunk would exceed chunk_size
     chunk = int(writer.chunk_size)
     encoders = [_encoder(g.type_name, g.lengths) for g in groups]
     total = sum((e.payload_length + 31) * len(g.when) for g, e in zip(groups, encoders,
                                                                        strict=True))
     per_step = max(1.0, total / (end + 1))
-    window = max(1, int(chunk // per_step))
+    window = max(1, min(int(getattr(recorder, "flush_every", 25)), int(chunk // per_step)))
     edges = np.arange(0, end + 1 + window, window, dtype=float)
     edges[-1] = np.inf
     packed = []

@@ -26,7 +26,8 @@ message indexes right after it), so a writer killed at any moment leaves a file
 readable to its last complete chunk (no summary: readers scan it). Chunks completed by
 :meth:`BulkMcapWriter.add_records` (the bulk path) or ``flush(wait=False)`` are
 compressed on a background thread (zstd releases the GIL) while the caller builds the
-next ones, and written in order as soon as done, at most two chunks behind. :meth:`close`
+next ones (chunks of at least 128 KiB), and written in order as soon as done, at most
+two chunks behind. :meth:`close`
 (idempotent) finishes the file; use the writer as a context manager (a Ctrl-C
 raising KeyboardInterrupt inside the ``with`` still finishes the file) and it also
 registers itself with :mod:`atexit` for an interpreter that exits without closing it.
@@ -309,6 +310,9 @@ _LIVE: weakref.WeakSet[BulkMcapWriter] = weakref.WeakSet()
 
 #: Chunks compressed in the background at most this far ahead of the file (per writer).
 _AHEAD = 2
+#: Smaller chunks are compressed at once (handing them to a thread costs more than it
+#: saves: measured on the N = 4 traces of ``benchmarks/trace_throughput.py``).
+_BACKGROUND_MIN = 128 * 1024
 _POOL: ThreadPoolExecutor | None = None
 _POOL_LOCK = threading.Lock()
 _LOCAL = threading.local()
@@ -377,10 +381,10 @@ class BulkMcapWriter:
         Also ``os.fsync`` after each chunk (default: flush to the OS only).
     background : bool
         Compress chunks on a shared pool of (at most 2) threads while the caller builds
-        the next ones (default True; zstd only). Chunks are written in order, each as
-        soon as it is compressed and at most two chunks behind the one in progress;
-        :meth:`flush` and :meth:`close` wait for all of them, so the file's bytes do not
-        depend on the threads' timing.
+        the next ones (default True; zstd, chunks of at least 128 KiB). Chunks are
+        written in order, each as soon as it is compressed and at most two chunks behind
+        the one in progress; :meth:`flush` and :meth:`close` wait for all of them, so
+        the file's bytes do not depend on the threads' timing.
     """
 
     def __init__(
@@ -671,7 +675,7 @@ class BulkMcapWriter:
             pieces = [chunk.content()] if level is not None else [
                 p if isinstance(p, bytes) else memoryview(p) for p in chunk.pieces]
             job: Any = None
-            if self.background:
+            if self.background and chunk.size >= _BACKGROUND_MIN:
                 try:
                     job = _pool().submit(_compress, level, pieces, chunk.size)
                 except RuntimeError:  # interpreter shutting down: compress here

@@ -290,9 +290,11 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     The messages are those :func:`replay_trial` makes the recorder write, with the same
     topics, fields, times and per-topic order; each type's messages are encoded at once
     straight into MCAP Message records (:meth:`netsim.traces.bulkproto.BulkEncoder.records`)
-    and written per window of steps (one chunk each, flushed: ``flush_every`` steps, or
-    fewer if a chunk would exceed ``chunk_size``, as the recorder closes chunks for the
-    event kernel) through the recorder's
+    and written per window of steps (one chunk each: ``flush_every`` steps, or fewer if
+    a chunk would exceed ``chunk_size``, as the recorder closes chunks for the event
+    kernel, so that a damaged chunk loses as few steps as there; each chunk is
+    compressed on a background thread while the next window is added, and written and
+    flushed as soon as it is done, at most two chunks behind) through the recorder's
     bulk writer (:meth:`netsim.traces.recorder.TraceRecorder.bulk_channels`). Within a
     window the file holds the messages grouped by type, so messages of different topics
     at the same log_time may be in another order than the kernel's (each topic's are
@@ -457,14 +459,20 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
     send_time = s_f * ts  # (S,)
     arrival = s_f[None, :] + wait  # (L, S) in steps
     arrival_time = arrival * ts
-    # every (link, message) as flat arrays, link major
-    ll, qq = np.meshgrid(np.arange(L), np.arange(n_sends), indexing="ij")
+    # every (link, message) as flat arrays, message major (by send step, then link: the
+    # kernel's order of the sent messages; the other groups sort with (link, message)
+    # among their keys, so their order does not depend on this one)
+    qq, ll = np.meshgrid(np.arange(n_sends), np.arange(L), indexing="ij")
     ll, qq = ll.ravel(), qq.ravel()
+
+    def flat(a: np.ndarray) -> np.ndarray:
+        return a.T.ravel()  # (L, S) -> message major
+
     ss = send[qq]
-    dd = delay.ravel()
+    dd = flat(delay)
     common = {"sender": sender[ll], "receiver": receiver[ll], "sent_step": ss,
               "usable_step": ss + 1 + dd, "sequence": qq, "send_time": send_time[qq],
-              "arrival_time": arrival_time.ravel(), "delay_steps": dd}
+              "arrival_time": flat(arrival_time), "delay_steps": dd}
     publish = _ns(origin, send_time)[qq]
     seq = qq.astype(np.uint32)
     payload = bool(getattr(recorder, "record_payloads", True))
@@ -472,31 +480,31 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
     columns = dict(common)
     if payload:
         columns["payload"] = estimates[ss, sender[ll]]
-    order = np.lexsort((ll, qq))  # by send step, then link (the kernel's order)
     groups.append(_Group("LinkSent", [link_topic(j, i, "sent") for j, i in links], ll,
                          ss.astype(float), publish, publish, seq, columns,
-                         {"payload": n if payload else 0}, order))
-    flat_fate = fate.ravel()
-    a = arrival.ravel()
+                         {"payload": n if payload else 0}))
+    flat_fate = flat(fate)
+    a = flat(arrival)
     phase = np.where(a <= ss, _LATE, _EARLY)
     delivered = (flat_fate == DELIVERED) & (a <= end)
     if delivered.any():
         m = np.flatnonzero(delivered)
         order = np.lexsort((ll[m], qq[m], phase[m], a[m]))
-        log_time = _ns(origin, arrival_time.ravel()[m])
+        log_time = _ns(origin, common["arrival_time"][m])
         columns = {key: v[m] for key, v in common.items()}
-        columns["accepted"] = (~discarded.ravel()[m].astype(bool)).astype(np.uint32)
+        columns["accepted"] = (~flat(discarded)[m].astype(bool)).astype(np.uint32)
         groups.append(_Group("LinkDelivered", [link_topic(j, i, "delivered") for j, i in links],
                              ll[m], a[m], log_time, publish[m], seq[m], columns, {}, order))
         recorder.max_delay_steps = max(recorder.max_delay_steps, int(dd[m].max()))
     # drops: at sending, drop-oldest victims (at the cancelling send), superseded
     at_send = ~np.isin(flat_fate, [DELIVERED, code_superseded, code_oldest])
-    victim = (flat_fate == code_oldest) & (drop_step.ravel() <= end)
+    drop_at = flat(drop_step)
+    victim = (flat_fate == code_oldest) & (drop_at <= end)
     superseded = (flat_fate == code_superseded) & (a <= end)
     m = np.flatnonzero(at_send | victim | superseded)
     if not m.size:
         return
-    when = np.where(superseded[m], a[m], np.where(victim[m], drop_step.ravel()[m], ss[m]))
+    when = np.where(superseded[m], a[m], np.where(victim[m], drop_at[m], ss[m]))
     when = when.astype(float)
     ph = np.where(superseded[m], phase[m], _STEP)
     sub = victim[m].astype(np.int64)
@@ -556,4 +564,6 @@ def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
                                    np.arange(hi - lo, dtype=np.int64) * size,
                                    ids[lo:hi], log_time[lo:hi])
         recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 2 < len(edges) else end
-        recorder.flush()
+        # chunks compress in the background while the next window is added; the last
+        # window waits for all of them
+        recorder.flush(wait=w + 2 >= len(edges))

@@ -111,6 +111,37 @@ def test_file_reads_back_like_mcaps_own_writer(tmp_path, chunk_size):
     _check_message_indexes(ours, sa)
 
 
+
+def test_background_compression_writes_the_bytes_of_the_synchronous_writer(tmp_path):
+    """Chunks compressed on the pool (>= 128 KiB each, several in flight) give the file
+    the writer gives compressing each chunk at once; it reads back with CRCs."""
+    rng = np.random.default_rng(5)
+    channel, log_time, publish, sequence, rows = _batch(rng, 30000, 4, width=40)
+    rows[:, ::2] = 7  # compressible, like trace payloads
+    paths = []
+    for background in (True, False):
+        path = tmp_path / f"bg{background}.mcap"
+        with BulkMcapWriter(path, chunk_size=200 * 1024, background=background) as w:
+            sid = w.add_schema("s", "protobuf", b"")
+            for c in range(4):
+                w.add_channel(f"/c{c}", "protobuf", sid)
+            for part in np.array_split(np.arange(30000), 7):
+                w.add_messages(channel[part], log_time[part], rows[part],
+                               publish_time=publish[part], sequence=sequence[part])
+                w.flush(wait=False)
+        paths.append(path)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+    with open(paths[0], "rb") as f:
+        reader = make_reader(f, validate_crcs=True)
+        summary = reader.get_summary()
+        got = [(m.channel_id, m.log_time, m.sequence, bytes(m.data))
+               for _, _, m in reader.iter_messages(log_time_order=False)]
+    assert summary.statistics.chunk_count >= 6
+    assert got == [(int(c), int(t), int(q), rows[i].tobytes()) for i, (c, t, q) in
+                   enumerate(zip(channel, log_time, sequence, strict=True))]
+    _check_message_indexes(paths[0], summary)
+
+
 def _check_message_indexes(path, summary):
     """Every message index entry points at a message of its channel with its log_time,
     entries sorted by log_time, every message listed once."""

@@ -20,9 +20,14 @@ Messages enter in two ways, through the same chunk builder:
 Schemas and channels are written as top-level records of the data section (outside
 the chunks), so a damaged chunk never takes a channel definition with it.
 
-Crash safety: every completed chunk is written and flushed to the OS at once (its
+Crash safety: every chunk completed by :meth:`BulkMcapWriter.add_message` or a
+waiting :meth:`BulkMcapWriter.flush` is written and flushed to the OS at once (its
 message indexes right after it), so a writer killed at any moment leaves a file
-readable to its last complete chunk (no summary: readers scan it). :meth:`close`
+readable to its last complete chunk (no summary: readers scan it). Chunks completed by
+:meth:`BulkMcapWriter.add_records` (the bulk path) or ``flush(wait=False)`` are
+compressed on a background thread (zstd releases the GIL) while the caller builds the
+next ones (chunks of at least 128 KiB), and written in order as soon as done, at most
+two chunks behind. :meth:`close`
 (idempotent) finishes the file; use the writer as a context manager (a Ctrl-C
 raising KeyboardInterrupt inside the ``with`` still finishes the file) and it also
 registers itself with :mod:`atexit` for an interpreter that exits without closing it.
@@ -33,12 +38,15 @@ registers itself with :mod:`atexit` for an interpreter that exits without closin
 from __future__ import annotations
 
 import atexit
+import collections
 import functools
 import os
 import struct
+import threading
 import weakref
 import zlib
 from collections.abc import Mapping
+from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
 from typing import IO, Any
 
@@ -300,6 +308,44 @@ class _ChunkBuilder:
 
 _LIVE: weakref.WeakSet[BulkMcapWriter] = weakref.WeakSet()
 
+#: Chunks compressed in the background at most this far ahead of the file (per writer).
+_AHEAD = 2
+#: Smaller chunks are compressed at once (handing them to a thread costs more than it
+#: saves: measured on the N = 4 traces of ``benchmarks/trace_throughput.py``).
+_BACKGROUND_MIN = 128 * 1024
+_POOL: ThreadPoolExecutor | None = None
+_POOL_LOCK = threading.Lock()
+_LOCAL = threading.local()
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The shared pool compressing chunks (zstd and zlib.crc32 release the GIL)."""
+    global _POOL
+    with _POOL_LOCK:
+        if _POOL is None:
+            _POOL = ThreadPoolExecutor(max_workers=max(1, min(2, os.cpu_count() or 1)),
+                                       thread_name_prefix="bulkmcap-zstd")
+        return _POOL
+
+
+def _compress(level: int | None, pieces: list[Any], size: int) -> tuple[int, bytes]:
+    """(CRC32 of the uncompressed records, the chunk's compressed records); zstd at
+    ``level`` (None: uncompressed), one compressor per thread and level."""
+    crc = 0
+    for piece in pieces:
+        crc = zlib.crc32(piece, crc)
+    if level is None:
+        return crc, b"".join(pieces)
+    cctxs = getattr(_LOCAL, "cctxs", None)
+    if cctxs is None:
+        cctxs = _LOCAL.cctxs = {}
+    cctx = cctxs.get(level)
+    if cctx is None:
+        cctx = cctxs[level] = zstandard.ZstdCompressor(level=level)
+    # one call on the whole chunk: ZstdCompressor.compress releases the GIL (a
+    # compressobj's compress does not)
+    return crc, cctx.compress(pieces[0] if len(pieces) == 1 else b"".join(pieces))
+
 
 @atexit.register
 def _close_all() -> None:  # pragma: no cover - runs at interpreter exit
@@ -333,6 +379,12 @@ class BulkMcapWriter:
         zstd compression level.
     fsync : bool
         Also ``os.fsync`` after each chunk (default: flush to the OS only).
+    background : bool
+        Compress chunks on a shared pool of (at most 2) threads while the caller builds
+        the next ones (default True; zstd, chunks of at least 128 KiB). Chunks are
+        written in order, each as soon as it is compressed and at most two chunks behind
+        the one in progress; :meth:`flush` and :meth:`close` wait for all of them, so
+        the file's bytes do not depend on the threads' timing.
     """
 
     def __init__(
@@ -345,6 +397,7 @@ class BulkMcapWriter:
         library: str | None = None,
         level: int = 3,
         fsync: bool = False,
+        background: bool = True,
     ) -> None:
         if chunk_size < 1:
             raise ValueError(f"chunk_size must be >= 1, got {chunk_size}")
@@ -353,7 +406,9 @@ class BulkMcapWriter:
         if compression not in ("zstd", "none", ""):
             raise ValueError(f"unknown compression {compression!r}; expected zstd or none")
         self.compression = "zstd" if compression == "zstd" else ""
-        self._cctx = zstandard.ZstdCompressor(level=level) if self.compression else None
+        self.level = int(level)
+        self.background = bool(background) and bool(self.compression)
+        self._pending: collections.deque[tuple[_ChunkBuilder, Any]] = collections.deque()
         self.chunk_size = int(chunk_size)
         self.fsync = fsync
         if isinstance(output, (str, os.PathLike)):
@@ -373,7 +428,8 @@ class BulkMcapWriter:
         self._chunk_indexes: list[bytes] = []
         self._attachment_indexes: list[bytes] = []
         self._metadata_indexes: list[bytes] = []
-        self._counts: list[int] = []  # messages per channel id
+        self._counts: list[int] = []  # messages per channel id (add_message)
+        self._bulk_counts = np.zeros(0, dtype=np.int64)  # and add_records
         self.message_count = 0
         self.chunk_count = 0
         self._start_time: int | None = None
@@ -434,19 +490,20 @@ class BulkMcapWriter:
         return channel_id
 
     def add_metadata(self, name: str, data: Mapping[str, str]) -> None:
-        """Write a Metadata record (and index it in the summary)."""
+        """Write a Metadata record (and index it in the summary); handed to the OS with
+        the next chunk or :meth:`flush`."""
         self._check_open()
         offset = self._position
         record = _record(OP_METADATA, _string(name) + _string_map(data))
         self._write(record)
         self._metadata_indexes.append(_record(OP_METADATA_INDEX, struct.pack(
             "<QQ", offset, len(record)) + _string(name)))
-        self._stream.flush()
 
     def add_attachment(self, create_time: int, log_time: int, name: str, media_type: str,
                        data: bytes) -> None:
         """Write an Attachment record (CRC set; indexed in the summary); the arguments
-        of ``mcap.writer.Writer.add_attachment``."""
+        of ``mcap.writer.Writer.add_attachment``; handed to the OS with the next chunk
+        or :meth:`flush`."""
         self._check_open()
         offset = self._position
         body = (struct.pack("<QQ", log_time, create_time) + _string(name)
@@ -456,7 +513,6 @@ class BulkMcapWriter:
         self._attachment_indexes.append(_record(OP_ATTACHMENT_INDEX, struct.pack(
             "<QQQQQ", offset, len(record), log_time, create_time, len(data))
             + _string(name) + _string(media_type)))
-        self._stream.flush()
 
     def register_schema(self, name: str, encoding: str, data: bytes) -> int:
         """:meth:`add_schema` under ``mcap.writer.Writer``'s name."""
@@ -478,6 +534,7 @@ class BulkMcapWriter:
         chunk = self._chunk
         chunk.add_one(channel_id, sequence, log_time, publish_time, data)
         if chunk.size >= self.chunk_size:
+            # the event kernel's path: every closed chunk is in the file at once
             self._finish_chunk()
 
     def add_messages(self, channel_id: Any, log_time: Any, payloads: np.ndarray | bytes,
@@ -535,8 +592,11 @@ class BulkMcapWriter:
         if int(channel.max()) >= len(self._channels):
             raise ValueError(f"channel_id: {int(channel.max())} was never added")
         counts = np.bincount(channel)
-        for ch in np.flatnonzero(counts).tolist():
-            self._counts[ch] += int(counts[ch])
+        if self._bulk_counts.shape[0] < counts.shape[0]:
+            grown = np.zeros(len(self._channels), dtype=np.int64)
+            grown[:self._bulk_counts.shape[0]] = self._bulk_counts
+            self._bulk_counts = grown
+        self._bulk_counts[:counts.shape[0]] += counts
         total = records.shape[0]
         first = 0
         while first < n:
@@ -550,14 +610,18 @@ class BulkMcapWriter:
                                  channel[first:last], log_time[first:last])
             first = last
             if self._chunk.size >= self.chunk_size:
-                self._finish_chunk()
+                self._finish_chunk(wait=False)
 
     # -- file management ------------------------------------------------------------
 
-    def flush(self) -> None:
-        """Close the chunk in progress (if any) and hand the file to the OS."""
+    def flush(self, wait: bool = True) -> None:
+        """Close the chunk in progress (if any) and hand the file to the OS.
+
+        ``wait=False``: chunks still being compressed in the background are written
+        later (at most two behind; by the next waiting flush or :meth:`close` at the
+        latest)."""
         self._check_open()
-        self._finish_chunk()
+        self._finish_chunk(wait=wait)
         self._stream.flush()
 
     def close(self) -> None:
@@ -599,23 +663,34 @@ class BulkMcapWriter:
         self._crc = zlib.crc32(data, self._crc)
         self._position += len(data) if not isinstance(data, np.ndarray) else data.nbytes
 
-    def _finish_chunk(self) -> None:
+    def _finish_chunk(self, wait: bool = True) -> None:
+        """Close the chunk in progress (compressed in the background if enabled) and
+        write the closed chunks that are due: all (``wait``) or all but ``_AHEAD``."""
         chunk = self._chunk
-        if chunk.count == 0:
-            return
-        # a few large pieces (bulk) are compressed as a stream, without joining them
-        # first; many small ones (per-event messages) are joined
-        pieces = chunk.pieces if len(chunk.pieces) <= 64 else [chunk.content()]
-        pieces = [p if isinstance(p, bytes) else memoryview(p) for p in pieces]
+        if chunk.count:
+            self._chunk = _ChunkBuilder()
+            level = self.level if self.compression else None
+            # one buffer: the worker then needs the GIL only to start and to return
+            # (zlib.crc32 and ZstdCompressor.compress release it)
+            pieces = [chunk.content()] if level is not None else [
+                p if isinstance(p, bytes) else memoryview(p) for p in chunk.pieces]
+            job: Any = None
+            if self.background and chunk.size >= _BACKGROUND_MIN:
+                try:
+                    job = _pool().submit(_compress, level, pieces, chunk.size)
+                except RuntimeError:  # interpreter shutting down: compress here
+                    job = None
+            if job is None:
+                job = _compress(level, pieces, chunk.size)
+            self._pending.append((chunk, job))
+        limit = 0 if wait else _AHEAD
+        while len(self._pending) > limit:
+            self._write_chunk(*self._pending[0])
+            self._pending.popleft()
+
+    def _write_chunk(self, chunk: _ChunkBuilder, job: Any) -> None:
+        crc, compressed = job.result() if isinstance(job, Future) else job
         size = chunk.size
-        crc = 0
-        for piece in pieces:
-            crc = zlib.crc32(piece, crc)
-        if self._cctx is not None:
-            stream = self._cctx.compressobj(size=size)
-            compressed = b"".join([stream.compress(p) for p in pieces] + [stream.flush()])
-        else:
-            compressed = b"".join(pieces)
         start, end = int(chunk.start_time), int(chunk.end_time)
         body = (struct.pack("<QQQI", start, end, size, crc) + _string(self.compression)
                 + struct.pack("<Q", len(compressed)))
@@ -637,7 +712,6 @@ class BulkMcapWriter:
         if self._start_time is None or start < self._start_time:
             self._start_time = start
         self._end_time = max(self._end_time, end)
-        chunk.reset()
         self._stream.flush()
         if self.fsync and hasattr(self._stream, "fileno"):
             os.fsync(self._stream.fileno())
@@ -657,7 +731,9 @@ class BulkMcapWriter:
             parts.append(data)
             at += len(data)
 
-        counts = {ch: c for ch, c in enumerate(self._counts) if c}
+        totals = np.asarray(self._counts, dtype=np.int64)
+        totals[:self._bulk_counts.shape[0]] += self._bulk_counts
+        counts = {ch: int(c) for ch, c in enumerate(totals.tolist()) if c}
         counts_map = b"".join(struct.pack("<HQ", ch, c) for ch, c in counts.items())
         statistics = _record(OP_STATISTICS, struct.pack(
             "<QHIIIIQQ", self.message_count, len(self._schemas), len(self._channels),

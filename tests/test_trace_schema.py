@@ -95,7 +95,7 @@ def _encode(name: str, values: dict) -> bytes:
             if len(value) == 0:
                 continue
             data = np.asarray(value, dtype="<f8").tobytes()
-            out += lay.tag + schemas._varint(len(data)) + data
+            out += lay.tag + schemas.varint(len(data)) + data
         else:
             out += lay.tag + np.asarray(value, dtype=lay.dtype).tobytes()
     return bytes(out)

@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 from google.protobuf.descriptor import Descriptor, FieldDescriptor
+from netsim.traces.schemas import varint as _varint
 
 __all__ = ["BulkEncoder", "UnsupportedField"]
 
@@ -53,18 +54,6 @@ _VARINT = {
 
 class UnsupportedField(ValueError):
     """A field that has no fixed-width encoding (string, bytes, message, map ...)."""
-
-
-def _varint(value: int) -> bytes:
-    out = bytearray()
-    while True:
-        byte = value & 0x7F
-        value >>= 7
-        if value:
-            out.append(byte | 0x80)
-        else:
-            out.append(byte)
-            return bytes(out)
 
 
 def _padded_varints(values: np.ndarray, width: int, zigzag: bool, bits: int) -> np.ndarray:

@@ -61,6 +61,7 @@ from typing import Any, NamedTuple
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 __all__ = [
+    "varint",
     "FORMAT",
     "TRACE_FORMAT",
     "PACKAGE",
@@ -324,7 +325,8 @@ _WIRE = {  # protobuf type -> (wire type, width, dtype)
 }
 
 
-def _varint(value: int) -> bytes:
+def varint(value: int) -> bytes:
+    """The protobuf base-128 varint encoding of a non-negative integer (a field's tag)."""
     out = bytearray()
     while True:
         byte = value & 0x7F
@@ -349,7 +351,7 @@ def field_layout(type_name: str) -> tuple[FieldLayout, ...]:
             wire, width, dtype = 2, 8, "<f8"
         else:
             wire, width, dtype = _WIRE[field.type]
-        out.append(FieldLayout(field.name, field.number, _varint(field.number << 3 | wire),
+        out.append(FieldLayout(field.name, field.number, varint(field.number << 3 | wire),
                                width, dtype, field.label == _MANY))
     return tuple(out)
 

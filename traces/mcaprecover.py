@@ -37,6 +37,7 @@ from netsim.traces.bulkmcap import (
     OP_METADATA,
     OP_SCHEMA,
 )
+from netsim.traces.reader import _next_chunk
 
 __all__ = ["RawMessage", "ChunkRead", "Recovered", "iter_chunks", "recover",
            "chunk_messages"]
@@ -196,29 +197,6 @@ def _summary_chunks(data: Any, size: int) -> list[tuple[int, int]] | None:
     except struct.error:
         return None
     return sorted(out)
-
-
-def _plausible_chunk(data: Any, pos: int, size: int) -> bool:
-    if pos + 9 + _CHUNK_FIXED + 8 > size or data[pos] != OP_CHUNK:
-        return False
-    (length,) = struct.unpack_from("<Q", data, pos + 1)
-    if pos + 9 + length > size or length < _CHUNK_FIXED + 8:
-        return False
-    start, end, _u, _c, clen = struct.unpack_from("<QQQII", data, pos + 9)
-    if clen > 8 or start > end:
-        return False
-    (rlen,) = struct.unpack_from("<Q", data, pos + 9 + _CHUNK_FIXED + clen)
-    return rlen == length - _CHUNK_FIXED - clen - 8
-
-
-def _next_chunk(data: Any, pos: int, size: int) -> int | None:
-    while True:
-        pos = data.find(bytes([OP_CHUNK]), pos, size)
-        if pos < 0:
-            return None
-        if _plausible_chunk(data, pos, size):
-            return pos
-        pos += 1
 
 
 def _scan(data: Any, size: int, top: list[tuple[int, bytes]]) -> Iterator[ChunkRead | bool]:

@@ -769,20 +769,25 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
             "network.topology",
             f"unknown topology {topology!r}; expected cycle, random, geometric or edges",
         )
+    _check_weight_scheme(weights_spec)
     if weights_spec == "random":
         P = random_weights(graph, seed)
     elif weights_spec == "uniform":
         P = uniform_weights(graph)
-    elif weights_spec == "lazy-metropolis":
-        P = lazy_metropolis_weights(graph)
     else:
+        P = lazy_metropolis_weights(graph)
+    _check_weights(P, "network.edges" if topology == "edges" else "network")
+    return P
+
+
+def _check_weight_scheme(weights_spec: Any) -> None:
+    """``network.weights`` names a scheme both the dense and the sparse path build."""
+    if weights_spec not in ("random", "uniform", "lazy-metropolis"):
         raise ScenarioError(
             "network.weights",
             f"unknown scheme {weights_spec!r}; expected random, uniform or lazy-metropolis "
             "(or give the matrix network.P)",
         )
-    _check_weights(P, "network.edges" if topology == "edges" else "network")
-    return P
 
 
 def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
@@ -832,18 +837,13 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
             "network.topology",
             f"unknown topology {topology!r}; expected cycle, random, geometric or edges",
         )
+    _check_weight_scheme(weights_spec)
     if weights_spec == "random":
         P = sparse_random_weights(agents, src, dst, seed)
     elif weights_spec == "uniform":
         P = sparse_uniform_weights(agents, src, dst)
-    elif weights_spec == "lazy-metropolis":
-        P = sparse_lazy_metropolis_weights(agents, src, dst)
     else:
-        raise ScenarioError(
-            "network.weights",
-            f"unknown scheme {weights_spec!r}; expected random, uniform or lazy-metropolis "
-            "(or give the matrix network.P)",
-        )
+        P = sparse_lazy_metropolis_weights(agents, src, dst)
     _check_weights(P, "network.edges" if topology == "edges" else "network")
     return P
 

@@ -288,11 +288,12 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     """Write one trial's trace from the batch arrays, in bulk (no observer calls).
 
     The messages are those :func:`replay_trial` makes the recorder write, with the same
-    topics, fields, times and per-topic order; each type's messages are encoded at once
-    straight into MCAP Message records (:meth:`netsim.traces.bulkproto.BulkEncoder.records`)
-    and written per window of steps (one chunk each: ``flush_every`` steps, or fewer if
-    a chunk would exceed ``chunk_size``, as the recorder closes chunks for the event
-    kernel, so that a damaged chunk loses as few steps as there; each chunk is
+    topics, fields, times and per-topic order; per window of steps, each type's messages
+    are encoded at once straight into MCAP Message records
+    (:meth:`netsim.traces.bulkproto.BulkEncoder.records`) and written (a window is
+    about one chunk of ``chunk_size`` bytes; the recorder's ``flush_every``, which
+    bounds what a crash loses while the event kernel is still running, does not apply:
+    the trial is already computed; each chunk is
     compressed on a background thread while the next window is added, and written and
     flushed as soon as it is done, at most two chunks behind) through the recorder's
     bulk writer (:meth:`netsim.traces.recorder.TraceRecorder.bulk_channels`). Within a
@@ -530,39 +531,44 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
 
 
 def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
-    """Write the groups window by window (about one chunk each), flushing each: every
-    group is encoded once into Message records, each window adds a slice of them."""
+    """Write the groups window by window (about one chunk each), flushing each: each
+    window encodes its slice of every group into Message records and adds them (so
+    the encoded records in memory are about a chunk, not the whole trace)."""
     writer = recorder.writer
-    # windows as the recorder closes chunks for the event kernel: every flush_every
-    # steps, or sooner when a chunk would exceed chunk_size
-    chunk = int(writer.chunk_size)
+    # windows of about one chunk (chunk_size bytes of records): the whole trial is
+    # written at once, so a window by steps (the kernel's flush_every, which bounds what
+    # a crash loses while a slow run is still going) would only add chunks, each with
+    # its compression call, CRC and message indexes (at N = 4 the 25-step windows made
+    # the trace 1.8x slower to write: benchmarks/trace_throughput.py)
     encoders = [_encoder(g.type_name, g.lengths) for g in groups]
     total = sum((e.payload_length + 31) * len(g.when) for g, e in zip(groups, encoders,
                                                                        strict=True))
+    chunk = int(writer.chunk_size)
     per_step = max(1.0, total / (end + 1))
-    window = max(1, min(int(getattr(recorder, "flush_every", 25)), int(chunk // per_step)))
+    window = max(1, int(chunk // per_step))
     edges = np.arange(0, end + 1 + window, window, dtype=float)
     edges[-1] = np.inf
     packed = []
     for g, encoder in zip(groups, encoders, strict=True):
-        if not len(g.when):
+        rows = len(g.when)
+        if not rows:
             continue
         ids = recorder.bulk_channels(g.type_name, g.topics, g.topic)[g.topic]
-        records, _ = encoder.records(g.columns, ids, g.sequence, g.log_time, g.publish_time,
-                                     n=len(g.when))
-        size = 31 + encoder.payload_length
         cuts = np.searchsorted(g.when, edges, side="left")
-        packed.append((ids, g.log_time, records, size, cuts))
+        packed.append((g, encoder, ids, cuts, rows))
         recorder._last_log_time = max(recorder._last_log_time, int(g.log_time.max()))
     for w in range(len(edges) - 1):
         if w:
             interrupt.check()
-        for ids, log_time, records, size, cuts in packed:
+        for g, encoder, ids, cuts, rows in packed:
             lo, hi = int(cuts[w]), int(cuts[w + 1])
             if hi > lo:
-                writer.add_records(records[lo * size:hi * size],
-                                   np.arange(hi - lo, dtype=np.int64) * size,
-                                   ids[lo:hi], log_time[lo:hi])
+                columns = {key: v[lo:hi] if np.ndim(v) and np.shape(v)[0] == rows else v
+                           for key, v in g.columns.items()}
+                records, starts = encoder.records(columns, ids[lo:hi], g.sequence[lo:hi],
+                                                  g.log_time[lo:hi], g.publish_time[lo:hi],
+                                                  n=hi - lo)
+                writer.add_records(records, starts, ids[lo:hi], g.log_time[lo:hi])
         recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 2 < len(edges) else end
         # chunks compress in the background while the next window is added; the last
         # window waits for all of them

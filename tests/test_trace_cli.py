@@ -80,8 +80,12 @@ def test_ctrl_c_mid_run_leaves_a_finished_file_and_exits_nonzero(tmp_path):
         time.sleep(0.05)
     assert trace.exists(), "the run never started writing its trace"
     # the vectorised engine writes the trace in bulk once the batch is done (60,000
-    # steps in well under a second): interrupt while it writes
-    time.sleep(0.05)
+    # steps, about 50 MB, in under a second): interrupt while it writes, once its first
+    # chunks are in the file
+    while (trace.stat().st_size < 2_000_000 and proc.poll() is None
+           and time.time() < deadline):
+        time.sleep(0.002)
+    assert proc.poll() is None, "the run ended before it could be interrupted"
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=60)
     assert proc.returncode == 130, err

@@ -617,3 +617,20 @@ def test_recorder_rejects_events_out_of_time_order(tmp_path):
         rec.on_plant(7, np.zeros(2), [np.zeros(1)])
         with pytest.raises(RuntimeError, match="time order"):
             rec.on_sent(Msg())
+
+
+@pytest.mark.parametrize("array", [
+    np.eye(3), np.zeros((0, 4)), np.arange(5, dtype=np.int64), np.float64(2.5),
+    np.ones((2, 3), dtype=np.float32), np.asfortranarray(np.arange(12.0).reshape(3, 4)),
+    np.array([True, False]),
+])
+def test_matrix_attachments_are_the_bytes_np_save_writes(array):
+    import io
+
+    from netsim.traces.recorder import _npy_bytes
+
+    expected = io.BytesIO()
+    np.save(expected, array if array.flags.c_contiguous else np.ascontiguousarray(array),
+            allow_pickle=False)
+    assert _npy_bytes(array) == _npy_bytes(array) == expected.getvalue()
+    assert np.array_equal(np.load(io.BytesIO(_npy_bytes(array))), array)

@@ -62,6 +62,7 @@ interruption in ``run_status``.
 
 from __future__ import annotations
 
+import functools
 import io
 import json
 import math
@@ -216,10 +217,26 @@ def run_matrices(scenario: Any, gains: Any = None) -> dict[str, np.ndarray]:
     return out
 
 
-def _npy_bytes(array: np.ndarray) -> bytes:
+@functools.lru_cache(maxsize=256)
+def _npy_header(descr: str, shape: tuple[int, ...]) -> bytes:
+    """The .npy header (format 1.0, C order) of an array of ``descr`` and ``shape``."""
     buffer = io.BytesIO()
-    np.save(buffer, np.asarray(array), allow_pickle=False)
+    np.lib.format.write_array_header_1_0(
+        buffer, {"descr": descr, "fortran_order": False, "shape": shape})
     return buffer.getvalue()
+
+
+def _npy_bytes(array: np.ndarray) -> bytes:
+    """``array`` as a .npy file (the bytes ``np.save`` writes for a C-ordered array;
+    the header is built once per dtype and shape: a trace has one attachment per
+    matrix, 133 at N = 32)."""
+    array = np.asarray(array)
+    if not array.flags.c_contiguous:  # (ascontiguousarray would make a 0-d array 1-d)
+        array = np.ascontiguousarray(array)
+    if array.dtype.hasobject:
+        raise ValueError("object arrays cannot be stored as .npy attachments")
+    return _npy_header(np.lib.format.dtype_to_descr(array.dtype), array.shape) + \
+        array.tobytes()
 
 
 #: zstd level of trace chunks. Level 1 against level 3 on the traces of

@@ -50,6 +50,8 @@ __all__ = [
     "vectorised_batch_bytes",
     "kernel_trial_bytes",
     "trace_bytes",
+    "trace_channels",
+    "MCAP_MAX_CHANNELS",
     "eig_cost",
     "check_run",
     "guard_run",
@@ -326,6 +328,18 @@ def trace_bytes(scenario: Any, steps: int) -> int:
     return (int(steps) + 1) * ((1 + N + L) * (8 * n + 64) + 8 * m)
 
 
+#: Channels one MCAP file can hold (16-bit channel ids).
+MCAP_MAX_CHANNELS = 65536
+
+
+def trace_channels(scenario: Any) -> int:
+    """Most channels (topics) one trace of ``scenario`` can need: ``/plant/state``, one
+    per sensor, three per agent (estimate, update, freshness) and three per link
+    (sent, delivered, dropped); :mod:`netsim.traces.schemas` names them."""
+    _, N, L, _, _, _ = _sizes(scenario)
+    return 1 + len(scenario.plant.C) + 3 * N + 3 * L
+
+
 def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,
               keep_estimates: bool = False) -> tuple[int, int]:
     """(peak bytes, bytes of one trial) of a Monte Carlo run of one family.
@@ -409,6 +423,14 @@ def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
               else "run.steps", trials_name="--trials" if trials is not None
               else "run.trials")
     if trace is not None:
+        channels = trace_channels(scenario)
+        if channels > MCAP_MAX_CHANNELS:
+            _, N, L, _, _, _ = _sizes(scenario)
+            raise ResourceError(
+                f"--trace {trace}: a trace of N = {N} agents and {L} links has up to "
+                f"{channels:,} topics, more than the {MCAP_MAX_CHANNELS:,} channels an MCAP "
+                f"file can hold; trace a smaller network, or run this one without --trace",
+                "--trace", channels, MCAP_MAX_CHANNELS)
         folder = Path(trace).resolve().parent
         if folder.is_dir():
             need = trace_bytes(scenario, K) * M * max(1, len(engines))

@@ -49,8 +49,16 @@ _STEP = 1  # plant, agents' updates and sends
 _LATE = 2  # deliveries scheduled at this instant (zero latency)
 
 
-def _neighbours(P: np.ndarray) -> list[list[int]]:
-    """In-neighbours j != i with p_ij > 0 of every agent, sorted (the estimators')."""
+def _neighbours(P: Any) -> list[list[int]]:
+    """In-neighbours j != i with p_ij != 0 of every agent, sorted (the estimators');
+    ``P`` dense (N, N) or scipy sparse (the weights of large networks)."""
+    if hasattr(P, "tocsr"):
+        csr = P.tocsr()
+        csr.sort_indices()
+        return [[int(j) for j, w in zip(csr.indices[csr.indptr[i]:csr.indptr[i + 1]],
+                                        csr.data[csr.indptr[i]:csr.indptr[i + 1]],
+                                        strict=True) if j != i and w != 0]
+                for i in range(csr.shape[0])]
     return [[int(j) for j in np.flatnonzero(P[i]) if j != i] for i in range(P.shape[0])]
 
 
@@ -162,7 +170,7 @@ def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
     out_links: list[list[int]] = [[] for _ in range(n_agents)]
     for l_, (j, _) in enumerate(links):
         out_links[j].append(l_)
-    neighbours = _neighbours(np.asarray(scenario.weights))
+    neighbours = _neighbours(scenario.weights)
     held_links = [[link_index[(j, i)] if (j, i) in link_index else -1 for j in nb]
                   for i, nb in enumerate(neighbours)]
 
@@ -391,7 +399,7 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     link_index = {link: q for q, link in enumerate(schedule.links)}
     send = np.asarray(schedule.send_steps)
     n_sends = int(np.searchsorted(send, end, side="right"))
-    neighbours = _neighbours(np.asarray(scenario.weights))
+    neighbours = _neighbours(scenario.weights)
     is_update = np.zeros(end + 1, dtype=bool)
     up = np.asarray(batch.updated, dtype=np.int64)
     is_update[up[up <= end]] = True

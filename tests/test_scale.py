@@ -271,3 +271,73 @@ def test_default_gain_method_by_size():
     small = _toml(40, "geometric", "random", "homogeneous")  # N n = 240
     del small["gains"]
     assert scn.parse_scenario(small).gains.method == "lmi"
+
+
+def test_trace_of_a_sparse_network_equals_the_dense_ones(monkeypatch, tmp_path):
+    """A network with sparse weights traces as its dense twin: the same messages on
+    the same topics, P stored dense; no trace needs more channels than the bound the
+    command line checks (netsim.budget.trace_channels)."""
+    from mcap.reader import make_reader
+    from netsim.traces.reader import read_trace
+
+    from netsim.budget import trace_channels
+    from netsim.runner import run_monte_carlo
+    from netsim.vectrace import _neighbours
+
+    data = _toml(24, "geometric", "random", "heterogeneous")
+    data["run"]["trials"] = 1
+    dense = scn.parse_scenario(data)
+    monkeypatch.setattr(scn, "SPARSE_MIN_AGENTS", 2)
+    sparse = scn.parse_scenario(data)
+    assert sp.issparse(sparse.weights)
+    assert _neighbours(sparse.weights) == _neighbours(dense.weights)
+    gains = design_local(dense.weights, dense.plant.A, dense.plant.C, gamma=0.6)
+    traces = {}
+    for name, scenario in (("dense", dense), ("sparse", sparse)):
+        path = tmp_path / f"{name}.mcap"
+        run_monte_carlo(scenario, steps=12, gains=gains, trace=str(path),
+                        engine="vectorised")
+        [written] = sorted(tmp_path.glob(f"{name}*.mcap"))
+        traces[name] = read_trace(written)
+        with open(written, "rb") as f:
+            channels = len(make_reader(f).get_summary().channels)
+        assert channels <= trace_channels(scenario)
+    a, b = traces["dense"], traces["sparse"]
+    np.testing.assert_array_equal(b.matrices["P"], sparse.dense_weights())
+    assert a.counts == b.counts
+    for topic, records in a.records.items():  # (weights equal to round-off)
+        other = b.records[topic]
+        if topic.endswith("/estimate"):
+            np.testing.assert_allclose([list(r.message.estimate) for r in other],
+                                       [list(r.message.estimate) for r in records],
+                                       rtol=1e-12, atol=1e-12)
+        elif "/link_" in topic:  # every field but the payload (an estimate) exactly
+            def fields(message):
+                return {f.name: v for f, v in message.ListFields() if f.name != "payload"}
+            assert ([fields(r.message) for r in other]
+                    == [fields(r.message) for r in records])
+
+
+def test_trace_with_more_topics_than_mcap_channels_is_refused_in_one_line(
+        monkeypatch, tmp_path, capsys):
+    import json
+
+    from netsim import budget
+    from netsim.cli import main
+
+    data = _toml(24, "cycle", "uniform", "homogeneous")
+    path = tmp_path / "s.toml"
+    # (JSON scalars and arrays of numbers are TOML too)
+    path.write_text("\n".join(
+        f"{k} = {json.dumps(v)}" for k, v in data.items() if not isinstance(v, dict))
+        + "\n" + "\n".join(f"[{table}]\n" + "\n".join(f"{k} = {json.dumps(v)}"
+                                                     for k, v in body.items())
+                            for table, body in data.items() if isinstance(body, dict)))
+    bound = budget.trace_channels(scn.load_scenario(path))
+    assert bound == 1 + 24 + 3 * 24 + 3 * 24  # sensors, agents, cycle links
+    monkeypatch.setattr(budget, "MCAP_MAX_CHANNELS", bound - 1)
+    trace = tmp_path / "t.mcap"
+    assert main(["run", str(path), "--trace", str(trace), "--no-progress"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "--trace" in err[0] and f"{bound:,} topics" in err[0]
+    assert not list(tmp_path.glob("t*.mcap"))

@@ -634,3 +634,38 @@ def test_matrix_attachments_are_the_bytes_np_save_writes(array):
             allow_pickle=False)
     assert _npy_bytes(array) == _npy_bytes(array) == expected.getvalue()
     assert np.array_equal(np.load(io.BytesIO(_npy_bytes(array))), array)
+
+
+@pytest.mark.parametrize("names", [
+    ["A", "C_0", "C_1", "C_2", "K_0", "K_1", "P", "R_0", "x0_mean"],
+    ["C_0", "C_2", "C_3", "C_4", "K_7"], [], ["Q"],
+])
+def test_matrix_names_fold_into_ranges_that_unfold_to_them(names):
+    from netsim.traces.inspect import _name_ranges
+
+    unfolded = []
+    for part in _name_ranges(names):
+        for piece in part.split(", "):
+            if " .. " in piece:
+                lo, hi = piece.split(" .. ")
+                prefix = lo.rpartition("_")[0]
+                unfolded += [f"{prefix}_{i}" for i in range(int(lo.rpartition("_")[2]),
+                                                            int(hi.rpartition("_")[2]) + 1)]
+            else:
+                unfolded.append(piece)
+    assert unfolded == names
+
+
+def test_inspect_text_shows_the_first_rows_and_says_how_many_are_left(recorded,
+                                                                       monkeypatch):
+    from netsim.traces import inspect as ins
+
+    path, _, _ = recorded
+    report = inspect_trace(read_trace(path))
+    monkeypatch.setattr(ins, "TEXT_ROWS", 3)
+    lines = report.format_text().splitlines()
+    for what, table in (("topics", report.topics), ("links", report.links),
+                        ("agents", report.agents)):
+        if len(table) > 3:
+            assert f"  ... and {len(table) - 3} more {what} (all of them: --json)" in lines
+    assert len(report.to_dict()["topics"]) == len(report.topics)  # --json: all

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -212,7 +213,7 @@ class InspectReport:
                  else f"{self.first_step}..{self.last_step} ({self.steps_recorded} recorded)")
         lines.append(f"  steps {steps}   agents {self.n_agents}   states {self.n_states}")
         if self.matrices:
-            lines.append(f"  matrices {', '.join(self.matrices)}")
+            lines.append(f"  matrices {', '.join(_name_ranges(self.matrices))}")
         t = self.totals
         lines.append(
             f"  messages sent {t['sent']}, delivered {t['delivered']} "
@@ -221,7 +222,7 @@ class InspectReport:
         )
         lines.append("topics")
         width = max((len(name) for name in self.topics), default=10)
-        for name, count in self.topics.items():
+        for name, count in _first(self.topics.items(), lines, "topics"):
             lines.append(f"  {name:<{width}}  {count:>8}")
         if self.links:
             lines.append("links (delay_steps of delivered messages; r = effective delay used)")
@@ -229,7 +230,7 @@ class InspectReport:
                 f"  {'link':<8}{'sent':>6}{'deliv':>7}{'drop':>6}{'reord':>7}{'fly':>5}"
                 f"{'min':>5}{'mean':>7}{'max':>5}  histogram d:count   | r min/mean/max"
             )
-            for name, s in self.links.items():
+            for name, s in _first(self.links.items(), lines, "links"):
                 d, r = s.delay, s.effective_delay
                 hist = " ".join(f"{k}:{v}" for k, v in d.get("histogram", {}).items()) or "-"
                 rtxt = ("-" if not r.get("count")
@@ -242,7 +243,7 @@ class InspectReport:
         dropping = {name: s for name, s in self.links.items() if s.drop_reasons}
         if dropping:
             lines.append("drop reasons (messages lost per link and cause)")
-            for name, s in dropping.items():
+            for name, s in _first(dropping.items(), lines, "links"):
                 causes = ", ".join(f"{reason} {count}" for reason, count
                                    in sorted(s.drop_reasons.items()))
                 lines.append(f"  {name:<8}{causes}")
@@ -250,7 +251,7 @@ class InspectReport:
             lines.append("agents (squared error ||x-hat - x||^2)")
             lines.append(f"  {'agent':<6}{'updates':>8}{'mse':>12}{'tail mse':>12}"
                          f"{'final':>12}{'max':>12}")
-            for i, a in self.agents.items():
+            for i, a in _first(self.agents.items(), lines, "agents"):
                 lines.append(
                     f"  {i:<6}{a.updates:>8}{_fmt(a.mse, 4, True):>12}"
                     f"{_fmt(a.tail_mse, 4, True):>12}{_fmt(a.final_squared_error, 4, True):>12}"
@@ -415,3 +416,50 @@ def _freshness_summary(trace: Trace) -> dict[int, list[int | None]] | None:
 def _topic_key(name: str) -> tuple:
     """Sort topics/names with embedded numbers numerically."""
     return tuple(int(p) if p.isdigit() else p for p in re.split(r"(\d+)", name))
+
+
+#: Rows of one table the text report shows (``--json`` has them all).
+TEXT_ROWS = 40
+
+
+def _first(items: Any, lines: list[str], what: str, limit: int | None = None) -> Any:
+    """The first ``limit`` (default :data:`TEXT_ROWS`) of ``items``; when there are
+    more, a line saying how many were left out is appended to ``lines`` after them."""
+    items = list(items)
+    limit = TEXT_ROWS if limit is None else limit
+    yield from items[:limit]
+    if len(items) > limit:
+        lines.append(f"  ... and {len(items) - limit} more {what} (all of them: --json)")
+
+
+def _name_ranges(names: Sequence[str]) -> list[str]:
+    """Names with runs of one prefix and consecutive indices folded: ``C_0 .. C_31``."""
+    out: list[str] = []
+    run: tuple[str, int, int] | None = None
+    for name in names:
+        prefix, _, index = name.rpartition("_")
+        if prefix and index.isdigit():
+            i = int(index)
+            if run is not None and run[0] == prefix and run[2] == i - 1:
+                run = (prefix, run[1], i)
+                continue
+            if run is not None:
+                out.append(_fold(run))
+            run = (prefix, i, i)
+            continue
+        if run is not None:
+            out.append(_fold(run))
+            run = None
+        out.append(name)
+    if run is not None:
+        out.append(_fold(run))
+    return out
+
+
+def _fold(run: tuple[str, int, int]) -> str:
+    prefix, lo, hi = run
+    if hi == lo:
+        return f"{prefix}_{lo}"
+    if hi == lo + 1:
+        return f"{prefix}_{lo}, {prefix}_{hi}"
+    return f"{prefix}_{lo} .. {prefix}_{hi}"

@@ -210,7 +210,10 @@ def run_matrices(scenario: Any, gains: Any = None) -> dict[str, np.ndarray]:
     out.update({f"R_{i}": np.asarray(R) for i, R in enumerate(plant.R)})
     out["x0_mean"] = np.asarray(plant.x0_mean)
     out["x0_cov"] = np.asarray(plant.x0_cov)
-    out["P"] = np.asarray(scenario.weights)
+    weights = scenario.weights
+    if hasattr(weights, "toarray"):  # sparse (large networks): stored dense, as P.npy
+        weights = scenario.densified("a trace (it stores the consensus matrix P)").weights
+    out["P"] = np.asarray(weights)
     if gains is not None:
         out.update({f"K_{i}": np.asarray(K) for i, K in enumerate(gains.K)})
         out.update({f"L_{i}": np.asarray(L) for i, L in enumerate(gains.L)})

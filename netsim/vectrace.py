@@ -538,10 +538,15 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
                          ll[m], when, log_time, publish[m], seq[m], columns, {}, order))
 
 
+#: The bulk path encodes the records of about this many bytes of windows at once.
+ENCODE_BLOCK_BYTES = 8 * 1024 * 1024
+
+
 def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
-    """Write the groups window by window (about one chunk each), flushing each: each
-    window encodes its slice of every group into Message records and adds them (so
-    the encoded records in memory are about a chunk, not the whole trace)."""
+    """Write the groups window by window (about one chunk each), flushing each: every
+    block of windows (about :data:`ENCODE_BLOCK_BYTES`) encodes its slice of every
+    group into Message records, each window adds its part (so the encoded records in
+    memory are about a block, not the whole trace)."""
     writer = recorder.writer
     # windows of about one chunk (chunk_size bytes of records): the whole trial is
     # written at once, so a window by steps (the kernel's flush_every, which bounds what
@@ -565,19 +570,33 @@ def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
         cuts = np.searchsorted(g.when, edges, side="left")
         packed.append((g, encoder, ids, cuts, rows))
         recorder._last_log_time = max(recorder._last_log_time, int(g.log_time.max()))
-    for w in range(len(edges) - 1):
-        if w:
-            interrupt.check()
+    windows = len(edges) - 1
+    # encoded a block of windows at a time: one encoder call per type and block (each
+    # call costs tens of microseconds), records in memory at most ENCODE_BLOCK_BYTES
+    block = max(1, ENCODE_BLOCK_BYTES // max(1, chunk))
+    for first in range(0, windows, block):
+        last = min(windows, first + block)
+        encoded = []
         for g, encoder, ids, cuts, rows in packed:
-            lo, hi = int(cuts[w]), int(cuts[w + 1])
+            lo, hi = int(cuts[first]), int(cuts[last])
             if hi > lo:
                 columns = {key: v[lo:hi] if np.ndim(v) and np.shape(v)[0] == rows else v
                            for key, v in g.columns.items()}
-                records, starts = encoder.records(columns, ids[lo:hi], g.sequence[lo:hi],
-                                                  g.log_time[lo:hi], g.publish_time[lo:hi],
-                                                  n=hi - lo)
-                writer.add_records(records, starts, ids[lo:hi], g.log_time[lo:hi])
-        recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 2 < len(edges) else end
-        # chunks compress in the background while the next window is added; the last
-        # window waits for all of them
-        recorder.flush(wait=w + 2 >= len(edges))
+                records, _ = encoder.records(columns, ids[lo:hi], g.sequence[lo:hi],
+                                             g.log_time[lo:hi], g.publish_time[lo:hi],
+                                             n=hi - lo)
+                encoded.append((records, 31 + encoder.payload_length, lo, ids, g.log_time,
+                                cuts))
+        for w in range(first, last):
+            if w:
+                interrupt.check()
+            for records, size, base, ids, log_time, cuts in encoded:
+                lo, hi = int(cuts[w]), int(cuts[w + 1])
+                if hi > lo:
+                    writer.add_records(records[(lo - base) * size:(hi - base) * size],
+                                       np.arange(hi - lo, dtype=np.int64) * size,
+                                       ids[lo:hi], log_time[lo:hi])
+            recorder.last_step = min(end, int(edges[w + 1]) - 1) if w + 1 < windows else end
+            # chunks compress in the background while the next window is added; the
+            # last window waits for all of them
+            recorder.flush(wait=w + 1 >= windows)

@@ -174,14 +174,15 @@ def rounding_bound(design, A, C, adopted, zs, xs, *, same_inputs=False):
     the adoption pattern (compared exactly before this is used), so their difference is
     sum_t Phi(k, t) (delta'_t - delta''_t + B_t (y'_{t-1} - y''_{t-1})),
     Phi(k, t) = F_k ... F_{t+1}, delta_t the rounding of step t of one run. Standard
-    dot-product bounds (Higham, Thm 3.5) with gamma = gamma_{n+2m+1}, m the most outputs
-    of an agent (n + m products per entry, any summation order, plus the rounding of
-    forming A_jj - L_j C_jj), give |delta_t| <= gamma (G_t |Z[t-1]| + |L| |y[t-1]|),
-    G_t = |A-bar| + |L||C-bar| on the source rows and |F_t| elsewhere; the two plants
-    differ by |dx_k| <= sum_s |A^(k-s)| 2 gamma_n |A| |x[s-1]| and their outputs by
+    dot-product bounds (Higham, Accuracy and Stability, sec. 3.1) with
+    gamma = gamma_{n+2m+1}, m the most outputs of an agent (n + m products per entry, any
+    summation order, plus the rounding of forming A_jj - L_j C_jj), give
+    |delta_t| <= gamma (G_t |Z[t-1]| + |L| |y[t-1]|), G_t = |A-bar| + |L||C-bar| on the
+    source rows and |F_t| elsewhere; the two plants differ by
+    |dx_k| <= sum_s |A^(k-s)| 2 gamma_n |A| |x[s-1]| and their outputs by
     |C| |dx| + 2 gamma_n |C| |x|. Hence
     |Z'[k] - Z''[k]| <= sum_{t<=k} |Phi(k, t)| (2 gamma (G_t |Z[t-1]| + |L||y[t-1]|)
-    + |L| |dy[t-1]|), up to O(u^2) terms. The products Phi are formed exactly as the
+    + |L| |dy[t-1]|), up to O(u^2) terms. The products Phi are formed as the
     observer propagates (a nilpotent deadbeat loop is not bounded by powers of |F|), so
     the bound follows the actual amplification of the gains (||L|| up to ~1e3 and
     transients up to ~1e6 in the drawn cases).

@@ -185,7 +185,7 @@ def rounding_bound(design, A, C, adopted, zs, xs, *, same_inputs=False):
     + |L| |dy[t-1]|), up to O(u^2) terms. The products Phi are formed as the
     observer propagates (a nilpotent deadbeat loop is not bounded by powers of |F|), so
     the bound follows the actual amplification of the gains (||L|| up to ~1e3 and
-    transients up to ~1e6 in the drawn cases).
+    gains.conditioning up to MAX_CONDITIONING = 1e6 in the drawn cases).
 
     Returns an array of shape (K+1, N, n), zs (K+1, N, n) and xs (K+1, n) being one run's
     values and ``adopted`` (K+1, N, N) the adoptions (-1: own). ``same_inputs``: both

@@ -431,6 +431,16 @@ def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
                 f"{channels:,} topics, more than the {MCAP_MAX_CHANNELS:,} channels an MCAP "
                 f"file can hold; trace a smaller network, or run this one without --trace",
                 "--trace", channels, MCAP_MAX_CHANNELS)
+        if hasattr(scenario.weights, "toarray"):  # sparse: the trace stores P dense
+            from netsim.models.scenario import DENSE_WEIGHTS_MAX_AGENTS
+
+            _, N, _, _, _, _ = _sizes(scenario)
+            if N > DENSE_WEIGHTS_MAX_AGENTS:
+                raise ResourceError(
+                    f"--trace {trace}: a trace stores the N x N consensus matrix P dense "
+                    f"({format_bytes(8 * N * N)} at N = {N}); traces go up to "
+                    f"{DENSE_WEIGHTS_MAX_AGENTS:,} agents; run this network without --trace",
+                    "--trace", 8 * N * N, 8 * DENSE_WEIGHTS_MAX_AGENTS ** 2)
         folder = Path(trace).resolve().parent
         if folder.is_dir():
             need = trace_bytes(scenario, K) * M * max(1, len(engines))

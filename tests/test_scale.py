@@ -341,3 +341,16 @@ def test_trace_with_more_topics_than_mcap_channels_is_refused_in_one_line(
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--trace" in err[0] and f"{bound:,} topics" in err[0]
     assert not list(tmp_path.glob("t*.mcap"))
+
+
+def test_trace_of_a_network_too_large_for_a_dense_P_is_refused_up_front(monkeypatch):
+    from netsim import budget
+
+    monkeypatch.setattr(scn, "SPARSE_MIN_AGENTS", 2)
+    scenario = scn.parse_scenario(_toml(24, "cycle", "uniform", "homogeneous"))
+    budget.guard_run(scenario, 5, 1, "vectorised", ["compensated"], trace="t.mcap")
+    monkeypatch.setattr(scn, "DENSE_WEIGHTS_MAX_AGENTS", 23)
+    with pytest.raises(budget.ResourceError) as exc:
+        budget.guard_run(scenario, 5, 1, "vectorised", ["compensated"], trace="t.mcap")
+    assert "--trace t.mcap" in str(exc.value) and "\n" not in str(exc.value)
+    assert "N = 24" in str(exc.value)

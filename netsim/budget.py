@@ -51,6 +51,7 @@ __all__ = [
     "kernel_trial_bytes",
     "trace_bytes",
     "trace_channels",
+    "check_trace_size",
     "MCAP_MAX_CHANNELS",
     "eig_cost",
     "check_run",
@@ -340,6 +341,31 @@ def trace_channels(scenario: Any) -> int:
     return 1 + len(scenario.plant.C) + 3 * N + 3 * L
 
 
+def check_trace_size(scenario: Any, trace: str | os.PathLike[str]) -> None:
+    """Refuse (:class:`ResourceError`, one line naming ``--trace``) a trace of
+    ``scenario`` that cannot be written: more topics than MCAP's channels
+    (:func:`trace_channels`), or sparse weights beyond the dense-P limit (a trace stores
+    P as a dense ``.npy``). Run before the simulation, so nothing computed is lost."""
+    channels = trace_channels(scenario)
+    if channels > MCAP_MAX_CHANNELS:
+        _, N, L, _, _, _ = _sizes(scenario)
+        raise ResourceError(
+            f"--trace {trace}: a trace of N = {N} agents and {L} links has up to "
+            f"{channels:,} topics, more than the {MCAP_MAX_CHANNELS:,} channels an MCAP "
+            f"file can hold; trace a smaller network, or run this one without --trace",
+            "--trace", channels, MCAP_MAX_CHANNELS)
+    if hasattr(scenario.weights, "toarray"):  # sparse: the trace stores P dense
+        from netsim.models.scenario import DENSE_WEIGHTS_MAX_AGENTS
+
+        _, N, _, _, _, _ = _sizes(scenario)
+        if N > DENSE_WEIGHTS_MAX_AGENTS:
+            raise ResourceError(
+                f"--trace {trace}: a trace stores the N x N consensus matrix P dense "
+                f"({format_bytes(8 * N * N)} at N = {N}); traces go up to "
+                f"{DENSE_WEIGHTS_MAX_AGENTS:,} agents; run this network without --trace",
+                "--trace", 8 * N * N, 8 * DENSE_WEIGHTS_MAX_AGENTS ** 2)
+
+
 def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,
               keep_estimates: bool = False) -> tuple[int, int]:
     """(peak bytes, bytes of one trial) of a Monte Carlo run of one family.
@@ -423,24 +449,7 @@ def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
               else "run.steps", trials_name="--trials" if trials is not None
               else "run.trials")
     if trace is not None:
-        channels = trace_channels(scenario)
-        if channels > MCAP_MAX_CHANNELS:
-            _, N, L, _, _, _ = _sizes(scenario)
-            raise ResourceError(
-                f"--trace {trace}: a trace of N = {N} agents and {L} links has up to "
-                f"{channels:,} topics, more than the {MCAP_MAX_CHANNELS:,} channels an MCAP "
-                f"file can hold; trace a smaller network, or run this one without --trace",
-                "--trace", channels, MCAP_MAX_CHANNELS)
-        if hasattr(scenario.weights, "toarray"):  # sparse: the trace stores P dense
-            from netsim.models.scenario import DENSE_WEIGHTS_MAX_AGENTS
-
-            _, N, _, _, _, _ = _sizes(scenario)
-            if N > DENSE_WEIGHTS_MAX_AGENTS:
-                raise ResourceError(
-                    f"--trace {trace}: a trace stores the N x N consensus matrix P dense "
-                    f"({format_bytes(8 * N * N)} at N = {N}); traces go up to "
-                    f"{DENSE_WEIGHTS_MAX_AGENTS:,} agents; run this network without --trace",
-                    "--trace", 8 * N * N, 8 * DENSE_WEIGHTS_MAX_AGENTS ** 2)
+        check_trace_size(scenario, trace)
         folder = Path(trace).resolve().parent
         if folder.is_dir():
             need = trace_bytes(scenario, K) * M * max(1, len(engines))

@@ -677,6 +677,8 @@ def run_monte_carlo(
     engines = engines_for(engine, declared, scenario)
     engine = choose_engine(engine, declared, traced=trace is not None, scenario=scenario)
     budget.check_run(scenario, steps, trials, list(engines.values()), keep_trials=keep_trials)
+    if trace is not None:
+        budget.check_trace_size(scenario, trace)
     needs_gains = any(f.needs_gains for f in declared)
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)

@@ -354,3 +354,11 @@ def test_trace_of_a_network_too_large_for_a_dense_P_is_refused_up_front(monkeypa
         budget.guard_run(scenario, 5, 1, "vectorised", ["compensated"], trace="t.mcap")
     assert "--trace t.mcap" in str(exc.value) and "\n" not in str(exc.value)
     assert "N = 24" in str(exc.value)
+    from netsim.runner import run_monte_carlo  # the Python API: refused before the run
+
+    with pytest.raises(budget.ResourceError):
+        run_monte_carlo(scenario, steps=5, trace="t.mcap", progress=_never_called)
+
+
+def _never_called(*_):
+    raise AssertionError("the run started")

@@ -47,7 +47,7 @@ import warnings
 from typing import Any
 
 import numpy as np
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from google.protobuf import descriptor_pb2
 
 sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 import trace_throughput as tt  # noqa: E402  (the scenarios and the timing helper)
@@ -81,23 +81,7 @@ __all__ = ["step_types", "step_columns", "write_sketch", "measure", "main"]
 
 def step_types() -> tuple[dict[str, Any], bytes]:
     """The sketch's message descriptors by name, and their FileDescriptorSet bytes."""
-    fd = descriptor_pb2.FileDescriptorProto(name="bench/perstep.proto",
-                                            package="bench.perstep", syntax="proto2")
-    for name, fields in _TYPES.items():
-        message = fd.message_type.add(name=name)
-        for number, (field, ftype, label) in enumerate(fields, start=1):
-            added = message.field.add(name=field, number=number, type=ftype, label=label)
-            if label == _MANY:
-                added.options.packed = True
-    pool = descriptor_pool.DescriptorPool()
-    pool.Add(fd)
-    fds = descriptor_pb2.FileDescriptorSet()
-    fds.file.append(fd)
-    descriptors = {name: pool.FindMessageTypeByName(f"bench.perstep.{name}")
-                   for name in _TYPES}
-    # (the classes are only needed to check a decode)
-    _ = {name: message_factory.GetMessageClass(d) for name, d in descriptors.items()}
-    return descriptors, fds.SerializeToString()
+    return tt.declare_types("bench.perstep", _TYPES)
 
 
 def step_columns(batch: Any, scenario: Any) -> dict[str, tuple[dict[str, Any], dict[str, int]]]:
@@ -261,18 +245,15 @@ def measure(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str, An
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", default="4,32", help="network sizes N (default 4,32)")
+    parser.add_argument("--sizes", default="4,32", type=tt.size_list,
+                        help="network sizes N (default 4,32)")
     parser.add_argument("--steps", type=int, default=500, help="steps (default 500)")
     parser.add_argument("--repeat", type=int, default=3, help="interleaved rounds")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = parser.parse_args(argv)
-    try:
-        sizes = [int(s) for s in args.sizes.split(",")]
-        if any(s < 2 for s in sizes) or args.steps < 10 or args.repeat < 1:
-            raise ValueError
-    except ValueError:
-        print("trace_layout_sketch: --sizes needs integers >= 2, --steps >= 10, "
-              "--repeat >= 1", file=sys.stderr)
+    sizes = args.sizes
+    if args.steps < 10 or args.repeat < 1:
+        print("trace_layout_sketch: --steps needs >= 10, --repeat >= 1", file=sys.stderr)
         return 2
     with tempfile.TemporaryDirectory() as folder:
         runs = [measure(n, args.steps, args.repeat, folder) for n in sizes]

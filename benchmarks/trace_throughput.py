@@ -126,9 +126,19 @@ def message_types() -> tuple[dict[str, Any], bytes, str]:
                     schemas.file_descriptor_set().SerializeToString(), "netsim.traces.schemas")
     except Exception:  # noqa: BLE001 - fall back to the shapes declared here
         pass
-    fd = descriptor_pb2.FileDescriptorProto(name="bench/trace.proto", package="bench.trace",
-                                            syntax="proto2")
-    for name, fields in _SHAPES.items():
+    descriptors, fds = declare_types("bench.trace", _SHAPES)
+    return ({name: message_factory.GetMessageClass(d) for name, d in descriptors.items()},
+            fds, "declared in the benchmark")
+
+
+def declare_types(package: str, shapes: dict[str, list[tuple[str, int, int]]]
+                  ) -> tuple[dict[str, Any], bytes]:
+    """proto2 message types from ``shapes`` (type -> fields (name, type, label),
+    numbered from 1, repeated ones packed) in ``package``: the descriptors by name and
+    the FileDescriptorSet bytes."""
+    fd = descriptor_pb2.FileDescriptorProto(name=f"{package.replace('.', '/')}.proto",
+                                            package=package, syntax="proto2")
+    for name, fields in shapes.items():
         message = fd.message_type.add(name=name)
         for number, (field, ftype, label) in enumerate(fields, start=1):
             added = message.field.add(name=field, number=number, type=ftype, label=label)
@@ -138,9 +148,8 @@ def message_types() -> tuple[dict[str, Any], bytes, str]:
     pool.Add(fd)
     fds = descriptor_pb2.FileDescriptorSet()
     fds.file.append(fd)
-    return ({name: message_factory.GetMessageClass(pool.FindMessageTypeByName(
-        f"bench.trace.{name}")) for name in _SHAPES}, fds.SerializeToString(),
-        "declared in the benchmark")
+    return ({name: pool.FindMessageTypeByName(f"{package}.{name}") for name in shapes},
+            fds.SerializeToString())
 
 
 @dataclass
@@ -576,9 +585,21 @@ def measure_run(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str
             "goal_traced_at_most_1_5x": seconds["traced"] <= 1.5 * seconds["untraced"]}
 
 
+def size_list(text: str) -> list[int]:
+    """``--sizes``: comma-separated network sizes, each at least 2."""
+    try:
+        sizes = [int(part) for part in text.split(",")]
+    except ValueError:
+        sizes = []
+    if not sizes or min(sizes) < 2:
+        raise argparse.ArgumentTypeError(f"expected integers >= 2, e.g. 4,32; got {text!r}")
+    return sizes
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--sizes", default="4,32", help="network sizes N (default 4,32)")
+    parser.add_argument("--sizes", default="4,32", type=size_list,
+                        help="network sizes N (default 4,32)")
     parser.add_argument("--messages", type=int, default=150_000,
                         help="messages per size (default 150000)")
     parser.add_argument("--states", type=int, default=2, help="state dimension n")
@@ -591,13 +612,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="steps of the traced-run table (default 500; 0 skips it)")
     parser.add_argument("--json", action="store_true", help="one JSON object on stdout")
     args = parser.parse_args(argv)
-    try:
-        sizes = [int(s) for s in args.sizes.split(",")]
-        if any(s < 2 for s in sizes) or args.messages < 100 or args.repeat < 1:
-            raise ValueError
-    except ValueError:
-        print("trace_throughput: --sizes needs integers >= 2, --messages >= 100, "
-              "--repeat >= 1", file=sys.stderr)
+    sizes = args.sizes
+    if args.messages < 100 or args.repeat < 1:
+        print("trace_throughput: --messages needs >= 100, --repeat >= 1", file=sys.stderr)
         return 2
     classes, fds, source = message_types()
     with tempfile.TemporaryDirectory() as folder:

@@ -700,11 +700,7 @@ class TraceRecorder:
         self._last_log_time = log_time
         channel = self._channels.get(topic)
         if channel is None:
-            channel = self._writer.register_channel(
-                topic=topic, message_encoding=MessageEncoding.Protobuf,
-                schema_id=self._schema_ids[type_name],
-            )
-            self._channels[topic] = channel
+            channel = self._channel(topic, type_name)
         self._writer.add_message(
             channel_id=channel, log_time=log_time, data=msg.SerializeToString(),
             publish_time=max(self.time_origin_ns, publish_time),

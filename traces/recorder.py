@@ -96,6 +96,8 @@ from netsim.traces.schemas import (
     sensor_topic,
     update_topic,
 )
+from netsim.traces.schemas3 import TRACE_FORMAT as TRACE_FORMAT3
+from netsim.traces.stepwriter import StepLog
 
 __all__ = [
     "TRACE_FORMAT",
@@ -316,7 +318,10 @@ class TraceRecorder:
         record_payloads: bool = True,
         run_metadata: Mapping[str, str] | None = None,
         time_origin_ns: int = DEFAULT_TIME_ORIGIN_NS,
+        trace_format: int = 2,
     ) -> None:
+        if trace_format not in (2, 3):
+            raise ValueError(f"trace_format must be 2 or 3, got {trace_format!r}")
         if flush_every < 1:
             raise ValueError(f"flush_every must be >= 1, got {flush_every}")
         if not sample_period > 0:
@@ -348,6 +353,10 @@ class TraceRecorder:
         self._status: str | None = None
         self._status_info: dict[str, str] = {}
 
+        #: Trace format written: 2 (a message per agent and link event) or 3 (a message
+        #: per step and kind, :mod:`netsim.traces.schemas3`).
+        self.trace_format = int(trace_format)
+        fmt_name = TRACE_FORMAT if self.trace_format == 2 else TRACE_FORMAT3
         self._classes = message_classes()
         self._stream = open(self.path, "wb")  # noqa: SIM115 - closed in close()
         try:
@@ -355,12 +364,12 @@ class TraceRecorder:
                 self._stream, chunk_size=int(chunk_size), compression=_compression(compression),
                 level=_ZSTD_LEVEL,
             )
-            self._writer.start(profile="", library=f"{TRACE_FORMAT} {_mcap_library()}")
+            self._writer.start(profile="", library=f"{fmt_name} {_mcap_library()}")
             self._writer.add_metadata(
                 "scenario", {str(k): str(v) for k, v in scenario_metadata.items()}
             )
             run = {
-                "trace_format": TRACE_FORMAT,
+                "trace_format": fmt_name,
                 "family": self.family,
                 "trial": str(self.trial),
                 "seed": "" if seed is None else str(seed),
@@ -380,14 +389,19 @@ class TraceRecorder:
                     create_time=0, log_time=0, name=f"{name}.npy",
                     media_type=NPY_MEDIA_TYPE, data=_npy_bytes(matrix),
                 )
-            descriptor_set = file_descriptor_set().SerializeToString()
-            self._schema_ids = {
-                name: self._writer.register_schema(
-                    name=schema_name(name), encoding=SchemaEncoding.Protobuf,
-                    data=descriptor_set,
-                )
-                for name in self._classes
-            }
+            self._steps: StepLog | None = None
+            if self.trace_format == 2:
+                descriptor_set = file_descriptor_set().SerializeToString()
+                self._schema_ids = {
+                    name: self._writer.register_schema(
+                        name=schema_name(name), encoding=SchemaEncoding.Protobuf,
+                        data=descriptor_set,
+                    )
+                    for name in self._classes
+                }
+            else:
+                self._schema_ids = {}
+                self._steps = StepLog(self, record_payloads)
             self._writer.flush()
         except BaseException:
             self._stream.close()
@@ -451,11 +465,19 @@ class TraceRecorder:
         """Record x_k on ``/plant/state`` and each y^i_k on ``/sensor_<i>/measurement``."""
         self._check_open()
         k = int(k)
-        if k > 0 and (
+        due = k > 0 and (
             k % self.flush_every == 0
             or (self.flush_seconds is not None
                 and time.monotonic() - self._last_flush >= self.flush_seconds)
-        ):
+        )
+        if self._steps is not None:
+            self._steps.plant(k, state, measurements)
+            self._state = self._steps.current.state
+            self._state_step = self.last_step = k
+            if due:  # the steps before k are complete: write them as a chunk
+                self.flush()
+            return
+        if due:
             self.flush()
         t = k * self.sample_period
         ns = self._ns(t)
@@ -491,6 +513,10 @@ class TraceRecorder:
         else:  # no true state for this step (never in the kernel's event order)
             fields = {"error": [math.nan] * x_hat.size, "squared_error": math.nan,
                       "error_norm": math.nan}
+        if self._steps is not None:
+            self._steps.update(agent, k, x_hat, delays, fields["squared_error"],
+                               fields["error_norm"])
+            return
         self._write(estimate_topic(agent), "Estimate",
                     c["Estimate"](step=k, time=t, agent=agent, estimate=x_hat.tolist(),
                                   **fields), ns, ns, k)
@@ -517,6 +543,10 @@ class TraceRecorder:
         dims = [int(d) for d in substate_dims]
         live = [v for v, d in zip(index, dims, strict=False) if d > 0]
         max_index = -1 if any(v < 0 for v in live) or not live else max(live)
+        if self._steps is not None:
+            self._steps.freshness(agent, k, index, [int(v) for v in adopted_from], dims,
+                                  max_index)
+            return
         self._write(freshness_topic(agent), "Freshness",
                     self._classes["Freshness"](
                         step=k, time=t, agent=agent, index=[float(v) for v in index],
@@ -526,6 +556,9 @@ class TraceRecorder:
     def on_sent(self, message: Any) -> None:
         """Record a message leaving its sender (log_time = send time)."""
         self._check_open()
+        if self._steps is not None:
+            self._steps.sent(message)
+            return
         self._link_event(message, "sent", message.send_time, payload=self.record_payloads)
 
     def on_delivered(self, message: Any, accepted: bool) -> None:
@@ -533,12 +566,18 @@ class TraceRecorder:
         it (False: stale under the freshest-message rule)."""
         self._check_open()
         self.max_delay_steps = max(self.max_delay_steps, int(message.delay_steps))
+        if self._steps is not None:
+            self._steps.delivered(message, accepted)
+            return
         self._link_event(message, "delivered", message.arrival_time, accepted=bool(accepted))
 
     def on_dropped(self, message: Any, reason: str = "", drop_time: float | None = None) -> None:
         """Record a lost message (log_time = ``drop_time``, default its send time)."""
         self._check_open()
         when = message.send_time if drop_time is None else drop_time
+        if self._steps is not None:
+            self._steps.dropped(message, self._drop_code(str(reason)), float(when))
+            return
         self._link_event(message, "dropped", when, reason=str(reason))
 
     # -- file management ----------------------------------------------------------
@@ -548,6 +587,8 @@ class TraceRecorder:
         (``wait=False``: chunks still compressing in the background follow later, at
         most two behind; :meth:`netsim.traces.bulkmcap.BulkMcapWriter.flush`)."""
         self._check_open()
+        if self._steps is not None:
+            self._steps.flush()
         self._writer.flush(wait=wait)
         self._last_flush = time.monotonic()
 
@@ -589,6 +630,9 @@ class TraceRecorder:
                                               f"of {self.expected_steps}")
             record.update(self._status_info)
             record.update({str(k): str(v) for k, v in info.items()})
+            if self._steps is not None:
+                self._steps.close()
+                record["messages"] = str(self.messages_written)
             self._writer.flush()
             self._writer.add_metadata("run_status", record)
             self._writer.finish()

@@ -1,0 +1,185 @@
+"""Protobuf message types and topics of trace format 3 (one message per step and kind).
+
+Format 3 (``netsim-trace/3``) holds what format 2 holds (:mod:`netsim.traces.schemas`)
+in a few topics with **one message per step**: every agent's estimate of step k in one
+packed array, every link's message sent at k in another. Format 2 writes one message
+per agent and per link event (about 341 per step at N = 32, each with 47 bytes of MCAP
+framing and index); format 3 writes at most 8 per step, so its files are several
+times smaller and faster to write, and a network of any size needs 8 channels.
+
+It is declared in the checked-in ``traces/netsim_trace_v3.proto`` (package
+``netsim.trace.v3``, proto2) and here (:data:`MESSAGES`, pinned field numbers); a test
+holds the two equal. Encoding rules (for bulk encoding with numpy): every scalar is a
+fixed-width proto2 ``optional`` field that writers always set; every repeated field is
+packed and of a fixed-width type (``double``, ``fixed32``, ``sfixed32``).
+
+Topics (log_time = time origin + k Ts for the message of step k; sequence = k):
+
+==========================  ================  ============================================
+topic                       type              one message per step k, holding
+==========================  ================  ============================================
+``/plant/state``            ``PlantState``    x_k
+``/sensors/measurement``    ``Measurements``  y^i_k of every sensor, stacked in sensor order
+``/agents/estimate``        ``Estimates``     every agent's x-hat^i_{k|k} (agent major),
+                                              ``error_norm`` and ``squared_error`` per agent
+``/agents/update``          ``Updates``       r_ij[k] per (in-neighbour j, agent i)
+``/agents/freshness``       ``Freshness``     AoI freshness indices per (agent, substate)
+``/links/sent``             ``LinkSends``     per link: the message sent at k (its delay)
+``/links/delivered``        ``LinkDeliveries`` the messages usable from step k on (their
+                                              link, time-stamp, acceptance), in the order
+                                              they arrived
+``/links/dropped``          ``LinkDrops``     the messages lost at times in
+                                              ((k-1) Ts, k Ts] (link, time-stamp, reason)
+==========================  ================  ============================================
+
+What the arrays are indexed by is the metadata record ``trace_layout``
+(:data:`LAYOUT_METADATA`, JSON values): ``links`` (the link list, index l = position
+of ``[j, i]``), ``updates`` (entry e of ``Updates.effective_delay`` is r_ij[k] of the
+e-th ``[j, i]``), ``sensor_widths`` (m_i), ``agents`` (N),
+``n_states`` (n), ``freshness_sizes`` (substates per AoI agent) and ``payload``
+(``estimate``: a sent message's payload is the sender's estimate of that step, not
+stored; ``message``: stored in ``LinkSends.payload``, ``payload_width`` values per
+link; ``none``: not recorded).
+
+Sentinels: :data:`ABSENT` (-3) in an integer array marks an entry with nothing to say
+(no message sent on that link at k, an agent that did not report that neighbour);
+``Estimates.updated[i]`` is 0 when agent i did not update at k (its values are NaN).
+"""
+
+from __future__ import annotations
+
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+from netsim.traces.schemas import Field
+
+__all__ = [
+    "FORMAT",
+    "TRACE_FORMAT",
+    "PACKAGE",
+    "PROTO_FILE",
+    "PROTO_PATH",
+    "MESSAGES",
+    "TOPICS",
+    "LAYOUT_METADATA",
+    "ABSENT",
+    "file_descriptor_proto",
+    "file_descriptor_set",
+    "message_classes",
+    "schema_name",
+]
+
+#: Format number of this layout.
+FORMAT = 3
+#: Value of ``run.trace_format`` and first word of the header's library string.
+TRACE_FORMAT = f"netsim-trace/{FORMAT}"
+#: Protobuf package of format 3.
+PACKAGE = "netsim.trace.v3"
+#: Name of the .proto file in the descriptor set.
+PROTO_FILE = "netsim/traces/netsim_trace_v3.proto"
+#: The checked-in .proto source.
+PROTO_PATH = Path(__file__).with_name("netsim_trace_v3.proto")
+#: Metadata record naming what the arrays are indexed by (JSON values).
+LAYOUT_METADATA = "trace_layout"
+#: Integer sentinel: nothing to say for this entry at this step.
+ABSENT = -3
+
+_F = descriptor_pb2.FieldDescriptorProto
+_ONE, _MANY = _F.LABEL_OPTIONAL, _F.LABEL_REPEATED
+_FIXED64, _FIXED32, _SFIXED32, _DOUBLE = (_F.TYPE_FIXED64, _F.TYPE_FIXED32, _F.TYPE_SFIXED32,
+                                          _F.TYPE_DOUBLE)
+
+
+def _f(name: str, number: int, type_: int) -> Field:
+    return Field(name, number, type_, _ONE)
+
+
+def _r(name: str, number: int, type_: int = _DOUBLE) -> Field:
+    return Field(name, number, type_, _MANY)
+
+
+_STEP = (_f("step", 1, _FIXED64), _f("time", 2, _DOUBLE))
+
+#: Format-3 messages: name -> fields with pinned numbers (equal to the .proto file).
+MESSAGES: dict[str, tuple[Field, ...]] = {
+    "PlantState": _STEP + (_r("state", 3),),
+    "Measurements": _STEP + (_r("values", 3),),
+    "Estimates": _STEP + (
+        _r("updated", 3, _FIXED32),
+        _r("estimate", 4),
+        _r("error_norm", 5),
+        _r("squared_error", 6),
+    ),
+    "Updates": _STEP + (_r("effective_delay", 3, _SFIXED32),),
+    "Freshness": _STEP + (
+        _r("index", 3, _SFIXED32),
+        _r("adopted_from", 4, _SFIXED32),
+        _r("substate_dim", 5, _SFIXED32),
+        _r("max_index", 6, _SFIXED32),
+    ),
+    "LinkSends": _STEP + (
+        _r("delay_steps", 3, _SFIXED32),
+        _r("arrival_time", 4),
+        _r("payload", 5),
+    ),
+    "LinkDeliveries": _STEP + (
+        _r("link", 3, _FIXED32),
+        _r("sent_step", 4, _FIXED32),
+        _r("accepted", 5, _FIXED32),
+    ),
+    "LinkDrops": _STEP + (
+        _r("link", 3, _FIXED32),
+        _r("sent_step", 4, _FIXED32),
+        _r("reason", 5, _FIXED32),
+        _r("drop_time", 6),
+    ),
+}
+
+#: Topic -> message type, in the order a step's messages are written.
+TOPICS: dict[str, str] = {
+    "/plant/state": "PlantState",
+    "/sensors/measurement": "Measurements",
+    "/agents/estimate": "Estimates",
+    "/agents/update": "Updates",
+    "/agents/freshness": "Freshness",
+    "/links/sent": "LinkSends",
+    "/links/dropped": "LinkDrops",
+    "/links/delivered": "LinkDeliveries",
+}
+
+
+def schema_name(type_name: str) -> str:
+    """Return the fully qualified format-3 name, e.g. ``netsim.trace.v3.Estimates``."""
+    return f"{PACKAGE}.{type_name}"
+
+
+@cache
+def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
+    """Return the format-3 ``FileDescriptorProto`` (proto2, pinned field numbers)."""
+    fd = descriptor_pb2.FileDescriptorProto(name=PROTO_FILE, package=PACKAGE, syntax="proto2")
+    for name, fields in MESSAGES.items():
+        message = fd.message_type.add(name=name)
+        for field in fields:
+            added = message.field.add(name=field.name, number=field.number, type=field.type,
+                                      label=field.label)
+            if field.label == _MANY:
+                added.options.packed = True
+    return fd
+
+
+def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
+    """Return the ``FileDescriptorSet`` written as each format-3 schema's data."""
+    fds = descriptor_pb2.FileDescriptorSet()
+    fds.file.append(file_descriptor_proto())
+    return fds
+
+
+@cache
+def message_classes() -> dict[str, Any]:
+    """Return the format-3 message classes by short name (private descriptor pool)."""
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(file_descriptor_proto())
+    return {name: message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name(name)))
+            for name in MESSAGES}

@@ -41,7 +41,7 @@ from netsim.linkschedule import DELIVERED
 from netsim.models.scenario import Scenario
 from netsim.vectorised import VectorisedBatch
 
-__all__ = ["replay_trial", "trial_events", "write_trial"]
+__all__ = ["replay_trial", "trial_events", "write_trial", "write_trial_steps"]
 
 # phases of the events at one time (the kernel's order within an instant)
 _EARLY = 0  # deliveries scheduled before this instant (URGENT)
@@ -320,7 +320,8 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     family : str
         The estimator family the batch ran.
     recorder : netsim.traces.recorder.TraceRecorder
-        An open recorder writing format 2 through the bulk writer.
+        An open recorder writing format 2 through the bulk writer (format 3:
+        :func:`write_trial_steps`).
 
     Notes
     -----
@@ -335,6 +336,9 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
         update_topic,
     )
 
+    if getattr(recorder, "trace_format", 2) == 3:
+        write_trial_steps(batch, trial, scenario, family, recorder)
+        return
     result = batch.results[trial]
     estimates = result.estimates
     if estimates.shape[0] == 0:
@@ -600,3 +604,235 @@ def _write_groups(recorder: Any, groups: list[_Group], end: int) -> None:
             # chunks compress in the background while the next window is added; the
             # last window waits for all of them
             recorder.flush(wait=w + 1 >= windows)
+
+
+# -- trace format 3 ------------------------------------------------------------------
+
+
+def _by_bucket(bucket: np.ndarray, end: int) -> tuple[np.ndarray, np.ndarray]:
+    """Rows (the buckets that have events, increasing) and the events per row, of
+    events already in order and with non-decreasing ``bucket``."""
+    counts = np.bincount(bucket, minlength=end + 1) if bucket.size else np.zeros(0, np.int64)
+    rows = np.flatnonzero(counts)
+    return rows, counts[rows]
+
+
+def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
+                      recorder: Any) -> None:
+    """Write one trial's trace in format 3 (a message per step and kind) from the batch.
+
+    The same messages as the event kernel's format-3 path
+    (:class:`netsim.traces.stepwriter.StepLog` fed by the kernel's observer calls, which
+    :func:`replay_trial` reproduces), read back the same (link and update entries may be
+    in another order in the ``trace_layout`` lists); built for all steps at once from the
+    batch arrays and written in windows of about one chunk, each compressed on a
+    background thread while the next is encoded.
+
+    Parameters
+    ----------
+    batch, trial, scenario, family
+        As for :func:`write_trial`.
+    recorder : netsim.traces.recorder.TraceRecorder
+        An open recorder with ``trace_format=3``.
+    """
+    from netsim.traces.schemas3 import ABSENT
+    from netsim.traces.stepcodec import Column
+    from netsim.traces.stepwriter import StepWriter, arrival_column
+
+    result = batch.results[trial]
+    estimates = result.estimates
+    if estimates.shape[0] == 0:
+        raise ValueError("the batch kept no estimates; run it with record_estimates=True")
+    states = result.states
+    K = states.shape[0] - 1
+    end = K if result.diverged_at is None else int(result.diverged_at)
+    ts = float(scenario.sample_period)
+    N, n = estimates.shape[1], estimates.shape[2]
+    R = end + 1
+    k = np.arange(R)
+    x = states[:R].reshape(R, -1)
+    ys = [np.asarray(y[:R], dtype=float).reshape(R, -1) for y in result.measurements]
+    est = estimates[:R]
+    error = est - x[:, None, :]
+    sq = np.einsum("kia,kia->ki", error, error)
+    with np.errstate(invalid="ignore"):
+        norm = np.sqrt(sq)
+    tables: list[tuple[str, np.ndarray, dict[str, Column]]] = [
+        ("PlantState", k, {"state": Column(x)}),
+        ("Measurements", k, {"values": Column(np.concatenate(ys, axis=1) if ys
+                                              else np.zeros((R, 0)))}),
+        ("Estimates", k, {"updated": Column(np.ones((R, N), dtype=bool)),
+                          "estimate": Column(est.reshape(R, N * n)),
+                          "error_norm": Column(norm)}),
+    ]
+    schedule, selection = batch.schedule, batch.selection
+    neighbours = _neighbours(scenario.weights)
+    links = list(schedule.links) if schedule is not None else []
+    entries = [(j, i) for i in range(N) for j in neighbours[i]] if schedule is not None else []
+    L, E = len(links), len(entries)
+    delays = np.full((R, E), ABSENT, dtype=np.int32)
+    sends_delay = np.full((R, L), ABSENT, dtype=np.int32)
+    sends_arrival = np.full((R, L), np.nan)
+    deliveries = drops = None
+    if schedule is not None:
+        link_index = {link: q for q, link in enumerate(links)}
+        send = np.asarray(schedule.send_steps)
+        n_sends = int(np.searchsorted(send, end, side="right"))
+        up = np.asarray(batch.updated, dtype=np.int64)
+        ku = up[(up <= end) & (up > 0)]
+        delays[up[up <= end]] = -1  # updated: own estimate unless a message was held
+        entry_link = np.array([link_index.get(x_, -1) for x_ in entries], dtype=np.int64)
+        known = np.flatnonzero(entry_link >= 0)
+        if ku.size and known.size:
+            held = np.asarray(selection.chosen[ku][:, entry_link[known], trial],
+                              dtype=np.int64)  # (U, E')
+            r = np.where(held >= 0, ku[:, None] - 1 - send[np.maximum(held, 0)], -1)
+            delays[np.ix_(ku, known)] = r
+        if n_sends:
+            deliveries, drops = _step_link_events(recorder, schedule, selection, trial,
+                                                  n_sends, end, ts, sends_delay,
+                                                  sends_arrival)
+    tables.append(("Updates", k, {"effective_delay": Column(delays)}))
+    tables.append(("LinkSends", k, {"delay_steps": Column(sends_delay),
+                                    "arrival_time": arrival_column(k, sends_delay,
+                                                                   sends_arrival, ts)}))
+    if drops is not None:
+        tables.append(("LinkDrops",) + drops)
+    if deliveries is not None:
+        tables.append(("LinkDeliveries",) + deliveries)
+    out = StepWriter(recorder) if recorder._steps is None else recorder._steps.out
+    out.layout({"agents": N, "n_states": n, "sensor_widths": [y.shape[1] for y in ys],
+                "links": [list(x_) for x_ in links], "updates": [list(x_) for x_ in entries],
+                "freshness_sizes": [],
+                "payload": "estimate" if recorder.record_payloads else "none",
+                "payload_width": 0})
+    _write_step_windows(recorder, out, tables, end, ts)
+
+
+def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_sends: int,
+                      end: int, ts: float, sends_delay: np.ndarray, sends_arrival: np.ndarray
+                      ) -> tuple[Any, Any]:
+    """Fill the sends (rows = send steps) and return the deliveries and drops tables
+    (rows, columns) of format 3, or None for either without events (:func:`_link_groups`
+    has the kernel's rules). Messages are indexed message major, m = q L + l."""
+    from netsim.traces.stepcodec import Column
+
+    send = np.asarray(schedule.send_steps)[:n_sends]
+    fate = np.asarray(schedule.fate[t, :, :n_sends])
+    wait = np.asarray(schedule.wait_of(t)[:, :n_sends], dtype=float)
+    delay = np.asarray(schedule.delay_steps[t, :, :n_sends])
+    links = schedule.links
+    L = len(links)
+    sends_delay[send] = delay.T
+    sends_arrival[send] = ((send[None, :] + wait) * ts).T
+    flat_fate = fate.T.ravel()  # message major
+    flat_delay = delay.T.ravel()
+    usable_all = (send[:, None] + 1 + delay.T).ravel()
+    in_steps = np.array_equal(wait, delay + 1.0)  # every arrival at its usable step
+
+    def arrival_of(m: np.ndarray) -> np.ndarray:  # arrival (in steps) of messages m
+        return send[m // L] + wait.T.ravel()[m] if not in_steps else usable_all[m] + 0.0
+
+    def phase_of(m: np.ndarray) -> np.ndarray:
+        return np.where(arrival_of(m) <= send[m // L], _LATE, _EARLY)
+
+    deliveries = drops = None
+    delivered = flat_fate == DELIVERED
+    m = np.flatnonzero(delivered)
+    if m.size:  # delivered before the run ended
+        m = m[usable_all[m] <= end] if in_steps else m[arrival_of(m) <= end]
+    if m.size:
+        if not in_steps:
+            # arrivals between steps or at the sending instant: the kernel's order by
+            # arrival time and phase (then send, link), grouped by usable step below
+            m = m[np.lexsort((m % L, m // L, phase_of(m), arrival_of(m)))]
+        # else every message arrives at its usable step: the kernel's order within a
+        # step is the sending order (q, l), which m already has
+        usable = usable_all[m]
+        key = usable.astype(np.int16) if usable.max() < 2**15 else usable
+        order = np.argsort(key, kind="stable")  # radix sort for int16
+        m, usable = m[order], usable[order]
+        rows, counts = _by_bucket(usable, end + 1)
+        accepted = ~np.asarray(selection.discarded[t, :, :n_sends]).T.ravel()[m]
+        dd = flat_delay[m]
+        deliveries = (rows, {"link": Column(m % L, counts),
+                             "delay_steps": Column(dd, counts),
+                             "accepted": Column(accepted, counts)})
+        recorder.max_delay_steps = max(recorder.max_delay_steps, int(dd.max()))
+    m = np.flatnonzero(~delivered)
+    if not m.size:
+        return deliveries, drops
+    reasons = schedule.reasons
+    code_oldest = reasons.index(REASON_DROP_OLDEST) + 1 if REASON_DROP_OLDEST in reasons else -1
+    code_superseded = (reasons.index(REASON_SUPERSEDED) + 1
+                       if REASON_SUPERSEDED in reasons else -1)
+    codes = flat_fate[m]
+    a = arrival_of(m)
+    drop_at = np.asarray(schedule.drop_time[t, :, :n_sends]).T.ravel()[m]
+    ss = send[m // L]
+    victim = (codes == code_oldest) & (drop_at <= end)
+    superseded = (codes == code_superseded) & (a <= end)
+    at_send = (codes != code_oldest) & (codes != code_superseded)
+    keep = at_send | victim | superseded
+    m, codes, a, drop_at, ss = m[keep], codes[keep], a[keep], drop_at[keep], ss[keep]
+    victim, superseded = victim[keep], superseded[keep]
+    if not m.size:
+        return deliveries, drops
+    when = np.where(superseded, a, np.where(victim, drop_at, ss)).astype(float)
+    ph = np.where(superseded, np.where(a <= ss, _LATE, _EARLY), _STEP)
+    sender = np.array([j for j, _ in links], dtype=np.int64)
+    x = np.where(ph == _STEP, sender[m % L], m // L)
+    order = np.lexsort((victim.astype(np.int64), m % L, x, ph, when))
+    m, when, codes, ss = m[order], when[order], codes[order], ss[order]
+    superseded, victim = superseded[order], victim[order]
+    texts = [REASON_SUPERSEDED if s_ else REASON_DROP_OLDEST if v else reasons[c - 1]
+             for s_, v, c in zip(superseded.tolist(), victim.tolist(), codes.tolist(),
+                                 strict=True)]
+    code_of: dict[str, int] = {}
+    for text in texts:  # in the kernel's order: the codes of first appearance
+        if text not in code_of:
+            code_of[text] = recorder._drop_code(text)
+    # the step that lists a drop: netsim.traces.stepwriter.drop_bucket, in steps
+    bucket = np.ceil(when - 1e-9).astype(np.int64)
+    rows, counts = _by_bucket(bucket, end + 1)
+    drops = (rows, {"link": Column(m % L, counts), "sent_step": Column(ss, counts),
+                    "reason": Column(np.array([code_of[x_] for x_ in texts]), counts),
+                    "drop_time": Column(when * ts, counts)})
+    return deliveries, drops
+
+
+def _write_step_windows(recorder: Any, out: Any, tables: list[tuple[str, np.ndarray, dict]],
+                        end: int, ts: float) -> None:
+    """Write the format-3 tables in windows of steps of about one chunk each."""
+    from netsim.traces.stepcodec import Column
+
+    total = 0
+    for _, rows, columns in tables:
+        for col in columns.values():
+            total += col.values.nbytes + 16 * len(rows)
+    chunk = int(out.writer.chunk_size)
+    window = max(1, int(chunk // max(1.0, total / (end + 1))))
+    edges = list(range(0, end + 1, window)) + [np.iinfo(np.int64).max]
+    # per table: row boundaries of each window, element offsets of ragged columns
+    cuts = [np.searchsorted(rows, edges, side="left") for _, rows, _ in tables]
+    starts = [{name: None if col.counts is None else
+               np.concatenate([[0], np.cumsum(col.counts)]) for name, col in columns.items()}
+              for _, _, columns in tables]
+    windows = len(edges) - 1
+    for w in range(windows):
+        if w:
+            interrupt.check()
+        for (type_name, rows, columns), cut, start in zip(tables, cuts, starts, strict=True):
+            lo, hi = int(cut[w]), int(cut[w + 1])
+            if hi <= lo:
+                continue
+            part = {}
+            for name, col in columns.items():
+                if col.counts is None:
+                    part[name] = Column(col.values[lo:hi])
+                else:
+                    s = start[name]
+                    part[name] = Column(col.values[s[lo]:s[hi]], col.counts[lo:hi])
+            out.emit(type_name, rows[lo:hi], rows[lo:hi] * ts, part)
+        recorder.last_step = min(end, edges[w + 1] - 1)
+        recorder.flush(wait=w + 1 >= windows)

@@ -26,6 +26,8 @@ from netsim.traces.schemas import (
 _F = descriptor_pb2.FieldDescriptorProto
 _TYPES = {"double": _F.TYPE_DOUBLE, "fixed64": _F.TYPE_FIXED64, "sfixed64": _F.TYPE_SFIXED64,
           "fixed32": _F.TYPE_FIXED32, "sfixed32": _F.TYPE_SFIXED32}
+#: Types the format-3 .proto uses besides (packed varints).
+_VARINT_TYPES = {"uint32": _F.TYPE_UINT32, "sint32": _F.TYPE_SINT32, "bool": _F.TYPE_BOOL}
 _LABELS = {"optional": _F.LABEL_OPTIONAL, "repeated": _F.LABEL_REPEATED}
 
 
@@ -43,7 +45,7 @@ def _parse_proto(text: str) -> tuple[str, str, dict[str, list[tuple]]]:
                              r"(?:\s*\[\s*packed\s*=\s*(true|false)\s*\])?", statement)
             assert m, f"unparsed field in {name}: {statement!r}"
             label, ftype, fname, number, packed = m.groups()
-            fields.append((fname, int(number), _TYPES[ftype], _LABELS[label],
+            fields.append((fname, int(number), {**_TYPES, **_VARINT_TYPES}[ftype], _LABELS[label],
                            packed == "true"))
         messages[name] = fields
     rest = re.sub(r"message\s+\w+\s*\{[^}]*\}", "", text)

@@ -56,6 +56,7 @@ from netsim.traces.schemas import freshness_topic as _freshness_topic
 from netsim.traces.schemas import link_topic as _link_topic
 from netsim.traces.schemas import sensor_topic as _sensor_topic
 from netsim.traces.schemas import update_topic as _update_topic
+from netsim.traces.schemas3 import PACKAGE as _PACKAGE3
 
 __all__ = ["NOT_USED", "TraceError", "TraceRecord", "LinkEvent", "LostChunk", "Trace",
            "read_trace", "read_status"]
@@ -191,7 +192,21 @@ class Trace:
         Messages read from intact chunks whose channel was defined only in a lost
         chunk (counted, not decoded).
     note : str
-        How the file was read when its summary was unusable, else "".
+        How the file was read when its summary was unusable, else ""; for format 3 also
+        what could not be expanded (see :attr:`unexpanded`).
+    file_topics : dict of str -> str
+        Topic -> schema name of the MCAP channels in the file. Format 3 (one message per
+        step and kind) is read as the format-2 view: :attr:`topics`, :attr:`counts`,
+        :attr:`records` and :attr:`messages` hold the format-2 records the format-2
+        recorder writes for the same run (:mod:`netsim.traces.stepread`), and
+        ``file_topics`` the file's own per-step topics. Formats 1 and 2: equal to
+        :attr:`topics`.
+    file_counts : dict of str -> int
+        Messages read per topic of the file (formats 1 and 2: equal to :attr:`counts`).
+    unexpanded : dict of str -> int
+        Format 3: what the file holds but could not be expanded into format-2 records,
+        by kind (e.g. ``delivered``: a delivery whose sent message was in a lost chunk);
+        empty otherwise.
     """
 
     path: str
@@ -211,12 +226,19 @@ class Trace:
     note: str = ""
     #: Drop reason codes (format 2's LinkDropped.reason) -> text.
     drop_reasons: dict[int, str] = field(default_factory=dict)
+    file_topics: dict[str, str] = field(default_factory=dict)
+    file_counts: dict[str, int] = field(default_factory=dict)
+    unexpanded: dict[str, int] = field(default_factory=dict)
     _link_cache: dict[tuple[int, int], list[LinkEvent]] | None = field(
         default=None, repr=False, compare=False)
 
+    def __post_init__(self) -> None:
+        if not self.file_topics and not self.file_counts:
+            self.file_topics, self.file_counts = dict(self.topics), dict(self.counts)
+
     @property
     def format(self) -> int:
-        """Trace format: 1 or 2 (from ``run.trace_format`` ``netsim-trace/<n>``)."""
+        """Trace format: 1, 2 or 3 (from ``run.trace_format`` ``netsim-trace/<n>``)."""
         fmt = self.run.get("trace_format", "netsim-trace/1").rsplit("/", 1)[-1]
         return int(fmt) if fmt.isdigit() else 1
 
@@ -671,16 +693,28 @@ class _Collector:
             chunk.origin = int(origin) if origin.isdigit() else 0
         reasons = {int(c): r for c, r in self.metadata.get(DROP_REASONS_METADATA, {}).items()
                    if c.isdigit()}
+        topics, counts, records, messages = self.topics, self.counts, self.records, self.messages
+        unexpanded: dict[str, int] = {}
+        if any(name.startswith(_PACKAGE3 + ".") for t, name in self.topics.items()
+               if t not in self.foreign):  # format 3: read as the format-2 view
+            from netsim.traces.stepread import expand_steps
+
+            view = expand_steps(self.records, self.topics, self.counts, self.metadata,
+                                self.foreign)
+            topics, counts, records, messages = (view.topics, view.counts, view.records,
+                                                 view.messages)
+            unexpanded = view.unexpanded
+            note = "; ".join(text for text in (note, view.note) if text)
         return Trace(
             drop_reasons=reasons,
             path=where,
             metadata=self.metadata,
             matrices=self.matrices,
             attachments=self.attachments,
-            topics=self.topics,
-            counts=self.counts,
-            records=self.records,
-            messages=self.messages,
+            topics=topics,
+            counts=counts,
+            records=records,
+            messages=messages,
             truncated=truncated,
             recovered_messages=sum(self.counts.values()),
             foreign_topics=sorted(self.foreign),
@@ -688,6 +722,9 @@ class _Collector:
             lost_chunks=lost,
             orphaned_messages=self.orphaned,
             note=note or "",
+            file_topics=dict(self.topics),
+            file_counts=dict(self.counts),
+            unexpanded=unexpanded,
         )
 
 

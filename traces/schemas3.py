@@ -11,7 +11,8 @@ It is declared in the checked-in ``traces/netsim_trace_v3.proto`` (package
 ``netsim.trace.v3``, proto2) and here (:data:`MESSAGES`, pinned field numbers); a test
 holds the two equal. Encoding rules (for bulk encoding with numpy): every scalar is a
 fixed-width proto2 ``optional`` field that writers always set; every repeated field is
-packed and of a fixed-width type (``double``, ``fixed32``, ``sfixed32``).
+packed: ``double`` for values, varints (``uint32``, ``sint32``, ``bool``) for small
+integers, which take one byte each below 128 (-64 .. 63 for ``sint32``).
 
 Topics (log_time = time origin + k Ts for the message of step k; sequence = k):
 
@@ -20,14 +21,15 @@ topic                       type              one message per step k, holding
 ==========================  ================  ============================================
 ``/plant/state``            ``PlantState``    x_k
 ``/sensors/measurement``    ``Measurements``  y^i_k of every sensor, stacked in sensor order
-``/agents/estimate``        ``Estimates``     every agent's x-hat^i_{k|k} (agent major),
-                                              ``error_norm`` and ``squared_error`` per agent
+``/agents/estimate``        ``Estimates``     every agent's x-hat^i_{k|k} (agent major)
+                                              and ``error_norm`` ||x-hat^i_{k|k} - x_k||
 ``/agents/update``          ``Updates``       r_ij[k] per (in-neighbour j, agent i)
 ``/agents/freshness``       ``Freshness``     AoI freshness indices per (agent, substate)
-``/links/sent``             ``LinkSends``     per link: the message sent at k (its delay)
+``/links/sent``             ``LinkSends``     per link: the message sent at k (its delay
+                                              d, arrival time; none: (k + 1 + d) Ts)
 ``/links/delivered``        ``LinkDeliveries`` the messages usable from step k on (their
-                                              link, time-stamp, acceptance), in the order
-                                              they arrived
+                                              link, delay d = k - 1 - time-stamp,
+                                              acceptance), in the order they arrived
 ``/links/dropped``          ``LinkDrops``     the messages lost at times in
                                               ((k-1) Ts, k Ts] (link, time-stamp, reason)
 ==========================  ================  ============================================
@@ -88,8 +90,8 @@ ABSENT = -3
 
 _F = descriptor_pb2.FieldDescriptorProto
 _ONE, _MANY = _F.LABEL_OPTIONAL, _F.LABEL_REPEATED
-_FIXED64, _FIXED32, _SFIXED32, _DOUBLE = (_F.TYPE_FIXED64, _F.TYPE_FIXED32, _F.TYPE_SFIXED32,
-                                          _F.TYPE_DOUBLE)
+_FIXED64, _FIXED32, _DOUBLE = _F.TYPE_FIXED64, _F.TYPE_FIXED32, _F.TYPE_DOUBLE
+_UINT32, _SINT32, _BOOL = _F.TYPE_UINT32, _F.TYPE_SINT32, _F.TYPE_BOOL
 
 
 def _f(name: str, number: int, type_: int) -> Field:
@@ -103,36 +105,37 @@ def _r(name: str, number: int, type_: int = _DOUBLE) -> Field:
 _STEP = (_f("step", 1, _FIXED64), _f("time", 2, _DOUBLE))
 
 #: Format-3 messages: name -> fields with pinned numbers (equal to the .proto file).
+#: Small integers are packed varints (``uint32``, ``sint32``, ``bool``: one byte each
+#: for values below 128, resp. -64 .. 63), values ``double``.
 MESSAGES: dict[str, tuple[Field, ...]] = {
     "PlantState": _STEP + (_r("state", 3),),
     "Measurements": _STEP + (_r("values", 3),),
     "Estimates": _STEP + (
-        _r("updated", 3, _FIXED32),
+        _r("updated", 3, _BOOL),
         _r("estimate", 4),
         _r("error_norm", 5),
-        _r("squared_error", 6),
     ),
-    "Updates": _STEP + (_r("effective_delay", 3, _SFIXED32),),
+    "Updates": _STEP + (_r("effective_delay", 3, _SINT32),),
     "Freshness": _STEP + (
-        _r("index", 3, _SFIXED32),
-        _r("adopted_from", 4, _SFIXED32),
-        _r("substate_dim", 5, _SFIXED32),
-        _r("max_index", 6, _SFIXED32),
+        _r("index", 3, _SINT32),
+        _r("adopted_from", 4, _SINT32),
+        _r("substate_dim", 5, _SINT32),
+        _r("max_index", 6, _SINT32),
     ),
     "LinkSends": _STEP + (
-        _r("delay_steps", 3, _SFIXED32),
+        _r("delay_steps", 3, _SINT32),
         _r("arrival_time", 4),
         _r("payload", 5),
     ),
     "LinkDeliveries": _STEP + (
-        _r("link", 3, _FIXED32),
-        _r("sent_step", 4, _FIXED32),
-        _r("accepted", 5, _FIXED32),
+        _r("link", 3, _UINT32),
+        _r("delay_steps", 4, _UINT32),
+        _r("accepted", 5, _BOOL),
     ),
     "LinkDrops": _STEP + (
-        _r("link", 3, _FIXED32),
-        _r("sent_step", 4, _FIXED32),
-        _r("reason", 5, _FIXED32),
+        _r("link", 3, _UINT32),
+        _r("sent_step", 4, _UINT32),
+        _r("reason", 5, _UINT32),
         _r("drop_time", 6),
     ),
 }

@@ -19,7 +19,7 @@ import numpy as np
 from netsim.traces.schemas import varint
 from netsim.traces.schemas3 import MESSAGES
 
-__all__ = ["Column", "encode_steps", "field_dtypes"]
+__all__ = ["Column", "encode_steps", "encode_records", "field_dtypes"]
 
 _WIDTH_DTYPE = {"double": "<f8", "fixed32": "<u4", "sfixed32": "<i4"}
 
@@ -37,17 +37,16 @@ class Column(NamedTuple):
 
 @cache
 def field_dtypes(type_name: str) -> tuple[tuple[str, int, str], ...]:
-    """The repeated fields of a format-3 message: (name, number, numpy dtype), in
-    number order (the scalars ``step`` and ``time`` are fields 1 and 2)."""
+    """The repeated fields of a format-3 message: (name, number, kind), in number order
+    (the scalars ``step`` and ``time`` are fields 1 and 2); kind is a numpy dtype
+    (``<f8``) for a fixed-width field, else ``uint32``, ``sint32`` or ``bool``."""
     from google.protobuf.descriptor_pb2 import FieldDescriptorProto as F
 
-    names = {F.TYPE_DOUBLE: "<f8", F.TYPE_FIXED32: "<u4", F.TYPE_SFIXED32: "<i4"}
-    out = []
-    for f in sorted(MESSAGES[type_name], key=lambda f: f.number):
-        if f.number <= 2:
-            continue
-        out.append((f.name, f.number, names[f.type]))
-    return tuple(out)
+    kinds = {F.TYPE_DOUBLE: "<f8", F.TYPE_FIXED32: "<u4", F.TYPE_SFIXED32: "<i4",
+             F.TYPE_UINT32: "uint32", F.TYPE_SINT32: "sint32", F.TYPE_BOOL: "bool"}
+    return tuple((f.name, f.number, kinds[f.type])
+                 for f in sorted(MESSAGES[type_name], key=lambda f: f.number)
+                 if f.number > 2)
 
 
 _STEP_TAG = np.frombuffer(varint(1 << 3 | 1), np.uint8)
@@ -65,6 +64,36 @@ def _varint_bytes(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     out = ((v[:, None] >> shifts) & np.uint64(0x7F)).astype(np.uint8)
     out[np.arange(5)[None, :] < (length[:, None] - 1)] |= 0x80
     return out, length
+
+
+def _varint_column(kind: str, values: np.ndarray, counts: np.ndarray | None,
+                   rows: int) -> tuple[np.ndarray, np.ndarray | None]:
+    """A varint field's packed bytes: (bytes, byte counts per row or None when every
+    element takes one byte and ``counts`` is None: then shape (rows, count))."""
+    v = np.asarray(values)
+    if kind == "sint32":
+        s = v.astype(np.int64)
+        if s.size and (s.min() < -2**31 or s.max() >= 2**31):
+            raise ValueError(f"sint32 value out of range: {s.min()} .. {s.max()}")
+        u = ((s << 1) ^ (s >> 63)).astype(np.uint64)
+    elif kind == "bool":
+        u = v.astype(bool).astype(np.uint64)
+    else:
+        s = v.astype(np.int64)
+        if s.size and (s.min() < 0 or s.max() >= 2**32):
+            raise ValueError(f"uint32 value out of range: {s.min()} .. {s.max()}")
+        u = s.astype(np.uint64)
+    if not u.size or int(u.max()) < 128:
+        return u.astype(np.uint8), counts
+    flat = u.reshape(-1)
+    if counts is None:
+        counts = np.full(rows, u.shape[1] if u.ndim == 2 else 0, dtype=np.int64)
+    data, length = _varint_bytes(flat)
+    stream = data[np.arange(5)[None, :] < length[:, None]]
+    ends = np.cumsum(length)
+    bounds = np.concatenate([[0], np.cumsum(counts)])
+    before = np.concatenate([[0], ends])[bounds]
+    return stream, np.diff(before)
 
 
 def encode_steps(type_name: str, step: np.ndarray, time: np.ndarray,
@@ -90,45 +119,92 @@ def encode_steps(type_name: str, step: np.ndarray, time: np.ndarray,
         Message r is ``payloads[offsets[r]:offsets[r + 1]]``.
     """
     rows = int(np.shape(step)[0])
+    parts, uniform = _prepare(type_name, rows, columns)
+    if uniform:
+        out, size = _uniform_rows(rows, step, time, parts)
+        return out.view(np.uint8).reshape(-1), np.arange(rows + 1, dtype=np.int64) * size
+    return _encode_ragged(rows, step, time, parts)
+
+
+def encode_records(type_name: str, step: np.ndarray, time: np.ndarray,
+                   columns: Mapping[str, Column], channel_id: int, log_time: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Serialise one format-3 message per row as consecutive MCAP Message records
+    (sequence = step, publish_time = log_time): the bytes of
+    :func:`netsim.traces.bulkmcap.message_records` applied to :func:`encode_steps`'s
+    messages, built in one pass when every row has the same length.
+
+    Returns
+    -------
+    records : numpy.ndarray, shape (total,), uint8
+    starts : numpy.ndarray, shape (rows,), int64
+    """
+    from netsim.traces.bulkmcap import MESSAGE_HEADER_DTYPE, OP_MESSAGE, message_records
+
+    rows = int(np.shape(step)[0])
+    parts, uniform = _prepare(type_name, rows, columns)
+    if not uniform:
+        payloads, offsets = _encode_ragged(rows, step, time, parts)
+        return message_records(channel_id, np.asarray(step).astype(np.uint32), log_time,
+                               log_time, payloads, offsets)
+    out, size = _uniform_rows(rows, step, time, parts, MESSAGE_HEADER_DTYPE.descr)
+    out["opcode"] = OP_MESSAGE
+    out["length"] = size - 9
+    out["channel_id"] = channel_id
+    out["sequence"] = step
+    out["log_time"] = log_time
+    out["publish_time"] = log_time
+    return out.view(np.uint8).reshape(-1), np.arange(rows, dtype=np.int64) * size
+
+
+def _prepare(type_name: str, rows: int, columns: Mapping[str, Column]
+             ) -> tuple[list[tuple[Any, ...]], bool]:
+    """Each given field as (number, dtype, values, counts or None, count or None), and
+    whether every row has the same length."""
     fields = field_dtypes(type_name)
     unknown = set(columns) - {name for name, _, _ in fields}
     if unknown:
         raise ValueError(f"{type_name}: no repeated fields {sorted(unknown)}")
-    parts = []  # (number, dtype, values 1-D, counts (rows,))
+    parts = []  # (number, dtype, values, counts (rows,) or None, count or None)
     uniform = True
-    for name, number, dtype in fields:
+    for name, number, kind in fields:
         column = columns.get(name)
         if column is None:
             continue
         values = np.asarray(column.values)
-        if column.counts is None:
+        counts = column.counts
+        if counts is None:
             if values.ndim != 2 or values.shape[0] != rows:
                 raise ValueError(f"{type_name}.{name}: expected shape ({rows}, count), got "
                                  f"{values.shape}")
-            count = values.shape[1]
-            if count == 0:
-                continue
-            parts.append((number, dtype, values, None, count))
         else:
-            counts = np.asarray(column.counts, dtype=np.int64)
+            counts = np.asarray(counts, dtype=np.int64)
             if counts.shape != (rows,) or int(counts.sum()) != values.reshape(-1).shape[0]:
                 raise ValueError(f"{type_name}.{name}: {values.size} values for counts "
                                  f"summing to {int(counts.sum())} over {rows} rows")
-            if rows and np.all(counts == counts[0]):
-                if counts[0]:
-                    parts.append((number, dtype, values.reshape(rows, int(counts[0])), None,
-                                  int(counts[0])))
-                continue
-            uniform = False
-            parts.append((number, dtype, values.reshape(-1), counts, None))
-    if uniform:
-        return _encode_uniform(rows, step, time, parts)
-    return _encode_ragged(rows, step, time, parts)
+        dtype = kind
+        if not kind.startswith("<"):  # varint: packed bytes
+            values, counts = _varint_column(kind, values, counts, rows)
+            dtype = "u1"
+        if counts is None:
+            if values.shape[1]:
+                parts.append((number, dtype, values, None, values.shape[1]))
+            continue
+        if rows and np.all(counts == counts[0]):
+            if counts[0]:
+                parts.append((number, dtype, values.reshape(rows, int(counts[0])), None,
+                              int(counts[0])))
+            continue
+        uniform = False
+        parts.append((number, dtype, values.reshape(-1), counts, None))
+    return parts, uniform
 
 
-def _encode_uniform(rows: int, step: np.ndarray, time: np.ndarray,
-                    parts: list[tuple[Any, ...]]) -> tuple[np.ndarray, np.ndarray]:
-    spec = list(_HEAD.descr)
+def _uniform_rows(rows: int, step: np.ndarray, time: np.ndarray,
+                  parts: list[tuple[Any, ...]], prefix: list[Any] | None = None
+                  ) -> tuple[np.ndarray, int]:
+    """Equal-length rows as a structured array (``prefix`` fields first) and its size."""
+    spec = list(prefix or []) + list(_HEAD.descr)
     tags = {}
     for number, dtype, _, _, count in parts:
         width = np.dtype(dtype).itemsize
@@ -144,8 +220,7 @@ def _encode_uniform(rows: int, step: np.ndarray, time: np.ndarray,
     for number, _, values, _, _ in parts:
         out[f"t{number}"] = tags[f"t{number}"]
         out[f"v{number}"] = values
-    size = dtype_row.itemsize
-    return out.view(np.uint8).reshape(-1), np.arange(rows + 1, dtype=np.int64) * size
+    return out, dtype_row.itemsize
 
 
 def _encode_ragged(rows: int, step: np.ndarray, time: np.ndarray,

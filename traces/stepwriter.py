@@ -28,7 +28,6 @@ from typing import Any
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
-from netsim.traces.bulkmcap import message_records
 from netsim.traces.schemas3 import (
     ABSENT,
     LAYOUT_METADATA,
@@ -36,9 +35,9 @@ from netsim.traces.schemas3 import (
     file_descriptor_set,
     schema_name,
 )
-from netsim.traces.stepcodec import Column, encode_steps
+from netsim.traces.stepcodec import Column, encode_records
 
-__all__ = ["StepWriter", "StepLog", "TraceLayoutError", "drop_bucket"]
+__all__ = ["StepWriter", "StepLog", "TraceLayoutError", "drop_bucket", "arrival_column"]
 
 _TOPIC_OF = {type_name: topic for topic, type_name in TOPICS.items()}
 
@@ -97,13 +96,11 @@ class StepWriter:
         if not rows:
             return
         recorder = self.recorder
-        payloads, offsets = encode_steps(type_name, step, np.asarray(time, dtype=float),
-                                         columns)
-        log_time = (np.round(np.asarray(time, dtype=float) * 1e9).astype(np.int64)
+        time = np.asarray(time, dtype=float)
+        log_time = (np.round(time * 1e9).astype(np.int64)
                     + np.int64(recorder.time_origin_ns)).astype(np.uint64)
         channel = self.channel(type_name)
-        records, starts = message_records(channel, step.astype(np.uint32), log_time,
-                                          log_time, payloads, offsets)
+        records, starts = encode_records(type_name, step, time, columns, channel, log_time)
         self.writer.add_records(records, starts, np.full(rows, channel, dtype=np.uint16),
                                 log_time)
         topic = _TOPIC_OF[type_name]
@@ -289,6 +286,8 @@ class StepLog:
         self._write(steps, extra)
 
     def _write(self, steps: list[_Step], extra: list[int]) -> None:
+        if not steps and not extra:
+            return
         out = self.out
         out.layout(self.layout())
         N, n, L, E = self.n_agents, self.n_states or 0, len(self.links), len(self.entries)
@@ -299,22 +298,20 @@ class StepLog:
             values = [np.concatenate(s.measurements) if s.measurements else np.zeros(0)
                       for s in steps]
             out.emit("Measurements", k, t, {"values": _ragged(values, np.float64)})
-            updated = np.zeros((len(steps), N), dtype=np.uint32)
+            updated = np.zeros((len(steps), N), dtype=bool)
             est = np.full((len(steps), N, n), np.nan)
             norm = np.full((len(steps), N), np.nan)
-            sq = np.full((len(steps), N), np.nan)
             delays = np.full((len(steps), E), ABSENT, dtype=np.int32)
             for r, s in enumerate(steps):
-                for i, (x_hat, q, e) in s.estimates.items():
-                    updated[r, i] = 1
+                for i, (x_hat, _, e) in s.estimates.items():
+                    updated[r, i] = True
                     est[r, i] = x_hat
-                    sq[r, i], norm[r, i] = q, e
+                    norm[r, i] = e
                 for e, d in s.updates.items():
                     delays[r, e] = d
             out.emit("Estimates", k, t, {"updated": Column(updated),
                                          "estimate": Column(est.reshape(len(steps), N * n)),
-                                         "error_norm": Column(norm),
-                                         "squared_error": Column(sq)})
+                                         "error_norm": Column(norm)})
             out.emit("Updates", k, t, {"effective_delay": Column(delays)})
             if any(s.freshness for s in steps):
                 self._write_freshness(steps, k, t)
@@ -357,7 +354,8 @@ class StepLog:
                         j = self.links[l_][0]
                         stored[l_] = s.estimates[j][0]
             payloads.append(np.zeros(0) if stored is None else stored.reshape(-1))
-        columns = {"delay_steps": Column(delay), "arrival_time": Column(arrival)}
+        columns = {"delay_steps": Column(delay),
+                   "arrival_time": arrival_column(k, delay, arrival, self.ts)}
         if any(p.size for p in payloads):
             columns["payload"] = _ragged(payloads, np.float64)
         self.out.emit("LinkSends", k, t, columns)
@@ -382,10 +380,29 @@ class StepLog:
             flat = [e for d in events for e in d]
             counts = np.array([len(d) for d in events], dtype=np.int64)
             kk = np.array(rows, dtype=np.int64)
+            bucket = np.repeat(kk, counts)
             self.out.emit("LinkDeliveries", kk, kk * self.ts, {
                 "link": Column(np.array([e[0] for e in flat], dtype=np.uint32), counts),
-                "sent_step": Column(np.array([e[1] for e in flat], dtype=np.uint32), counts),
-                "accepted": Column(np.array([e[2] for e in flat], dtype=np.uint32), counts)})
+                "delay_steps": Column(bucket - 1 - np.array([e[1] for e in flat],
+                                                            dtype=np.int64), counts),
+                "accepted": Column(np.array([e[2] for e in flat], dtype=bool), counts)})
+
+
+def arrival_column(k: np.ndarray, delay: np.ndarray, arrival: np.ndarray, ts: float
+                   ) -> Column:
+    """``LinkSends.arrival_time`` of rows ``k``: left out of a row (empty) when every
+    message sent at k arrives at (k + 1 + d) Ts (delays in steps), else all L values.
+
+    ``delay`` and ``arrival`` have shape (rows, L) (``ABSENT`` / NaN: nothing sent)."""
+    sent = delay != ABSENT
+    implied = (k[:, None] + 1 + delay).astype(float) * ts
+    same = np.all(~sent | (arrival == implied), axis=1)
+    if same.all():
+        return Column(np.zeros((len(k), 0)))
+    if not same.any():
+        return Column(arrival)
+    counts = np.where(same, 0, arrival.shape[1])
+    return Column(arrival[~same].reshape(-1), counts)
 
 
 def _ragged(rows: list[np.ndarray], dtype: Any) -> Column:

@@ -484,7 +484,9 @@ def bare_numbers(batch: Any, scenario: Any) -> bytes:
 
 
 def measure_run(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str, Any]:
-    """Untraced vs traced (bulk; per-event replay) trial of the vectorised engine."""
+    """Untraced vs traced trial of the vectorised engine: format 3 as ``netsim run
+    --trace`` writes it (uncompressed) and with zstd, format 2 (bulk), and format 2
+    through the per-event observer replay."""
     import warnings
 
     from netsim.models.seeding import child_sequence
@@ -513,37 +515,43 @@ def measure_run(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str
         if os.path.exists(path):
             os.remove(path)
 
-    def traced() -> None:
-        batch = run_batch(scenario, fam.name, gains, seeds, steps, record_estimates=True)
-        _traced_trial(scenario, fam, gains, seed, 0, steps, path, True, None, batch=batch,
-                      batch_trial=0)
+    def traced_with(options: dict[str, Any]) -> Callable[[], None]:
+        def traced() -> None:
+            batch = run_batch(scenario, fam.name, gains, seeds, steps, record_estimates=True)
+            _traced_trial(scenario, fam, gains, seed, 0, steps, path, True, None,
+                          batch=batch, batch_trial=0, trace_options=options)
+        return traced
+
+    variants = {"traced": {"trace_format": 3},
+                "traced_format3_zstd": {"trace_format": 3, "compression": "zstd"},
+                "traced_format2": {"trace_format": 2}}
 
     def replayed() -> None:
         batch = run_batch(scenario, fam.name, gains, seeds, steps, record_estimates=True)
         with TraceRecorder.for_run(path, scenario, gains, fam.name, 0, seed=seed,
-                                   steps=steps) as recorder:
+                                   steps=steps, trace_format=2) as recorder:
             replay_trial(batch, 0, scenario, fam.name, recorder)
 
     seconds, cpu = {}, {}
     untraced()  # warm up (imports, caches)
-    traced()
-    # interleaved (untraced, traced, replay) rounds, best of each: on a shared machine
-    # a load change then hits all three alike; the untraced and traced runs, a few
-    # hundredths of a second each, are repeated 5 times per round
+    sizes, messages = {}, {}
+    from mcap.reader import make_reader
+
+    for name, options in variants.items():
+        fresh()
+        traced_with(options)()
+        sizes[name] = os.path.getsize(path)
+        with open(path, "rb") as f:
+            messages[name] = make_reader(
+                f, validate_crcs=True).get_summary().statistics.message_count
     # the floors: what no trace of this trial can cost less than, with the recorder's
     # compression (zstd at its level, one call per chunk_size piece) and a file write
     fresh()
-    traced()
-    from mcap.reader import make_reader
-
-    with open(path, "rb") as f:
-        messages = make_reader(f, validate_crcs=True).get_summary().statistics.message_count
-    fresh()
     batch = run_batch(scenario, fam.name, gains, seeds, steps, record_estimates=True)
     _traced_trial(scenario, fam, gains, seed, 0, steps, path, True, None, batch=batch,
-                  batch_trial=0, trace_options={"compression": "none"})
+                  batch_trial=0, trace_options={"trace_format": 2, "compression": "none"})
     with open(path, "rb") as f:
-        uncompressed = f.read()  # the trace's records (and indexes), uncompressed
+        uncompressed = f.read()  # format 2's records (and indexes), uncompressed
     numbers = bare_numbers(batch, scenario)
     floor_path = path + ".floor"
     level, chunk = _recorder_level(), 1024 * 1024
@@ -560,10 +568,13 @@ def measure_run(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str
         if os.path.exists(floor_path):
             os.remove(floor_path)
 
-    fns = [("untraced", untraced, 5, None), ("traced", traced, 5, fresh),
-           ("traced_replay", replayed, 1, fresh),
-           ("trace_floor", floor_of(uncompressed), 5, fresh_floor),
-           ("numbers_floor", floor_of(numbers), 5, fresh_floor)]
+    # interleaved rounds, best of each: on a shared machine a load change then hits all
+    # alike; the runs of a few hundredths of a second are repeated 5 times per round
+    fns = [("untraced", untraced, 5, None)]
+    fns += [(name, traced_with(options), 5, fresh) for name, options in variants.items()]
+    fns += [("traced_replay", replayed, 1, fresh),
+            ("trace_floor", floor_of(uncompressed), 5, fresh_floor),
+            ("numbers_floor", floor_of(numbers), 5, fresh_floor)]
     spent: dict[str, list[float]] = {name: [] for name, *_ in fns}
     walls: dict[str, list[float]] = {name: [] for name, *_ in fns}
     for _ in range(repeat):
@@ -571,13 +582,14 @@ def measure_run(n_agents: int, steps: int, repeat: int, folder: str) -> dict[str
             walls[name].append(best(fn, inner, spent[name], setup))
     for name in walls:
         seconds[name], cpu[name] = min(walls[name]), min(spent[name])
-    print(f"  run N = {n_agents}: " + ", ".join(f"{k} {v:.3f} s" for k, v in seconds.items()),
+    print(f"  run N = {n_agents}: " + ", ".join(f"{k} {v:.4f} s" for k, v in seconds.items()),
           file=sys.stderr)
-    return {"n_agents": n_agents, "steps": steps, "messages": messages,
-            "seconds": seconds, "cpu_seconds": cpu,
-            "traced_over_untraced": seconds["traced"] / seconds["untraced"],
+    ratio = {name: seconds[name] / seconds["untraced"] for name in seconds}
+    return {"n_agents": n_agents, "steps": steps, "messages": messages, "file_bytes": sizes,
+            "seconds": seconds, "cpu_seconds": cpu, "ratio_to_untraced": ratio,
+            "traced_over_untraced": ratio["traced"],
             "traced_over_untraced_cpu": cpu["traced"] / cpu["untraced"],
-            "replay_over_untraced": seconds["traced_replay"] / seconds["untraced"],
+            "replay_over_untraced": ratio["traced_replay"],
             "trace_bytes_uncompressed": len(uncompressed), "numbers_bytes": len(numbers),
             # a traced run costs at least untraced + floor: the best ratio reachable
             "trace_floor_ratio": 1 + seconds["trace_floor"] / seconds["untraced"],
@@ -641,24 +653,27 @@ def main(argv: list[str] | None = None) -> int:
               f" {q['floor_over_bulk']:>10.2f}")
     if runs:
         print(f"\ntraced run of one trial ({args.run_steps} steps, compensated, vectorised; "
-              "seconds, best of {args.repeat} interleaved rounds)".replace(
-                  "{args.repeat}", str(args.repeat)))
-        print(f"{'N':>4} {'messages':>9} {'untraced':>9} {'traced':>9} {'ratio':>6} "
-              f"{'replay':>9} {'ratio':>6} {'cpu ratio':>9} {'MB':>6} {'floor':>6} "
-              f"{'numMB':>6} {'floor':>6}")
+              f"seconds, best of {args.repeat} interleaved rounds; ratio to untraced)")
+        print(f"{'N':>4} {'untraced':>9} {'format 3':>9} {'ratio':>6} {'MB':>5} "
+              f"{'3 + zstd':>9} {'ratio':>6} {'MB':>5} {'format 2':>9} {'ratio':>6} {'MB':>5} "
+              f"{'replay':>8} {'ratio':>6} {'cpu':>5}")
         for r in runs:
-            sec = r["seconds"]
-            print(f"{r['n_agents']:>4} {r['messages']:>9} {sec['untraced']:>9.3f} "
-                  f"{sec['traced']:>9.3f} {r['traced_over_untraced']:>6.2f} "
-                  f"{sec['traced_replay']:>9.3f} {r['replay_over_untraced']:>6.2f} "
-                  f"{r['traced_over_untraced_cpu']:>9.2f} "
-                  f"{r['trace_bytes_uncompressed'] / 1e6:>6.2f} "
-                  f"{r['trace_floor_ratio']:>6.2f} {r['numbers_bytes'] / 1e6:>6.2f} "
+            sec, q, mb = r["seconds"], r["ratio_to_untraced"], r["file_bytes"]
+            cells = [f"{sec[k]:>9.4f} {q[k]:>6.2f} {mb[k] / 1e6:>5.2f}"
+                     for k in ("traced", "traced_format3_zstd", "traced_format2")]
+            print(f"{r['n_agents']:>4} {sec['untraced']:>9.4f} " + " ".join(cells)
+                  + f" {sec['traced_replay']:>8.3f} {q['traced_replay']:>6.1f}"
+                  f" {r['traced_over_untraced_cpu']:>5.2f}")
+        print("format 3: what 'netsim run --trace' writes (uncompressed); cpu: the CPU-time "
+              "ratio of format 3; replay: format 2 through the per-event observer calls")
+        print(f"{'N':>4} {'f2 MB raw':>10} {'f2 floor':>9} {'numbers MB':>11} {'floor':>6}")
+        for r in runs:
+            print(f"{r['n_agents']:>4} {r['trace_bytes_uncompressed'] / 1e6:>10.2f} "
+                  f"{r['trace_floor_ratio']:>9.2f} {r['numbers_bytes'] / 1e6:>11.2f} "
                   f"{r['numbers_floor_ratio']:>6.2f}")
-        print("floor: 1 + (zstd at the recorder's level, 1 MiB pieces, and a file write "
-              "of the trace's uncompressed records, MB) / untraced; numbers floor: the "
-              "same for the bare arrays (states, estimates, measurements float64, step "
-              "delays int16; numMB): the best ratio any such trace could reach")
+        print("floors: 1 + (zstd at the recorder's level in 1 MiB pieces and a file write of "
+              "format 2's uncompressed records / of the bare arrays: states, estimates, "
+              "measurements float64, step delays int16) / untraced")
     for r in results:
         goals = ", ".join(f"{k} {'yes' if v else 'NO'}" for k, v in r["goals"].items())
         print(f"N = {r['n_agents']}: {goals}; bulk file holds the raw writer's messages: "

@@ -333,26 +333,38 @@ def trace_bytes(scenario: Any, steps: int) -> int:
 MCAP_MAX_CHANNELS = 65536
 
 
-def trace_channels(scenario: Any) -> int:
-    """Most channels (topics) one trace of ``scenario`` can need: ``/plant/state``, one
-    per sensor, three per agent (estimate, update, freshness) and three per link
-    (sent, delivered, dropped); :mod:`netsim.traces.schemas` names them."""
+def trace_channels(scenario: Any, trace_format: int = 2) -> int:
+    """Most channels (topics) one trace of ``scenario`` can need. Format 2:
+    ``/plant/state``, one per sensor, three per agent (estimate, update, freshness) and
+    three per link (sent, delivered, dropped) (:mod:`netsim.traces.schemas` names them);
+    format 3: its eight topics whatever the network (:mod:`netsim.traces.schemas3`)."""
+    if trace_format == 3:
+        from netsim.traces.schemas3 import TOPICS
+
+        return len(TOPICS)
     _, N, L, _, _, _ = _sizes(scenario)
     return 1 + len(scenario.plant.C) + 3 * N + 3 * L
 
 
-def check_trace_size(scenario: Any, trace: str | os.PathLike[str]) -> None:
+def check_trace_size(scenario: Any, trace: str | os.PathLike[str],
+                     trace_format: int | None = None) -> None:
     """Refuse (:class:`ResourceError`, one line naming ``--trace``) a trace of
     ``scenario`` that cannot be written: more topics than MCAP's channels
-    (:func:`trace_channels`), or sparse weights beyond the dense-P limit (a trace stores
-    P as a dense ``.npy``). Run before the simulation, so nothing computed is lost."""
-    channels = trace_channels(scenario)
+    (:func:`trace_channels`; format 2 only), or sparse weights beyond the dense-P limit
+    (a trace stores P as a dense ``.npy``). Run before the simulation, so nothing
+    computed is lost. ``trace_format``: None for the recorder's default."""
+    if trace_format is None:
+        from netsim.traces.recorder import DEFAULT_TRACE_FORMAT
+
+        trace_format = DEFAULT_TRACE_FORMAT
+    channels = trace_channels(scenario, trace_format)
     if channels > MCAP_MAX_CHANNELS:
         _, N, L, _, _, _ = _sizes(scenario)
         raise ResourceError(
-            f"--trace {trace}: a trace of N = {N} agents and {L} links has up to "
+            f"--trace {trace}: a format-2 trace of N = {N} agents and {L} links has up to "
             f"{channels:,} topics, more than the {MCAP_MAX_CHANNELS:,} channels an MCAP "
-            f"file can hold; trace a smaller network, or run this one without --trace",
+            f"file can hold; use --trace-format 3 (8 topics at any size), trace a smaller "
+            f"network, or run this one without --trace",
             "--trace", channels, MCAP_MAX_CHANNELS)
     if hasattr(scenario.weights, "toarray"):  # sparse: the trace stores P dense
         from netsim.models.scenario import DENSE_WEIGHTS_MAX_AGENTS

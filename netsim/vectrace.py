@@ -59,7 +59,11 @@ def _neighbours(P: Any) -> list[list[int]]:
                                         csr.data[csr.indptr[i]:csr.indptr[i + 1]],
                                         strict=True) if j != i and w != 0]
                 for i in range(csr.shape[0])]
-    return [[int(j) for j in np.flatnonzero(P[i]) if j != i] for i in range(P.shape[0])]
+    rows, cols = np.nonzero(np.asarray(P))  # row major: rows, then columns, increasing
+    off = rows != cols
+    bounds = np.searchsorted(rows[off], np.arange(P.shape[0] + 1))
+    cols = cols[off].tolist()
+    return [cols[bounds[i]:bounds[i + 1]] for i in range(P.shape[0])]
 
 
 def trial_events(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str
@@ -653,8 +657,11 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
     x = states[:R].reshape(R, -1)
     ys = [np.asarray(y[:R], dtype=float).reshape(R, -1) for y in result.measurements]
     est = estimates[:R]
-    error = est - x[:, None, :]
-    sq = np.einsum("kia,kia->ki", error, error)
+    if result.diverged_at is None and result.squared_errors.shape[0] >= R:
+        sq = result.squared_errors[:R]  # the engine's ||x-hat^i_k - x_k||^2
+    else:  # at a divergence the engine reports non-finite errors as inf: as the kernel
+        error = est - x[:, None, :]
+        sq = np.einsum("kia,kia->ki", error, error)
     with np.errstate(invalid="ignore"):
         norm = np.sqrt(sq)
     tables: list[tuple[str, np.ndarray, dict[str, Column]]] = [
@@ -672,30 +679,44 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
     L, E = len(links), len(entries)
     delays = np.full((R, E), ABSENT, dtype=np.int32)
     sends_delay = np.full((R, L), ABSENT, dtype=np.int32)
-    sends_arrival = np.full((R, L), np.nan)
+    sends_arrival = np.empty((R, L))  # filled only when arrivals are not at steps
     deliveries = drops = None
+    in_steps = True
     if schedule is not None:
         link_index = {link: q for q, link in enumerate(links)}
         send = np.asarray(schedule.send_steps)
         n_sends = int(np.searchsorted(send, end, side="right"))
         up = np.asarray(batch.updated, dtype=np.int64)
-        ku = up[(up <= end) & (up > 0)]
-        delays[up[up <= end]] = -1  # updated: own estimate unless a message was held
         entry_link = np.array([link_index.get(x_, -1) for x_ in entries], dtype=np.int64)
-        known = np.flatnonzero(entry_link >= 0)
-        if ku.size and known.size:
-            held = np.asarray(selection.chosen[ku][:, entry_link[known], trial],
-                              dtype=np.int64)  # (U, E')
-            r = np.where(held >= 0, ku[:, None] - 1 - send[np.maximum(held, 0)], -1)
-            delays[np.ix_(ku, known)] = r
+        if E and (entry_link >= 0).all():
+            # r_ij[k] = k - 1 - s of the message held (chosen) at k; -1: none held
+            held = np.asarray(selection.chosen[:R, :, trial])[:, entry_link]  # (R, E)
+            sent_at = held if np.array_equal(send[:n_sends], np.arange(n_sends)) else (
+                send[np.maximum(held, 0)]).astype(np.int32)
+            delays = (k.astype(np.int32) - 1)[:, None] - sent_at
+            delays[held < 0] = -1
+            delays[0] = -1
+            not_updated = np.ones(R, dtype=bool)
+            not_updated[up[up <= end]] = False
+            delays[not_updated] = ABSENT
+        else:  # an entry without a link (never for the built-in families)
+            ku = up[(up <= end) & (up > 0)]
+            delays[up[up <= end]] = -1
+            for e, l_ in enumerate(entry_link.tolist()):
+                if l_ >= 0 and ku.size:
+                    held = np.asarray(selection.chosen[ku, l_, trial], dtype=np.int64)
+                    ok = held >= 0
+                    delays[ku[ok], e] = ku[ok] - 1 - send[held[ok]]
         if n_sends:
-            deliveries, drops = _step_link_events(recorder, schedule, selection, trial,
-                                                  n_sends, end, ts, sends_delay,
-                                                  sends_arrival)
+            deliveries, drops, in_steps = _step_link_events(
+                recorder, schedule, selection, trial, n_sends, end, ts, sends_delay,
+                sends_arrival)
     tables.append(("Updates", k, {"effective_delay": Column(delays)}))
+    # arrival times follow from the delays (left out) unless some arrive between steps
+    arrival = (Column(np.zeros((R, 0))) if in_steps
+               else arrival_column(k, sends_delay, sends_arrival, ts))
     tables.append(("LinkSends", k, {"delay_steps": Column(sends_delay),
-                                    "arrival_time": arrival_column(k, sends_delay,
-                                                                   sends_arrival, ts)}))
+                                    "arrival_time": arrival}))
     if drops is not None:
         tables.append(("LinkDrops",) + drops)
     if deliveries is not None:
@@ -711,79 +732,71 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
 
 def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_sends: int,
                       end: int, ts: float, sends_delay: np.ndarray, sends_arrival: np.ndarray
-                      ) -> tuple[Any, Any]:
+                      ) -> tuple[Any, Any, bool]:
     """Fill the sends (rows = send steps) and return the deliveries and drops tables
     (rows, columns) of format 3, or None for either without events (:func:`_link_groups`
-    has the kernel's rules). Messages are indexed message major, m = q L + l."""
+    has the kernel's rules), and whether every message arrives at its usable step (then
+    ``sends_arrival`` is not filled: the arrival times follow from the delays)."""
     from netsim.traces.stepcodec import Column
 
     send = np.asarray(schedule.send_steps)[:n_sends]
-    fate = np.asarray(schedule.fate[t, :, :n_sends])
-    wait = np.asarray(schedule.wait_of(t)[:, :n_sends], dtype=float)
-    delay = np.asarray(schedule.delay_steps[t, :, :n_sends])
-    links = schedule.links
-    L = len(links)
+    delay = np.asarray(schedule.delay_steps[t, :, :n_sends])  # (L, S)
+    L = len(schedule.links)
     sends_delay[send] = delay.T
-    sends_arrival[send] = ((send[None, :] + wait) * ts).T
-    flat_fate = fate.T.ravel()  # message major
-    flat_delay = delay.T.ravel()
-    usable_all = (send[:, None] + 1 + delay.T).ravel()
-    in_steps = np.array_equal(wait, delay + 1.0)  # every arrival at its usable step
-
-    def arrival_of(m: np.ndarray) -> np.ndarray:  # arrival (in steps) of messages m
-        return send[m // L] + wait.T.ravel()[m] if not in_steps else usable_all[m] + 0.0
-
-    def phase_of(m: np.ndarray) -> np.ndarray:
-        return np.where(arrival_of(m) <= send[m // L], _LATE, _EARLY)
-
+    in_steps = schedule.wait is None  # every message arrives at its usable step
+    wait = None
+    if not in_steps:
+        wait = np.asarray(schedule.wait_of(t)[:, :n_sends], dtype=float)
+        in_steps = np.array_equal(wait, delay + 1.0)
+    if not in_steps:
+        sends_arrival.fill(np.nan)
+        sends_arrival[send] = ((send[None, :] + wait) * ts).T
+    usable = send[None, :] + 1 + delay  # (L, S)
+    lossless = bool(getattr(schedule, "lossless_steps", False))
+    fate = None if lossless else np.asarray(schedule.fate[t, :, :n_sends])
+    arrived = usable <= end if in_steps else send[None, :] + wait <= end
+    delivered = arrived if lossless else arrived & (fate == DELIVERED)
     deliveries = drops = None
-    delivered = flat_fate == DELIVERED
-    m = np.flatnonzero(delivered)
-    if m.size:  # delivered before the run ended
-        m = m[usable_all[m] <= end] if in_steps else m[arrival_of(m) <= end]
-    if m.size:
-        if not in_steps:
-            # arrivals between steps or at the sending instant: the kernel's order by
-            # arrival time and phase (then send, link), grouped by usable step below
-            m = m[np.lexsort((m % L, m // L, phase_of(m), arrival_of(m)))]
-        # else every message arrives at its usable step: the kernel's order within a
-        # step is the sending order (q, l), which m already has
-        usable = usable_all[m]
-        key = usable.astype(np.int16) if usable.max() < 2**15 else usable
-        order = np.argsort(key, kind="stable")  # radix sort for int16
-        m, usable = m[order], usable[order]
-        rows, counts = _by_bucket(usable, end + 1)
-        accepted = ~np.asarray(selection.discarded[t, :, :n_sends]).T.ravel()[m]
-        dd = flat_delay[m]
-        deliveries = (rows, {"link": Column(m % L, counts),
-                             "delay_steps": Column(dd, counts),
-                             "accepted": Column(accepted, counts)})
-        recorder.max_delay_steps = max(recorder.max_delay_steps, int(dd.max()))
-    m = np.flatnonzero(~delivered)
+    if delivered.any():
+        # the deliveries of each usable step in increasing (link, sent step): a stable
+        # sort by usable step of the link-major order (radix sort for int16)
+        u = usable[delivered]
+        order = np.argsort(u.astype(np.int16) if u.max() < 2**15 else u, kind="stable")
+        kept = ~np.asarray(selection.discarded[t, :, :n_sends])[delivered][order]
+        counts_all = np.bincount(u, minlength=end + 2)
+        rows = np.flatnonzero(counts_all)
+        deliveries = (rows, {"accepted": Column(kept, counts_all[rows])})
+        recorder.max_delay_steps = max(recorder.max_delay_steps, int(delay[delivered].max()))
+    if lossless:
+        return deliveries, drops, in_steps
+    # drops, message major (m = q L + l): at sending, drop-oldest victims (at the
+    # cancelling send), superseded (at arrival)
+    m = np.flatnonzero((fate != DELIVERED).T.ravel())
     if not m.size:
-        return deliveries, drops
+        return deliveries, drops, in_steps
+    q, l_ = m // L, m % L
     reasons = schedule.reasons
     code_oldest = reasons.index(REASON_DROP_OLDEST) + 1 if REASON_DROP_OLDEST in reasons else -1
     code_superseded = (reasons.index(REASON_SUPERSEDED) + 1
                        if REASON_SUPERSEDED in reasons else -1)
-    codes = flat_fate[m]
-    a = arrival_of(m)
-    drop_at = np.asarray(schedule.drop_time[t, :, :n_sends]).T.ravel()[m]
-    ss = send[m // L]
+    codes = fate[l_, q]
+    ss = send[q]
+    a = (usable[l_, q] if in_steps else ss + wait[l_, q]).astype(float)
+    drop_at = np.asarray(schedule.drop_time[t, :, :n_sends])[l_, q]
     victim = (codes == code_oldest) & (drop_at <= end)
     superseded = (codes == code_superseded) & (a <= end)
     at_send = (codes != code_oldest) & (codes != code_superseded)
     keep = at_send | victim | superseded
-    m, codes, a, drop_at, ss = m[keep], codes[keep], a[keep], drop_at[keep], ss[keep]
-    victim, superseded = victim[keep], superseded[keep]
-    if not m.size:
-        return deliveries, drops
+    if not keep.any():
+        return deliveries, drops, in_steps
+    q, l_, codes, a, ss = q[keep], l_[keep], codes[keep], a[keep], ss[keep]
+    drop_at, victim, superseded = drop_at[keep], victim[keep], superseded[keep]
     when = np.where(superseded, a, np.where(victim, drop_at, ss)).astype(float)
     ph = np.where(superseded, np.where(a <= ss, _LATE, _EARLY), _STEP)
-    sender = np.array([j for j, _ in links], dtype=np.int64)
-    x = np.where(ph == _STEP, sender[m % L], m // L)
-    order = np.lexsort((victim.astype(np.int64), m % L, x, ph, when))
-    m, when, codes, ss = m[order], when[order], codes[order], ss[order]
+    sender = np.array([j for j, _ in schedule.links], dtype=np.int64)
+    x = np.where(ph == _STEP, sender[l_], q)
+    order = np.lexsort((victim.astype(np.int64), l_, x, ph, when))
+    l_, when, codes, ss = l_[order], when[order], codes[order], ss[order]
     superseded, victim = superseded[order], victim[order]
     texts = [REASON_SUPERSEDED if s_ else REASON_DROP_OLDEST if v else reasons[c - 1]
              for s_, v, c in zip(superseded.tolist(), victim.tolist(), codes.tolist(),
@@ -795,23 +808,25 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     # the step that lists a drop: netsim.traces.stepwriter.drop_bucket, in steps
     bucket = np.ceil(when - 1e-9).astype(np.int64)
     rows, counts = _by_bucket(bucket, end + 1)
-    drops = (rows, {"link": Column(m % L, counts), "sent_step": Column(ss, counts),
+    drops = (rows, {"link": Column(l_, counts), "sent_step": Column(ss, counts),
                     "reason": Column(np.array([code_of[x_] for x_ in texts]), counts),
                     "drop_time": Column(when * ts, counts)})
-    return deliveries, drops
+    return deliveries, drops, in_steps
 
 
 def _write_step_windows(recorder: Any, out: Any, tables: list[tuple[str, np.ndarray, dict]],
                         end: int, ts: float) -> None:
-    """Write the format-3 tables in windows of steps of about one chunk each."""
+    """Write the format-3 tables in windows of steps (about :data:`ENCODE_BLOCK_BYTES`
+    each, flushed at its end)."""
     from netsim.traces.stepcodec import Column
 
     total = 0
     for _, rows, columns in tables:
         for col in columns.values():
             total += col.values.nbytes + 16 * len(rows)
-    chunk = int(out.writer.chunk_size)
-    window = max(1, int(chunk // max(1.0, total / (end + 1))))
+    # windows of about ENCODE_BLOCK_BYTES (the writer closes chunks of chunk_size within
+    # them): a window costs one encoder call per message type
+    window = max(1, int(ENCODE_BLOCK_BYTES // max(1.0, total / (end + 1))))
     edges = list(range(0, end + 1, window)) + [np.iinfo(np.int64).max]
     # per table: row boundaries of each window, element offsets of ragged columns
     cuts = [np.searchsorted(rows, edges, side="left") for _, rows, _ in tables]

@@ -103,11 +103,12 @@ def test_records_equal_message_records_of_the_encoded_rows(ragged):
     time = step * 0.25
     counts = rng.integers(0, 5, rows) if ragged else np.full(rows, 3)
     columns = {"link": Column(rng.integers(0, 300, counts.sum()), counts),
-               "delay_steps": Column(rng.integers(0, 9, counts.sum()), counts),
-               "accepted": Column(rng.integers(0, 2, counts.sum()).astype(bool), counts)}
+               "sent_step": Column(rng.integers(0, 9, counts.sum()), counts),
+               "reason": Column(rng.integers(1, 4, counts.sum()), counts),
+               "drop_time": Column(rng.normal(size=counts.sum()), counts)}
     log_time = (10**9 + step * 250_000_000).astype(np.uint64)
-    records, starts = encode_records("LinkDeliveries", step, time, columns, 4, log_time)
-    payloads, offsets = encode_steps("LinkDeliveries", step, time, columns)
+    records, starts = encode_records("LinkDrops", step, time, columns, 4, log_time)
+    payloads, offsets = encode_steps("LinkDrops", step, time, columns)
     expected, expected_starts = message_records(4, step.astype(np.uint32), log_time, log_time,
                                                 payloads, offsets)
     assert records.tobytes() == expected.tobytes()

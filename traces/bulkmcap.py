@@ -328,14 +328,15 @@ def _pool() -> ThreadPoolExecutor:
         return _POOL
 
 
-def _compress(level: int | None, pieces: list[Any], size: int) -> tuple[int, bytes]:
+def _compress(level: int | None, pieces: list[Any], size: int) -> tuple[int, Any]:
     """(CRC32 of the uncompressed records, the chunk's compressed records); zstd at
-    ``level`` (None: uncompressed), one compressor per thread and level."""
+    ``level`` (None: uncompressed, the pieces as given), one compressor per thread and
+    level."""
     crc = 0
     for piece in pieces:
         crc = zlib.crc32(piece, crc)
-    if level is None:
-        return crc, b"".join(pieces)
+    if level is None:  # written piece by piece (no copy of the chunk)
+        return crc, pieces
     cctxs = getattr(_LOCAL, "cctxs", None)
     if cctxs is None:
         cctxs = _LOCAL.cctxs = {}
@@ -690,14 +691,18 @@ class BulkMcapWriter:
 
     def _write_chunk(self, chunk: _ChunkBuilder, job: Any) -> None:
         crc, compressed = job.result() if isinstance(job, Future) else job
+        pieces = compressed if isinstance(compressed, list) else [compressed]
+        compressed_size = sum(p.nbytes if isinstance(p, (np.ndarray, memoryview)) else len(p)
+                              for p in pieces)
         size = chunk.size
         start, end = int(chunk.start_time), int(chunk.end_time)
         body = (struct.pack("<QQQI", start, end, size, crc) + _string(self.compression)
-                + struct.pack("<Q", len(compressed)))
-        head = struct.pack("<BQ", OP_CHUNK, len(body) + len(compressed))
+                + struct.pack("<Q", compressed_size))
+        head = struct.pack("<BQ", OP_CHUNK, len(body) + compressed_size)
         chunk_start = self._position
         self._write(head + body)
-        self._write(compressed)
+        for piece in pieces:
+            self._write(piece)
         chunk_length = self._position - chunk_start
         index_start = self._position
         indexes, offsets_map = chunk.message_indexes(index_start)
@@ -706,7 +711,7 @@ class BulkMcapWriter:
             "<QQQQ", start, end, chunk_start, chunk_length)
             + struct.pack("<I", len(offsets_map)) + offsets_map
             + struct.pack("<Q", self._position - index_start) + _string(self.compression)
-            + struct.pack("<QQ", len(compressed), size)))
+            + struct.pack("<QQ", compressed_size, size)))
         self.message_count += chunk.count
         self.chunk_count += 1
         if self._start_time is None or start < self._start_time:

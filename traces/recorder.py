@@ -102,12 +102,14 @@ from netsim.traces.stepwriter import StepLog
 __all__ = [
     "TRACE_FORMAT",
     "NPY_MEDIA_TYPE",
+    "DEFAULT_TRACE_FORMAT",
     "TraceRecorder",
     "TraceOrderError",
     "trace_path",
     "check_trace_target",
     "scenario_metadata",
     "run_matrices",
+    "stack_matrices",
     "to_ns",
     "plant_topic",
     "sensor_topic",
@@ -117,6 +119,8 @@ __all__ = [
     "freshness_topic",
 ]
 
+#: Trace format written unless asked otherwise (``netsim run --trace-format``).
+DEFAULT_TRACE_FORMAT = 2
 #: Media type of the ``.npy`` matrix attachments.
 NPY_MEDIA_TYPE = "application/x-npy"
 #: Largest backwards step in log_time (ns) silently absorbed (float rounding).
@@ -222,6 +226,40 @@ def run_matrices(scenario: Any, gains: Any = None) -> dict[str, np.ndarray]:
     return out
 
 
+def stack_matrices(matrices: Mapping[str, np.ndarray]
+                   ) -> tuple[dict[str, np.ndarray], list[str]]:
+    """Per-agent matrices ``X_0 .. X_{N-1}`` of one shape as one array ``X`` (N, ...).
+
+    Format 3 attaches them so (``run.stacked_matrices`` lists the stacked names; the
+    reader gives ``X_i`` back): at N = 32 a run has 133 matrices, whose attachment
+    records cost more than writing its 500 steps' messages. Returns the matrices to
+    attach and the names stacked."""
+    groups: dict[str, list[str]] = {}
+    for name in matrices:
+        prefix, _, index = name.rpartition("_")
+        if prefix and index.isdigit():
+            groups.setdefault(prefix, []).append(name)
+    arrays = {name: np.asarray(matrix) for name, matrix in matrices.items()}
+    stackable = set()
+    for prefix, members in groups.items():
+        shapes = {(arrays[m].shape, arrays[m].dtype.str) for m in members}
+        if (len(shapes) == 1 and prefix not in matrices
+                and members == [f"{prefix}_{i}" for i in range(len(members))]):
+            stackable.add(prefix)
+    out: dict[str, np.ndarray] = {}
+    stacked: list[str] = []
+    members_of = {name: prefix for prefix in stackable for name in groups[prefix]}
+    for name in matrices:
+        prefix = members_of.get(name)
+        if prefix is not None:
+            if prefix not in out:
+                out[prefix] = np.stack([arrays[m] for m in groups[prefix]])
+                stacked.append(prefix)
+            continue
+        out[name] = arrays[name]
+    return out, stacked
+
+
 @functools.lru_cache(maxsize=256)
 def _npy_header(descr: str, shape: tuple[int, ...]) -> bytes:
     """The .npy header (format 1.0, C order) of an array of ``descr`` and ``shape``."""
@@ -288,9 +326,12 @@ class TraceRecorder:
         Also flush when this much wall-clock time passed since the last flush.
     chunk_size : int
         Close a chunk when it exceeds this many (uncompressed) bytes.
-    compression : str
-        ``zstd`` (default; level 1: compressed chunks 0.3-24% larger than level 3's
-        in 0.3-0.6x the time, benchmarks/README.md), ``lz4`` or ``none``.
+    compression : str, optional
+        ``zstd`` (level 1: compressed chunks 0.3-24% larger than level 3's in 0.3-0.6x
+        the time, benchmarks/README.md) or ``none``. Default: ``zstd`` for format 2,
+        ``none`` for format 3, whose messages are mostly float64 arrays that zstd
+        shrinks by a fifth to a third at about half an untraced run's time
+        (benchmarks/trace_throughput.py).
     record_payloads : bool
         Store each sent message's payload (the transmitted estimate).
     run_metadata : mapping str -> str, optional
@@ -298,6 +339,11 @@ class TraceRecorder:
     time_origin_ns : int
         log_time of simulation time 0, ns since the Unix epoch (default
         2000-01-01T00:00:00Z; 0 gives log_time = simulation time).
+    trace_format : int, optional
+        :data:`DEFAULT_TRACE_FORMAT` unless given. 2: a message per agent and per link
+        event (:mod:`netsim.traces.schemas`); 3: a
+        message per step and kind (:mod:`netsim.traces.schemas3`, written by
+        :class:`netsim.traces.stepwriter.StepLog`).
     """
 
     def __init__(
@@ -314,14 +360,18 @@ class TraceRecorder:
         flush_every: int = 25,
         flush_seconds: float | None = 2.0,
         chunk_size: int = 1024 * 1024,
-        compression: str = "zstd",
+        compression: str | None = None,
         record_payloads: bool = True,
         run_metadata: Mapping[str, str] | None = None,
         time_origin_ns: int = DEFAULT_TIME_ORIGIN_NS,
-        trace_format: int = 2,
+        trace_format: int | None = None,
     ) -> None:
+        if trace_format is None:
+            trace_format = DEFAULT_TRACE_FORMAT
         if trace_format not in (2, 3):
             raise ValueError(f"trace_format must be 2 or 3, got {trace_format!r}")
+        if compression is None:
+            compression = "zstd" if trace_format == 2 else "none"
         if flush_every < 1:
             raise ValueError(f"flush_every must be >= 1, got {flush_every}")
         if not sample_period > 0:
@@ -382,9 +432,13 @@ class TraceRecorder:
                              "simulation time, round(t * 1e9), t = k * Ts",
                 "matrices": ",".join(matrices),
             }
+            attached: Mapping[str, np.ndarray] = matrices
+            if self.trace_format == 3:  # per-agent matrices of one shape: one attachment
+                attached, stacked = stack_matrices(matrices)
+                run["stacked_matrices"] = ",".join(stacked)
             run.update({str(k): str(v) for k, v in (run_metadata or {}).items()})
             self._writer.add_metadata("run", run)
-            for name, matrix in matrices.items():
+            for name, matrix in attached.items():
                 self._writer.add_attachment(
                     create_time=0, log_time=0, name=f"{name}.npy",
                     media_type=NPY_MEDIA_TYPE, data=_npy_bytes(matrix),

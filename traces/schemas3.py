@@ -27,9 +27,8 @@ topic                       type              one message per step k, holding
 ``/agents/freshness``       ``Freshness``     AoI freshness indices per (agent, substate)
 ``/links/sent``             ``LinkSends``     per link: the message sent at k (its delay
                                               d, arrival time; none: (k + 1 + d) Ts)
-``/links/delivered``        ``LinkDeliveries`` the messages usable from step k on (their
-                                              link, delay d = k - 1 - time-stamp,
-                                              acceptance), in the order they arrived
+``/links/delivered``        ``LinkDeliveries`` whether the receiver kept each message
+                                              delivered for use from step k on
 ``/links/dropped``          ``LinkDrops``     the messages lost at times in
                                               ((k-1) Ts, k Ts] (link, time-stamp, reason)
 ==========================  ================  ============================================
@@ -42,6 +41,12 @@ e-th ``[j, i]``), ``sensor_widths`` (m_i), ``agents`` (N),
 (``estimate``: a sent message's payload is the sender's estimate of that step, not
 stored; ``message``: stored in ``LinkSends.payload``, ``payload_width`` values per
 link; ``none``: not recorded).
+
+Deliveries: the messages delivered for use from step k on are the ones sent at s with
+delay d = k - 1 - s on a link, not dropped, that arrived by the end of the run (the last
+plant step's time); ``LinkDeliveries.accepted`` lists, for each of them in increasing
+(link l, s), whether the receiver kept it (False: older than one it holds). Which
+messages they are and their delays and arrival times are in ``/links/sent``.
 
 Sentinels: :data:`ABSENT` (-3) in an integer array marks an entry with nothing to say
 (no message sent on that link at k, an agent that did not report that neighbour);
@@ -127,11 +132,7 @@ MESSAGES: dict[str, tuple[Field, ...]] = {
         _r("arrival_time", 4),
         _r("payload", 5),
     ),
-    "LinkDeliveries": _STEP + (
-        _r("link", 3, _UINT32),
-        _r("delay_steps", 4, _UINT32),
-        _r("accepted", 5, _BOOL),
-    ),
+    "LinkDeliveries": _STEP + (_r("accepted", 3, _BOOL),),
     "LinkDrops": _STEP + (
         _r("link", 3, _UINT32),
         _r("sent_step", 4, _UINT32),

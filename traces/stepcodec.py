@@ -71,20 +71,25 @@ def _varint_column(kind: str, values: np.ndarray, counts: np.ndarray | None,
     """A varint field's packed bytes: (bytes, byte counts per row or None when every
     element takes one byte and ``counts`` is None: then shape (rows, count))."""
     v = np.asarray(values)
+    if kind == "bool" or v.dtype == np.bool_:
+        return v.astype(bool, copy=False).view(np.uint8), counts
+    if not v.size:
+        return v.astype(np.uint8), counts
+    low, high = int(v.min()), int(v.max())
     if kind == "sint32":
+        if low < -2**31 or high >= 2**31:
+            raise ValueError(f"sint32 value out of range: {low} .. {high}")
+        if -64 <= low and high <= 63:  # one byte each: the zigzag value
+            w = v.astype(np.int32, copy=False)
+            return ((w << 1) ^ (w >> 31)).astype(np.uint8), counts
         s = v.astype(np.int64)
-        if s.size and (s.min() < -2**31 or s.max() >= 2**31):
-            raise ValueError(f"sint32 value out of range: {s.min()} .. {s.max()}")
         u = ((s << 1) ^ (s >> 63)).astype(np.uint64)
-    elif kind == "bool":
-        u = v.astype(bool).astype(np.uint64)
     else:
-        s = v.astype(np.int64)
-        if s.size and (s.min() < 0 or s.max() >= 2**32):
-            raise ValueError(f"uint32 value out of range: {s.min()} .. {s.max()}")
-        u = s.astype(np.uint64)
-    if not u.size or int(u.max()) < 128:
-        return u.astype(np.uint8), counts
+        if low < 0 or high >= 2**32:
+            raise ValueError(f"uint32 value out of range: {low} .. {high}")
+        if high < 128:
+            return v.astype(np.uint8), counts
+        u = v.astype(np.uint64)
     flat = u.reshape(-1)
     if counts is None:
         counts = np.full(rows, u.shape[1] if u.ndim == 2 else 0, dtype=np.int64)
@@ -225,48 +230,43 @@ def _uniform_rows(rows: int, step: np.ndarray, time: np.ndarray,
 
 def _encode_ragged(rows: int, step: np.ndarray, time: np.ndarray,
                    parts: list[tuple[Any, ...]]) -> tuple[np.ndarray, np.ndarray]:
-    # every row: head (18 bytes), then per field (count > 0) tag, varint length, data
+    """Rows of unequal lengths: head (18 bytes), then per field with elements its tag,
+    varint byte length and data; every piece scattered once into the output."""
     head = np.empty(rows, dtype=_HEAD)
     head["t1"], head["step"] = _STEP_TAG[0], step
     head["t2"], head["time"] = _TIME_TAG[0], time
-    # segments per row, in order: head, then (prefix_f, data_f) per field
-    seg_len = [np.full(rows, _HEAD.itemsize, dtype=np.int64)]
-    sources: list[np.ndarray] = [head.view(np.uint8).reshape(-1)]
-    seg_src = [np.arange(rows, dtype=np.int64) * _HEAD.itemsize]
-    base = sources[0].shape[0]
-    for number, dtype, values, counts, count in parts:
+    n_fields = len(parts)
+    data_len = np.empty((rows, n_fields), dtype=np.int64)
+    prefix = np.zeros((rows, n_fields, 6), dtype=np.uint8)
+    prefix_len = np.empty((rows, n_fields), dtype=np.int64)
+    sources = []
+    for f, (number, dtype, values, counts, count) in enumerate(parts):
         width = np.dtype(dtype).itemsize
         if counts is None:
             counts = np.full(rows, count, dtype=np.int64)
-            values = values.reshape(-1)
-        data_len = counts * width
-        vbytes, vlen = _varint_bytes(data_len)
-        present = counts > 0
-        tag = varint(number << 3 | 2)[0]
-        prefix = np.zeros((rows, 6), dtype=np.uint8)
-        prefix[:, 0] = tag
-        prefix[:, 1:] = vbytes
-        prefix_len = np.where(present, 1 + vlen, 0)
-        sources.append(prefix.reshape(-1))
-        seg_len.append(prefix_len)
-        seg_src.append(base + np.arange(rows, dtype=np.int64) * 6)
-        base += rows * 6
-        raw = np.ascontiguousarray(values, dtype=dtype).view(np.uint8).reshape(-1)
-        starts = np.concatenate([[0], np.cumsum(data_len)[:-1]]) if rows else data_len
-        sources.append(raw)
-        seg_len.append(data_len)
-        seg_src.append(base + starts)
-        base += raw.shape[0]
-    lengths = np.stack(seg_len, axis=1)  # (rows, segments)
-    src = np.stack(seg_src, axis=1)
-    flat_len = lengths.reshape(-1)
-    flat_src = src.reshape(-1)
-    total = int(flat_len.sum())
-    dst_start = np.cumsum(flat_len) - flat_len
-    index = np.repeat(flat_src - dst_start, flat_len) + np.arange(total, dtype=np.int64)
-    buffer = np.concatenate(sources)
-    payloads = buffer[index]
-    row_len = lengths.sum(axis=1)
+        data_len[:, f] = counts * width
+        vbytes, vlen = _varint_bytes(data_len[:, f])
+        prefix[:, f, 0] = varint(number << 3 | 2)[0]
+        prefix[:, f, 1:] = vbytes
+        prefix_len[:, f] = np.where(counts > 0, 1 + vlen, 0)
+        sources.append(np.ascontiguousarray(values, dtype=dtype).reshape(-1).view(np.uint8))
+    segment = prefix_len + data_len
+    row_len = _HEAD.itemsize + segment.sum(axis=1)
     offsets = np.zeros(rows + 1, dtype=np.int64)
     np.cumsum(row_len, out=offsets[1:])
-    return payloads, offsets
+    out = np.empty(int(offsets[-1]), dtype=np.uint8)
+    starts = offsets[:-1]
+    out[(starts[:, None] + np.arange(_HEAD.itemsize)).reshape(-1)] = (
+        head.view(np.uint8).reshape(-1))
+    field_start = starts[:, None] + _HEAD.itemsize + np.cumsum(segment, axis=1) - segment
+    used = np.arange(6)[None, None, :] < prefix_len[:, :, None]
+    out[(field_start[:, :, None] + np.arange(6))[used]] = prefix[used]
+    data_start = field_start + prefix_len
+    for f, raw in enumerate(sources):
+        lengths = data_len[:, f]
+        if not raw.shape[0]:
+            continue
+        source_start = np.cumsum(lengths) - lengths
+        out[np.repeat(data_start[:, f] - source_start, lengths)
+            + np.arange(raw.shape[0], dtype=np.int64)] = raw
+    return out, offsets

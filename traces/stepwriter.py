@@ -15,12 +15,14 @@ MCAP writer's :meth:`~netsim.traces.bulkmcap.BulkMcapWriter.add_records`):
 Format 3 itself is described in :mod:`netsim.traces.schemas3`. Which step's message
 holds an event: a sent message, the step it was sent at; a delivery, the step it is
 usable at (``usable_step`` = s + 1 + d: deliveries at k Ts before the updates of k,
-zero-latency ones at (k-1) Ts and those between the two); a drop, the step
+zero-latency ones at (k-1) Ts and those between the two), in (link, s) order; a drop,
+the step
 :func:`drop_bucket` gives (the first k with k Ts >= drop time).
 """
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 from collections.abc import Mapping
@@ -52,8 +54,14 @@ def drop_bucket(drop_time: float, sample_period: float) -> int:
     return int(math.ceil(drop_time / sample_period - 1e-9))
 
 
+@functools.cache
+def _descriptor_set_bytes() -> bytes:
+    return file_descriptor_set().SerializeToString()
+
+
 class StepWriter:
-    """Schemas, channels and layout of a format-3 file written through ``recorder``.
+    """Schemas, channels and layout of a format-3 file written through ``recorder``
+    (a type's schema and channel are written when its first message is).
 
     Parameters
     ----------
@@ -64,10 +72,7 @@ class StepWriter:
     def __init__(self, recorder: Any) -> None:
         self.recorder = recorder
         self.writer = recorder.writer
-        data = file_descriptor_set().SerializeToString()
-        self._schemas = {type_name: self.writer.register_schema(
-            name=schema_name(type_name), encoding=SchemaEncoding.Protobuf, data=data)
-            for type_name in TOPICS.values()}
+        self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._layout_written: dict[str, str] | None = None
 
@@ -75,9 +80,12 @@ class StepWriter:
         """The channel id of a message type's topic (registered on first use)."""
         found = self._channels.get(type_name)
         if found is None:
+            schema = self._schemas[type_name] = self.writer.register_schema(
+                name=schema_name(type_name), encoding=SchemaEncoding.Protobuf,
+                data=_descriptor_set_bytes())
             found = self._channels[type_name] = self.writer.register_channel(
                 topic=_TOPIC_OF[type_name], message_encoding=MessageEncoding.Protobuf,
-                schema_id=self._schemas[type_name])
+                schema_id=schema)
         return found
 
     def layout(self, layout: Mapping[str, Any]) -> None:
@@ -376,16 +384,11 @@ class StepLog:
         deliveries = [self.deliveries.pop(b, []) for b in buckets]
         if any(deliveries):
             rows = [b for b, d in zip(buckets, deliveries, strict=True) if d]
-            events = [d for d in deliveries if d]
-            flat = [e for d in events for e in d]
+            events = [sorted(d) for d in deliveries if d]  # (link, sent step) order
             counts = np.array([len(d) for d in events], dtype=np.int64)
             kk = np.array(rows, dtype=np.int64)
-            bucket = np.repeat(kk, counts)
-            self.out.emit("LinkDeliveries", kk, kk * self.ts, {
-                "link": Column(np.array([e[0] for e in flat], dtype=np.uint32), counts),
-                "delay_steps": Column(bucket - 1 - np.array([e[1] for e in flat],
-                                                            dtype=np.int64), counts),
-                "accepted": Column(np.array([e[2] for e in flat], dtype=bool), counts)})
+            self.out.emit("LinkDeliveries", kk, kk * self.ts, {"accepted": Column(
+                np.array([e[2] for d in events for e in d], dtype=bool), counts)})
 
 
 def arrival_column(k: np.ndarray, delay: np.ndarray, arrival: np.ndarray, ts: float

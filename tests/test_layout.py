@@ -1,27 +1,44 @@
 """Foxglove layouts (``netsim layout``, ``netsim run --trace --layout``): every message
 path a layout references exists in the trace, checked against the file alone (its
 channels, the FileDescriptorSet stored as schema data and the decoded messages, read
-with the plain ``mcap`` reader), for a consensus trace and a lossy AoI trace."""
+with the plain ``mcap`` reader), for a consensus trace and a lossy AoI trace, each in
+trace format 2 (one topic per agent and link event) and format 3 (one message per step
+and kind: indexed paths into the per-step arrays, the index within the array of a real
+message of the topic and meaning what the ``trace_layout`` metadata says)."""
 
 from __future__ import annotations
 
 import json
+import math
 import re
+import struct
 from pathlib import Path
 
+import numpy as np
 import pytest
 from google.protobuf import descriptor_pb2
 from mcap.reader import make_reader
 from mcap_protobuf.decoder import DecoderFactory
+from netsim.models.scenario import resolve_scenario
+from netsim.traces.layout import (
+    foxglove_layout,
+    layout_paths,
+    layout_source,
+    message_path_series,
+    render_layout,
+    write_layout,
+)
+from netsim.traces.reader import read_trace
 
 from netsim.cli import main
+from netsim.runner import run_monte_carlo
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURES = ROOT / "tests" / "fixtures"
 _F = descriptor_pb2.FieldDescriptorProto
 _NUMERIC = {_F.TYPE_DOUBLE, _F.TYPE_FLOAT, _F.TYPE_FIXED64, _F.TYPE_SFIXED64, _F.TYPE_FIXED32,
             _F.TYPE_SFIXED32, _F.TYPE_UINT64, _F.TYPE_INT64, _F.TYPE_UINT32, _F.TYPE_INT32,
-            _F.TYPE_BOOL}
+            _F.TYPE_SINT64, _F.TYPE_SINT32, _F.TYPE_BOOL}
 
 
 @pytest.fixture(scope="module")
@@ -35,26 +52,58 @@ def traces(tmp_path_factory):
     assert main(["run", str(ROOT / "examples" / "aoi-random-lossy.toml"), "--trials", "1",
                  "--steps", "20", "--estimators", "aoi", "--trace", str(aoi), "--layout",
                  "--no-progress", "--json"]) == 0
-    return {"consensus": consensus, "aoi": aoi}
+    out = {"consensus": consensus, "aoi": aoi}
+    # format 3 (no command-line flag yet): the API, then the layout --layout writes
+    for kind, scenario, family, steps in (
+            ("consensus3", "lcsys2022-heterogeneous", "compensated", 25),
+            ("aoi3", str(ROOT / "examples" / "aoi-random-lossy.toml"), "aoi", 20)):
+        path = folder / f"{kind}.mcap"
+        run_monte_carlo(resolve_scenario(scenario), trials=1, steps=steps, families=[family],
+                        trace=str(path), trace_options={"trace_format": 3})
+        write_layout(path)
+        out[kind] = path
+    return out
 
 
 def _file_contents(path: Path):
-    """Topics -> (message descriptor, first decoded message), from the file alone."""
+    """Topics -> (message descriptor, first decoded message, field -> the longest array
+    of that field in any message of the topic), from the file alone."""
     out = {}
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
         for _schema, channel, _message, decoded in reader.iter_decoded_messages(
                 log_time_order=False):
-            if channel.topic in out:
-                continue
-            schema = summary.schemas[channel.schema_id]
-            fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
-            package, _, name = schema.name.rpartition(".")
-            [message] = [m for fd in fds.file if fd.package == package
-                         for m in fd.message_type if m.name == name]
-            out[channel.topic] = (message, decoded)
+            if channel.topic not in out:
+                schema = summary.schemas[channel.schema_id]
+                fds = descriptor_pb2.FileDescriptorSet.FromString(schema.data)
+                package, _, name = schema.name.rpartition(".")
+                [message] = [m for fd in fds.file if fd.package == package
+                             for m in fd.message_type if m.name == name]
+                out[channel.topic] = (message, decoded, {})
+            message, _first, longest = out[channel.topic]
+            for fd in message.field:
+                if fd.label == _F.LABEL_REPEATED:
+                    size = len(getattr(decoded, fd.name))
+                    longest[fd.name] = max(longest.get(fd.name, 0), size)
     return out
+
+
+def _trace_layout(path: Path) -> dict:
+    """The last ``trace_layout`` metadata record of a format-3 file, JSON-decoded."""
+    with open(path, "rb") as f:
+        records = [r for r in make_reader(f).iter_metadata() if r.name == "trace_layout"]
+    assert records, f"{path.name}: no trace_layout metadata"
+    return {key: json.loads(value) for key, value in records[-1].metadata.items()}
+
+
+def _labels(layout: dict) -> dict[str, str]:
+    return {p["value"]: p["label"] for key, config in layout["configById"].items()
+            if key.startswith("Plot!") for p in config["paths"]}
+
+
+def _titles(layout: dict, tab_leaves: list[str]) -> list[str]:
+    return [layout["configById"][leaf]["title"] for leaf in tab_leaves]
 
 
 def _check_paths(layout: dict, path: Path) -> list[str]:
@@ -67,7 +116,7 @@ def _check_paths(layout: dict, path: Path) -> list[str]:
         assert m, f"not a plain message path: {value}"
         topic, name, index = m.group(1), m.group(2), m.group(3)
         assert topic in contents, f"{value}: no topic {topic} in {path.name}"
-        descriptor, first = contents[topic]
+        descriptor, _first, longest = contents[topic]
         [fd] = [f for f in descriptor.field if f.name == name] or [None]
         assert fd is not None, f"{value}: {descriptor.name} has no field {name}"
         assert fd.type in _NUMERIC, f"{value}: not a plottable field"
@@ -75,7 +124,8 @@ def _check_paths(layout: dict, path: Path) -> list[str]:
             assert fd.label != _F.LABEL_REPEATED, f"{value}: an array needs an index"
         else:
             assert fd.label == _F.LABEL_REPEATED, f"{value}: not an array"
-            assert int(index) < len(getattr(first, name)), f"{value}: index out of range"
+            # some message of the topic has that entry
+            assert int(index) < longest[name], f"{value}: index out of range"
     return paths
 
 
@@ -102,6 +152,7 @@ def _check_structure(layout: dict) -> dict[str, list[str]]:
 
 @pytest.mark.parametrize("kind", ["consensus", "aoi"])
 def test_layout_paths_exist_in_the_trace(traces, kind):
+    """Format 2: one topic per agent and per link event."""
     path = traces[kind]
     layout = json.loads(path.with_name(f"{path.stem}.layout.json").read_text())
     tabs = _check_structure(layout)
@@ -129,6 +180,108 @@ def test_layout_paths_exist_in_the_trace(traces, kind):
         assert "Drops" in tabs and "Age of information" in tabs
 
 
+@pytest.mark.parametrize("kind", ["consensus3", "aoi3"])
+def test_format3_layout_paths_exist_and_mean_what_they_say(traces, kind):
+    """Format 3: indexed paths into the per-step arrays, every index valid in a real
+    message and naming the agent, link or update entry its label says."""
+    path = traces[kind]
+    layout = json.loads(path.with_name(f"{path.stem}.layout.json").read_text())
+    assert layout == foxglove_layout(layout_source(path))
+    tabs = _check_structure(layout)
+    paths = _check_paths(layout, path)
+    labels = _labels(layout)
+    meta = _trace_layout(path)
+    N, n = meta["agents"], meta["n_states"]
+    links = [tuple(link) for link in meta["links"]]
+    updates = [tuple(entry) for entry in meta["updates"]]
+    assert {p.split(".")[0] for p in paths} <= {
+        "/plant/state", "/agents/estimate", "/agents/update", "/agents/freshness",
+        "/links/sent", "/links/dropped"}
+    assert "Errors" in tabs and "State" in tabs and "Delays" in tabs
+    # error norm and estimate entries of every agent, agent-major
+    for i in range(N):
+        assert labels[f"/agents/estimate.error_norm[{i}]"] == f"agent {i}"
+        for s in range(min(n, 4)):
+            assert labels[f"/agents/estimate.estimate[{i * n + s}]"] == f"agent {i}"
+    assert {f"/plant/state.state[{s}]" for s in range(min(n, 4))} <= set(paths)
+    # effective delay entry e is r_ij of updates[e]; sent delay l is links[l]
+    effective = {p: label for p, label in labels.items() if ".effective_delay[" in p}
+    assert effective == {f"/agents/update.effective_delay[{e}]": f"r {j}->{i}"
+                         for e, (j, i) in enumerate(updates) if j != i}
+    assert len(effective) > 0
+    sent = {p: label for p, label in labels.items() if p.startswith("/links/sent.")}
+    assert sent == {f"/links/sent.delay_steps[{q}]": f"{j}->{i}"
+                    for q, (j, i) in enumerate(links)}
+    assert all("-3" in title for title in _titles(layout, tabs["Delays"]))  # said
+    if kind == "consensus3":
+        assert "Drops" not in tabs and "Age of information" not in tabs
+    else:
+        assert {"/links/dropped.link[0]", "/links/dropped.reason[0]",
+                "/links/dropped.sent_step[0]"} <= set(paths)
+        assert any("link down" in t for t in _titles(layout, tabs["Drops"]))
+        sizes = meta["freshness_sizes"]
+        fresh = [i for i, size in enumerate(sizes) if size > 0]
+        assert fresh and {f"/agents/freshness.max_index[{i}]" for i in fresh} <= set(paths)
+        start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
+        for i in fresh:
+            for s in range(sizes[i]):
+                assert f"/agents/freshness.index[{start[i] + s}]" in paths
+        assert "Age of information" in tabs
+
+
+def test_format3_path_series_are_the_messages(traces):
+    """message_path_series (what render_layout draws) against the decoded messages:
+    error_norm[i] is ||estimate[i*n : (i+1)*n] - state|| of the same step."""
+    path = traces["consensus3"]
+    n = _trace_layout(path)["n_states"]
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        state = {m.log_time: np.array(d.state) for _s, _c, m, d in
+                 reader.iter_decoded_messages(topics=["/plant/state"])}
+        estimates = [(m.log_time, d) for _s, _c, m, d in
+                     reader.iter_decoded_messages(topics=["/agents/estimate"])]
+    wanted = ["/agents/estimate.error_norm[1]", "/agents/estimate.estimate[7]",
+              "/plant/state.state[2]", "/agents/estimate.error_norm[99]"]
+    series = message_path_series(path, wanted)
+    xs, norms = series["/agents/estimate.error_norm[1]"]
+    assert xs == [float(k) for k in range(len(estimates))]  # seconds from time 0, Ts = 1
+    for (t, d), norm in zip(estimates, norms, strict=True):
+        error = np.array(d.estimate[n:2 * n]) - state[t]
+        assert norm == pytest.approx(float(np.linalg.norm(error)))
+    assert series["/agents/estimate.estimate[7]"][1] == [d.estimate[7] for _t, d in estimates]
+    assert series["/plant/state.state[2]"][1] == [state[t][2] for t, _d in estimates]
+    assert all(math.isnan(v) for v in series["/agents/estimate.error_norm[99]"][1])
+    with pytest.raises(ValueError, match="array"):
+        message_path_series(path, ["/agents/estimate.estimate"])
+    with pytest.raises(ValueError, match="no field"):
+        message_path_series(path, ["/agents/estimate.nothing[0]"])
+
+
+def test_format3_render_and_a_file_without_summary(traces, tmp_path):
+    """render_layout draws every format-3 panel from the file (every series has a
+    value); a file cut before its summary (writer killed) gives the same layout."""
+    for kind in ("consensus3", "aoi3"):
+        path = traces[kind]
+        layout = foxglove_layout(layout_source(path))
+        series = message_path_series(path, layout_paths(layout))
+        assert all(any(not math.isnan(v) for v in ys) for _xs, ys in series.values())
+        png = render_layout(path, layout, tmp_path / f"{kind}.png", max_panels=20)
+        assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    path = traces["aoi3"]
+    data = path.read_bytes()
+    # the footer record (opcode, length, summary_start, ...) and the closing magic
+    [summary_start] = struct.unpack("<Q", data[-28:-20])
+    assert 0 < summary_start < len(data)
+    cut = tmp_path / "cut.mcap"
+    cut.write_bytes(data[:summary_start])
+    source = layout_source(cut)
+    assert source.format == 3 and source.counts == layout_source(path).counts
+    layout = foxglove_layout(source)
+    assert layout == foxglove_layout(layout_source(path))
+    assert message_path_series(cut, layout_paths(layout)) == message_path_series(
+        path, layout_paths(layout))
+
+
 def test_layout_command_and_figure(traces, tmp_path, capsys):
     out, png = tmp_path / "c.json", tmp_path / "c.png"
     assert main(["layout", str(traces["consensus"]), "-o", str(out), "--figure", str(png),
@@ -140,6 +293,16 @@ def test_layout_command_and_figure(traces, tmp_path, capsys):
     assert json.loads(out.read_text()) == json.loads(beside.read_text())  # same layout
     assert main(["layout", str(traces["consensus"]), "-o", str(out)]) == 2  # exists
     assert "exists" in capsys.readouterr().err
+    # format 3: the same command; the figure evaluates its indexed paths
+    out3, png3 = tmp_path / "a3.json", tmp_path / "a3.png"
+    assert main(["layout", str(traces["aoi3"]), "-o", str(out3), "--figure", str(png3),
+                 "--tabs", "Drops,Age of information", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["tabs"] == ["Errors", "State", "Delays", "Drops", "Age of information"]
+    assert png3.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    beside = traces["aoi3"].with_name("aoi3.layout.json")
+    assert json.loads(out3.read_text()) == json.loads(beside.read_text())
+    assert foxglove_layout(read_trace(traces["aoi3"])) == json.loads(out3.read_text())
 
 
 @pytest.mark.parametrize("args, message", [

@@ -1,8 +1,10 @@
-"""Foxglove layouts for netsim traces (format 2), and a headless picture of one.
+"""Foxglove layouts for netsim traces (formats 2 and 3), and a headless picture of one.
 
 :func:`foxglove_layout` builds a Foxglove layout (the JSON a user imports with *Layouts
 > Import from file*) for one trace: a ``Tab`` panel whose tabs hold ``Plot`` panels of
-message paths (``/topic.field`` or ``/topic.field[index]``) on the trace's own topics:
+message paths (``/topic.field`` or ``/topic.field[index]``) on the trace's own topics.
+
+Format 2 (:mod:`netsim.traces.schemas`, one message per agent and per link event):
 
 - **Errors**: each agent's error norm ||x-hat^i_k - x_k|| (``/agent_<i>/estimate.error_norm``);
 - **State**: per state component s (the first :data:`MAX_STATES`), the true state
@@ -16,15 +18,43 @@ message paths (``/topic.field`` or ``/topic.field[index]``) on the trace's own t
 - **Age of information** (AoI traces): each agent's largest freshness index
   (``/agent_<i>/freshness.max_index``, -1 = omega) and per-substate indices.
 
+Format 3 (:mod:`netsim.traces.schemas3`, one message per step and kind; the arrays are
+indexed as the file's last ``trace_layout`` metadata record says): the same tabs, with
+indexed paths into the per-step arrays (N agents, n states, link l = ``links[l]``,
+update entry e = ``updates[e]``; -3 = :data:`netsim.traces.schemas3.ABSENT`):
+
+- **Errors**: ``/agents/estimate.error_norm[i]`` per agent i;
+- **State**: ``/plant/state.state[s]`` against ``/agents/estimate.estimate[i*n + s]``;
+- **Delays**: r_ij[k] per update entry e = [j, i] (``/agents/update.effective_delay[e]``;
+  -1 own estimate used, -3 not reported: below the y axis, which starts at -1.5), and the
+  step delay d of the message sent at k on link l (``/links/sent.delay_steps[l]``, by
+  sending step; -3 nothing sent: below the y axis, which starts at -0.5);
+- **Drops** (``/links/dropped`` has messages): a ``LinkDrops`` message lists the
+  messages lost in one sample period, so the panels plot its first entries q = 0 ..
+  Q-1 (Q = number of links, at most :data:`MAX_SERIES`) as points: the link l
+  (``/links/dropped.link[q]``), the lost message's time-stamp (``.sent_step[q]``) and
+  the reason code (``.reason[q]``), at the end of the sample period of the drop (the
+  message's log_time; the drop's own time is ``.drop_time[q]``); an entry a message
+  does not have is not drawn.
+  (Slices such as ``.link[:]`` are not plottable in every Foxglove version.)
+- **Age of information** (AoI traces): ``/agents/freshness.max_index[i]`` per AoI agent
+  and, for the first :data:`MAX_FRESHNESS_AGENTS`, ``/agents/freshness.index[o_i + s]``
+  per substate s (o_i = the sizes of the earlier agents' ``freshness_sizes``); -1 omega,
+  -3 no report: below the y axis, which starts at -1.5.
+
 Series are grouped :data:`MAX_SERIES` to a panel. The layout is built from the file's
-summary (channels, metadata) and the first message of a few topics (neighbour order,
-dimensions), so it is cheap for a large trace; an unfinished file is read in full.
+summary (channels, metadata and, in format 2, the first message of a few topics for the
+neighbour order and dimensions), so it is cheap for a large trace; a format-2 file
+without a summary (its writer was killed) is read in full, a format-3 one is scanned for
+its metadata and channels without decoding messages.
 
 :func:`render_layout` draws the same panels from the trace's data with matplotlib (Agg,
 no screen), evaluating each panel's message paths: a picture of what Foxglove shows.
+Format-2 paths are evaluated against the records :func:`read_trace` read, format-3
+paths against the file's own per-step messages (:func:`message_path_series`).
 
-This module imports ``netsim.traces`` modules, ``mcap`` and matplotlib (lazily), never
-``netsim`` or ``simpy``.
+This module imports ``netsim.traces`` modules, ``mcap``, ``mcap_protobuf`` and matplotlib
+(lazily), never ``netsim`` or ``simpy``.
 """
 
 from __future__ import annotations
@@ -33,7 +63,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -47,10 +77,13 @@ from netsim.traces.schemas import (
     plant_topic,
     update_topic,
 )
+from netsim.traces.schemas3 import ABSENT, LAYOUT_METADATA
+from netsim.traces.schemas3 import TRACE_FORMAT as _TRACE_FORMAT3
 
 __all__ = [
     "MAX_SERIES",
     "MAX_STATES",
+    "MAX_FRESHNESS_AGENTS",
     "LayoutSource",
     "layout_source",
     "source_from_trace",
@@ -59,6 +92,7 @@ __all__ = [
     "layout_path_for",
     "write_layout",
     "parse_message_path",
+    "message_path_series",
     "render_layout",
 ]
 
@@ -78,19 +112,33 @@ class LayoutSource:
     ----------
     path : str
     format : int
-        Trace format (layouts need 2).
+        Trace format (layouts need 2 or 3).
     topics : list of str
-        The file's topics.
+        The file's topics (format 3: its per-step topics, ``/agents/estimate`` ...).
     n_states : int
         n, the length of ``/plant/state.state``.
     neighbours : dict int -> list of int
-        Per agent, its update's ``neighbours`` in order (index p of
-        ``effective_delay[p]``).
+        Format 2: per agent, its update's ``neighbours`` in order (index p of
+        ``effective_delay[p]``). Empty in format 3 (see ``step_updates``).
     substates : dict int -> int
         Per AoI agent, the number of freshness indices.
     drop_reasons : dict int -> str
-        ``LinkDropped.reason`` codes.
+        Drop reason codes (``LinkDropped.reason``, format 3 ``LinkDrops.reason``).
     family, scenario : str
+    n_agents : int
+        Format 3: N, agents in the per-step arrays (``trace_layout`` ``agents``).
+    step_links : list of (int, int)
+        Format 3: link l is ``step_links[l]`` = (sender j, receiver i).
+    step_updates : list of (int, int)
+        Format 3: entry e of ``Updates.effective_delay`` is r_ij of
+        ``step_updates[e]`` = (j, i).
+    freshness_sizes : list of int
+        Format 3: freshness indices per agent (0: no freshness report), the layout of
+        ``Freshness.index``.
+    counts : dict str -> int
+        Messages per topic from the file's statistics (empty when not known).
+    time_origin_ns : int
+        log_time of simulation time 0 (``run.time_origin_ns``; 0 when not recorded).
     """
 
     path: str
@@ -102,21 +150,136 @@ class LayoutSource:
     drop_reasons: dict[int, str] = field(default_factory=dict)
     family: str = ""
     scenario: str = ""
+    n_agents: int = 0
+    step_links: list[tuple[int, int]] = field(default_factory=list)
+    step_updates: list[tuple[int, int]] = field(default_factory=list)
+    freshness_sizes: list[int] = field(default_factory=list)
+    counts: dict[str, int] = field(default_factory=dict)
+    time_origin_ns: int = 0
+
+    def has_messages(self, topic: str) -> bool:
+        """Whether the file has the topic and, as far as its statistics say, messages on
+        it."""
+        return topic in self.topics and self.counts.get(topic, 1) > 0
 
     def agents(self, kind: str = "estimate") -> list[int]:
-        """Agents with a topic of ``kind`` (estimate, update, freshness)."""
+        """Agents with a topic of ``kind`` (estimate, update, freshness); format 3: the
+        agents of the per-step arrays of that kind (every agent, the receivers of
+        ``step_updates``, the agents with freshness indices)."""
+        if self.format >= 3:
+            if not self.has_messages(f"/agents/{kind}"):
+                return []
+            if kind == "estimate":
+                return list(range(self.n_agents))
+            if kind == "update":
+                return sorted({i for _j, i in self.step_updates})
+            if kind == "freshness":
+                return [i for i, size in enumerate(self.freshness_sizes) if size > 0]
+            return []
         return sorted({info.index for t in self.topics
                        if (info := parse_topic(t)) is not None and info.kind == kind})
 
     def links(self, event: str) -> list[tuple[int, int]]:
-        """Links (sender, receiver) with a topic of ``event``."""
+        """Links (sender, receiver) with a topic of ``event``; format 3: every link of
+        ``step_links`` when ``/links/<event>`` has messages (which links had such events
+        is in the messages, not the summary)."""
+        if self.format >= 3:
+            return list(self.step_links) if self.has_messages(f"/links/{event}") else []
         return sorted({(info.index, info.receiver) for t in self.topics
                        if (info := parse_topic(t)) is not None and info.kind == "link"
                        and info.event == event})
 
 
+def _format_number(run: dict[str, str], library: str = "") -> int:
+    """Trace format from ``run.trace_format`` (``netsim-trace/<n>``), else from the MCAP
+    header's library string (``netsim-trace/3 ...``); 1 when neither says."""
+    text = run.get("trace_format")
+    if text is None and library.startswith("netsim-trace/"):
+        text = library.split()[0]
+    fmt = (text or "netsim-trace/1").rsplit("/", 1)[-1]
+    return int(fmt) if fmt.isdigit() else 1
+
+
+def _step_source(where: str, metadata: dict[str, dict[str, str]], topics: Iterable[str],
+                 counts: dict[str, int], library: str = "",
+                 drop_reasons: dict[int, str] | None = None) -> LayoutSource:
+    """The :class:`LayoutSource` of a format-3 file from its metadata records (the last
+    of each name; ``trace_layout`` says what the arrays are indexed by) and channels."""
+    record = metadata.get(LAYOUT_METADATA)
+    if record is None:
+        raise TraceError(f"{where}: a {_TRACE_FORMAT3} trace without a {LAYOUT_METADATA!r} "
+                         "metadata record (what its arrays are indexed by); cannot lay it out")
+
+    def value(key: str, default: Any) -> Any:
+        text = record.get(key)
+        return default if text is None else json.loads(text)
+
+    try:
+        links = [(int(j), int(i)) for j, i in value("links", [])]
+        updates = [(int(j), int(i)) for j, i in value("updates", [])]
+        sizes = [int(c) for c in value("freshness_sizes", [])]
+        n_agents, n_states = int(value("agents", 0)), int(value("n_states", 0))
+    except (TypeError, ValueError) as exc:
+        raise TraceError(f"{where}: its {LAYOUT_METADATA!r} metadata record is unusable "
+                         f"({exc})") from None
+    run = metadata.get("run", {})
+    if drop_reasons is None:
+        drop_reasons = {int(c): r for c, r in metadata.get("drop_reasons", {}).items()
+                        if c.isdigit()}
+    origin = run.get("time_origin_ns", "0")
+    return LayoutSource(
+        path=where, format=_format_number(run, library), topics=sorted(set(topics)),
+        n_states=n_states, substates={i: c for i, c in enumerate(sizes) if c > 0},
+        drop_reasons=dict(drop_reasons), family=run.get("family", ""),
+        scenario=metadata.get("scenario", {}).get("name", ""), n_agents=n_agents,
+        step_links=links, step_updates=updates, freshness_sizes=sizes, counts=dict(counts),
+        time_origin_ns=int(origin) if origin.isdigit() else 0)
+
+
+def _scan_step_file(where: str) -> LayoutSource | None:
+    """The source of a format-3 file without a usable summary (e.g. its writer was
+    killed): its records streamed up to the first damaged one, messages counted, not
+    decoded. None when the file is not a format-3 netsim trace (or not readable)."""
+    from mcap.records import Channel, Header, Message, Metadata
+    from mcap.stream_reader import StreamReader
+
+    library = ""
+    metadata: dict[str, dict[str, str]] = {}
+    channels: dict[int, str] = {}
+    counts: dict[str, int] = {}
+    try:
+        with open(where, "rb") as f:
+            try:
+                for record in StreamReader(f).records:
+                    if isinstance(record, Message):
+                        topic = channels.get(record.channel_id)
+                        if topic is not None:
+                            counts[topic] = counts.get(topic, 0) + 1
+                    elif isinstance(record, Channel):
+                        channels[record.id] = record.topic
+                        counts.setdefault(record.topic, 0)
+                    elif isinstance(record, Metadata):
+                        if record.name == "drop_reasons":
+                            metadata.setdefault(record.name, {}).update(record.metadata)
+                        else:
+                            metadata[record.name] = dict(record.metadata)
+                    elif isinstance(record, Header):
+                        library = record.library
+            except Exception:  # noqa: BLE001 - the records before the damage
+                pass
+    except OSError:
+        return None
+    if "scenario" not in metadata or _format_number(metadata.get("run", {}), library) < 3:
+        return None
+    return _step_source(where, metadata, channels.values(), counts, library)
+
+
 def source_from_trace(trace: Trace) -> LayoutSource:
-    """Return the :class:`LayoutSource` of a trace read by :func:`read_trace`."""
+    """Return the :class:`LayoutSource` of a trace read by :func:`read_trace` (format 3:
+    from its metadata and the file's own topics, :attr:`Trace.file_topics`)."""
+    if trace.format >= 3:
+        return _step_source(trace.path, trace.metadata, trace.file_topics,
+                            trace.file_counts, trace.library, trace.drop_reasons)
     neighbours = {}
     for i in trace.agents:
         updates = trace.topic(trace.update_topic(i))
@@ -131,23 +294,27 @@ def source_from_trace(trace: Trace) -> LayoutSource:
         path=trace.path, format=trace.format, topics=sorted(trace.topics),
         n_states=trace.n_states, neighbours=neighbours, substates=substates,
         drop_reasons=dict(trace.drop_reasons), family=trace.family,
-        scenario=trace.scenario.get("name", ""))
+        scenario=trace.scenario.get("name", ""), time_origin_ns=trace.time_origin_ns)
 
 
 def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
-    """Return what a layout needs from a trace file, reading its summary and the first
-    message of the plant, update and freshness topics (the whole file when it has no
-    summary, e.g. its writer was killed).
+    """Return what a layout needs from a trace file, reading its summary: metadata,
+    channels and statistics and, in format 2, the first message of the plant, update
+    and freshness topics. A file without a usable summary (e.g. its writer was killed)
+    is read in full (format 2, :func:`read_trace`) or scanned for its metadata and
+    channels (format 3).
 
     Raises
     ------
     TraceError
-        The file is not a readable netsim trace.
+        The file is not a readable netsim trace (or a format-3 one without its
+        ``trace_layout`` metadata).
     """
     from mcap.reader import make_reader
     from mcap_protobuf.decoder import DecoderFactory
 
     where = str(path)
+    step: tuple[Any, ...] | None = None
     try:
         with open(path, "rb") as f:
             reader = make_reader(f, decoder_factories=[DecoderFactory()])
@@ -163,9 +330,17 @@ def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
             if "scenario" not in metadata:
                 raise LookupError("not netsim")
             topics = sorted({c.topic for c in summary.channels.values()})
-            wanted = [t for t in topics if t == plant_topic()
-                      or ((info := parse_topic(t)) is not None
-                          and info.kind in ("update", "freshness"))]
+            library = reader.get_header().library
+            if _format_number(metadata.get("run", {}), library) >= 3:
+                counts: dict[str, int] = {}
+                if summary.statistics is not None:
+                    for cid, channel in summary.channels.items():
+                        counts[channel.topic] = counts.get(channel.topic, 0) + int(
+                            summary.statistics.channel_message_counts.get(cid, 0))
+                step = (metadata, topics, counts, library)
+            wanted = [] if step is not None else [
+                t for t in topics if t == plant_topic()
+                or ((info := parse_topic(t)) is not None and info.kind in ("update", "freshness"))]
             first: dict[str, Any] = {}
             if wanted:
                 for _schema, channel, _message, decoded in reader.iter_decoded_messages(
@@ -176,7 +351,10 @@ def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
     except OSError as exc:
         raise TraceError(f"{where}: cannot read file ({exc.strerror or exc})") from None
     except Exception:  # noqa: BLE001 - unfinished or damaged: the full reader decides
-        return source_from_trace(read_trace(path))
+        scanned = _scan_step_file(where)
+        return scanned if scanned is not None else source_from_trace(read_trace(path))
+    if step is not None:
+        return _step_source(where, *step)
     run = metadata.get("run", {})
     fmt = run.get("trace_format", "netsim-trace/1").rsplit("/", 1)[-1]
     neighbours: dict[int, list[int]] = {}
@@ -191,14 +369,21 @@ def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
             substates[info.index] = len(msg.index)
     plant = first.get(plant_topic())
     reasons = {int(c): r for c, r in metadata.get("drop_reasons", {}).items() if c.isdigit()}
+    origin = run.get("time_origin_ns", "0")
     return LayoutSource(
         path=where, format=int(fmt) if fmt.isdigit() else 1, topics=topics,
         n_states=0 if plant is None else len(plant.state), neighbours=neighbours,
         substates=substates, drop_reasons=reasons, family=run.get("family", ""),
-        scenario=metadata.get("scenario", {}).get("name", ""))
+        scenario=metadata.get("scenario", {}).get("name", ""),
+        time_origin_ns=int(origin) if origin.isdigit() else 0)
 
 
 # -- the layout ----------------------------------------------------------------------
+
+#: One Plot panel: (panel id, config); a tab: (title, its panels).
+_Panel = tuple[str, dict[str, Any]]
+_Tabs = list[tuple[str, list[_Panel]]]
+_Panels = Callable[..., list[_Panel]]
 
 _PALETTE = ("#4e98e2", "#f5774d", "#5cd67a", "#f7df71", "#eb8fd0", "#a395e2", "#61e0e0",
             "#e25c5c", "#b6e06e", "#fd9a3a", "#9bd0f5", "#c4c4c4")
@@ -246,12 +431,14 @@ def _slug(text: str) -> str:
 
 def foxglove_layout(source: LayoutSource | Trace, *, max_series: int = MAX_SERIES,
                     max_states: int = MAX_STATES) -> dict[str, Any]:
-    """Return a Foxglove layout (JSON-ready dict) for a format-2 trace.
+    """Return a Foxglove layout (JSON-ready dict) for a format-2 or format-3 trace.
 
     Parameters
     ----------
     source : LayoutSource or Trace
-        The trace (see :func:`layout_source`).
+        The trace (see :func:`layout_source`). Its format picks the message paths: one
+        topic per agent and link event (format 2) or indexed paths into the per-step
+        arrays (format 3; see the module docstring).
     max_series : int
         Most message paths per Plot panel.
     max_states : int
@@ -260,21 +447,22 @@ def foxglove_layout(source: LayoutSource | Trace, *, max_series: int = MAX_SERIE
     Raises
     ------
     ValueError
-        A format-1 trace (its link events share one topic; re-record it).
+        A format-1 trace (its link events share one topic; re-record it), or a format
+        newer than 3.
     """
     if isinstance(source, Trace):
         source = source_from_trace(source)
     if source.format < 2:
         raise ValueError(f"{source.path}: trace format {source.format}; Foxglove layouts "
-                         "need format 2 (record it again with netsim run --trace)")
-    topics = set(source.topics)
-    tabs: list[tuple[str, list[tuple[str, dict[str, Any]]]]] = []
+                         "need format 2 or 3 (record it again with netsim run --trace)")
+    if source.format > 3:
+        raise ValueError(f"{source.path}: trace format {source.format}; this netsim lays "
+                         "out formats 2 and 3")
 
     def colour(index: int) -> str:
         return _PALETTE[index % len(_PALETTE)]
 
-    def panels(title: str, series: list[dict[str, Any]], **kw: Any
-               ) -> list[tuple[str, dict[str, Any]]]:
+    def panels(title: str, series: list[dict[str, Any]], **kw: Any) -> list[_Panel]:
         groups = _chunks(series, max_series)
         out = []
         for q, group in enumerate(groups):
@@ -282,6 +470,19 @@ def foxglove_layout(source: LayoutSource | Trace, *, max_series: int = MAX_SERIE
             out.append((f"Plot!{_slug(name)}", _plot(name, group, **kw)))
         return out
 
+    if source.format == 3:
+        tabs = _step_tabs(source, panels, colour, max_series=max_series,
+                          max_states=max_states)
+    else:
+        tabs = _record_tabs(source, panels, colour, max_states=max_states)
+    return _assemble(tabs)
+
+
+def _record_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], str], *,
+                 max_states: int) -> _Tabs:
+    """The format-2 tabs: one topic per agent and per link event."""
+    topics = set(source.topics)
+    tabs: _Tabs = []
     agents = [i for i in source.agents("estimate") if estimate_topic(i) in topics]
     errors = [_series(f"{estimate_topic(i)}.error_norm", f"agent {i}", colour(i))
               for i in agents]
@@ -339,7 +540,88 @@ def foxglove_layout(source: LayoutSource | Trace, *, max_series: int = MAX_SERIE
                           [_series(f"{freshness_topic(i)}.index[{s}]", f"substate {s}",
                                    colour(s)) for s in range(source.substates.get(i, 0))])
         tabs.append(("Age of information", aoi))
+    return tabs
 
+
+def _step_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], str], *,
+               max_series: int, max_states: int) -> _Tabs:
+    """The format-3 tabs: indexed paths into the per-step arrays (module docstring)."""
+    tabs: _Tabs = []
+    n = source.n_states
+    agents = source.agents("estimate")
+    errors = [_series(f"/agents/estimate.error_norm[{i}]", f"agent {i}", colour(i))
+              for i in agents]
+    if errors:
+        tabs.append(("Errors", panels("Error norm ||x-hat^i_k - x_k|| per agent", errors,
+                                      y_min=0)))
+
+    state: list[_Panel] = []
+    if source.has_messages("/plant/state"):
+        for s in range(min(n, max_states)):
+            series = [_series(f"/plant/state.state[{s}]", f"x[{s}] (true)", _TRUTH,
+                              size=2.5)]
+            series += [_series(f"/agents/estimate.estimate[{i * n + s}]", f"agent {i}",
+                               colour(i), size=1.0) for i in agents]
+            state += panels(f"State x[{s}] against the agents' estimates", series)
+    if state:
+        tabs.append(("State", state))
+
+    every_link = sorted(set(source.step_links) | set(source.step_updates))
+    link_colour = {link: colour(q) for q, link in enumerate(every_link)}
+    delays: list[_Panel] = []
+    if source.has_messages("/agents/update"):
+        effective = [_series(f"/agents/update.effective_delay[{e}]", f"r {j}->{i}",
+                             link_colour[(j, i)])
+                     for e, (j, i) in enumerate(source.step_updates) if j != i]
+        delays += panels(f"Effective delay r_ij[k] (steps; -1 own estimate used, "
+                         f"{ABSENT} not reported: off axis)", effective, y_min=-1.5)
+    if source.has_messages("/links/sent"):
+        sent = [_series(f"/links/sent.delay_steps[{q}]", f"{j}->{i}", link_colour[(j, i)],
+                        line=False) for q, (j, i) in enumerate(source.step_links)]
+        delays += panels(f"Delay d (steps) of the message sent at k per link ({ABSENT} "
+                         "none sent: off axis)", sent, y_min=-0.5)
+    if delays:
+        tabs.append(("Delays", delays))
+
+    if source.has_messages("/links/dropped") and source.step_links:
+        entries = min(len(source.step_links), max_series)
+        named = ", ".join(f"{q}: {j}->{i}" for q, (j, i) in enumerate(source.step_links[:8]))
+        if len(source.step_links) > 8:
+            named += ", ..."
+        shown = f"entries 0-{entries - 1} of each step's drops"
+
+        def drop_series(name: str) -> list[dict[str, Any]]:
+            return [_series(f"/links/dropped.{name}[{q}]", f"drop {q}", colour(q), line=False)
+                    for q in range(entries)]
+
+        codes = ", ".join(f"{c} {r}" for c, r in sorted(source.drop_reasons.items()))
+        tabs.append(("Drops",
+                     panels(f"Dropped messages: link l ({named}; {shown})",
+                            drop_series("link"))
+                     + panels(f"Dropped messages: sending step ({shown})",
+                              drop_series("sent_step"))
+                     + panels(f"Drop reason code ({codes or 'none'}; {shown})",
+                              drop_series("reason"))))
+
+    fresh_agents = source.agents("freshness")
+    if fresh_agents:
+        starts = [sum(source.freshness_sizes[:i]) for i in range(len(source.freshness_sizes))]
+        aoi = panels(f"Largest freshness index per agent (-1 omega, {ABSENT} no report: "
+                     "off axis)",
+                     [_series(f"/agents/freshness.max_index[{i}]", f"agent {i}", colour(i))
+                      for i in fresh_agents], y_min=-1.5)
+        for i in fresh_agents[:MAX_FRESHNESS_AGENTS]:
+            aoi += panels(f"Freshness index per substate, agent {i} (-1 omega, {ABSENT} no "
+                          "report: off axis)",
+                          [_series(f"/agents/freshness.index[{starts[i] + s}]",
+                                   f"substate {s}", colour(s))
+                           for s in range(source.freshness_sizes[i])], y_min=-1.5)
+        tabs.append(("Age of information", aoi))
+    return tabs
+
+
+def _assemble(tabs: _Tabs) -> dict[str, Any]:
+    """The layout JSON: a ``Tab`` panel of the tabs' mosaics of Plot panels."""
     config_by_id: dict[str, Any] = {}
     tab_list = []
     for title, content in tabs:
@@ -411,14 +693,114 @@ def _series_data(trace: Trace, path: str) -> tuple[list[float], list[float]]:
     return xs, ys
 
 
-def render_layout(trace: Trace, layout: dict[str, Any], output: str | os.PathLike[str], *,
-                  tabs: Sequence[str] | None = None, columns: int = 2,
-                  max_panels: int = 8) -> Path:
-    """Draw the layout's Plot panels from the trace's data into a PNG (dark theme, like
-    Foxglove): every series evaluated from its message path against the trace records,
-    x = simulation time in seconds (Foxglove's x axis is the same, from the start).
+def message_path_series(trace_path: str | os.PathLike[str], message_paths: Iterable[str],
+                        *, origin_ns: int | None = None
+                        ) -> dict[str, tuple[list[float], list[float]]]:
+    """Evaluate message paths against a trace file's own messages (any format; meant for
+    format 3, whose per-step topics :func:`read_trace` expands into format-2 records).
 
-    ``tabs`` picks tabs by title (default all), ``max_panels`` caps the picture.
+    Parameters
+    ----------
+    trace_path : str or path
+        An MCAP file (read with the plain ``mcap`` stream reader and the protobuf schemas
+        stored in it; a file cut short or damaged is read up to the damage).
+    message_paths : iterable of str
+        ``/topic.field`` (a scalar field) or ``/topic.field[index]`` (an array entry).
+    origin_ns : int, optional
+        log_time of time 0 (default: the file's ``run.time_origin_ns``).
+
+    Returns
+    -------
+    dict str -> (list of float, list of float)
+        Per path, (time in seconds since ``origin_ns``, value) of each message of its
+        topic, in log_time order; NaN where the message's array has no such index (what
+        Foxglove does not draw).
+
+    Raises
+    ------
+    ValueError
+        A path :func:`parse_message_path` does not accept, a field the message type does
+        not have, or an array field without an index.
+    """
+    from mcap.records import Channel, Message, Schema
+    from mcap.stream_reader import StreamReader
+    from mcap_protobuf.decoder import DecoderFactory
+
+    wanted: dict[str, list[tuple[str, str, int | None]]] = {}
+    for path in dict.fromkeys(message_paths):
+        topic, name, index = parse_message_path(path)
+        wanted.setdefault(topic, []).append((path, name, index))
+    if origin_ns is None:
+        origin_ns = layout_source(trace_path).time_origin_ns
+    rows: dict[str, list[tuple[int, float]]] = {
+        path: [] for entries in wanted.values() for path, _, _ in entries}
+    factory = DecoderFactory()
+    schemas: dict[int, Schema] = {}
+    decoders: dict[int, Any] = {}
+    with open(trace_path, "rb") as f:
+        records = iter(StreamReader(f).records)
+        while True:
+            try:
+                record = next(records)
+            except StopIteration:
+                break
+            except Exception:  # noqa: BLE001 - cut short or damaged: what was read
+                break
+            if isinstance(record, Schema):
+                schemas[record.id] = record
+            elif isinstance(record, Channel):
+                schema = schemas.get(record.schema_id)
+                if record.topic in wanted and schema is not None:
+                    decoders[record.id] = (record.topic,
+                                           factory.decoder_for(record.message_encoding, schema))
+            elif isinstance(record, Message) and record.channel_id in decoders:
+                topic, decode = decoders[record.channel_id]
+                message = decode(record.data)
+                for path, name, index in wanted[topic]:
+                    if name not in message.DESCRIPTOR.fields_by_name:
+                        raise ValueError(f"{path}: {message.DESCRIPTOR.full_name} has no "
+                                         f"field {name!r}")
+                    value = getattr(message, name)
+                    if index is not None:
+                        value = value[index] if index < len(value) else math.nan
+                    elif not isinstance(value, (int, float)):
+                        raise ValueError(f"{path}: {name!r} is an array; give an index")
+                    rows[path].append((record.log_time, float(value)))
+    out = {}
+    for path, points in rows.items():
+        points.sort(key=lambda point: point[0])
+        out[path] = ([(t - origin_ns) / 1e9 for t, _ in points], [v for _, v in points])
+    return out
+
+
+def render_layout(trace: Trace | str | os.PathLike[str], layout: dict[str, Any],
+                  output: str | os.PathLike[str], *, tabs: Sequence[str] | None = None,
+                  columns: int = 2, max_panels: int = 8) -> Path:
+    """Draw the layout's Plot panels from the trace's data into a PNG (dark theme, like
+    Foxglove): every series evaluated from its message path, x = simulation time in
+    seconds (Foxglove's x axis is the same, from the start).
+
+    Parameters
+    ----------
+    trace : Trace or str or path
+        The trace (a :class:`Trace` or its file). Format 2: paths evaluated against the
+        records :func:`read_trace` read; format 3: against the file's own per-step
+        messages (:func:`message_path_series`, reading ``trace.path``).
+    layout : dict
+        A layout of :func:`foxglove_layout` for that trace.
+    output : str or path
+        The PNG to write.
+    tabs : sequence of str, optional
+        Tabs to draw, by title (default all).
+    columns : int
+        Panels per row.
+    max_panels : int
+        Most panels drawn (the first ones, in tab order).
+
+    Returns
+    -------
+    Path
+        ``output``.
     """
     import matplotlib
 
@@ -434,6 +816,17 @@ def render_layout(trace: Trace, layout: dict[str, Any], output: str | os.PathLik
     chosen = chosen[:max_panels]
     if not chosen:
         raise ValueError("the layout has no panels to draw")
+    if isinstance(trace, Trace):
+        where, fmt, origin = trace.path, trace.format, trace.time_origin_ns
+    else:
+        source = layout_source(trace)
+        where, fmt, origin = str(trace), source.format, source.time_origin_ns
+    values = [series["value"] for _tab, panel in chosen for series in panel["paths"]]
+    if fmt >= 3:
+        data = message_path_series(where, values, origin_ns=origin)
+    else:
+        records = trace if isinstance(trace, Trace) else read_trace(where)
+        data = {value: _series_data(records, value) for value in values}
     rows = math.ceil(len(chosen) / columns)
     with plt.style.context("dark_background"):
         fig, axes = plt.subplots(rows, columns, figsize=(6.4 * columns, 3.2 * rows),
@@ -443,7 +836,7 @@ def render_layout(trace: Trace, layout: dict[str, Any], output: str | os.PathLik
         for ax, (tab, panel) in zip(axes.ravel(), chosen, strict=False):
             ax.set_facecolor("#1e1e24")
             for series in panel["paths"]:
-                xs, ys = _series_data(trace, series["value"])
+                xs, ys = data[series["value"]]
                 style = "-" if series.get("showLine", True) else "none"
                 ax.plot(xs, ys, linestyle=style, marker=None if style == "-" else ".",
                         color=series.get("color"), linewidth=series.get("lineSize", 1.5),
@@ -456,7 +849,7 @@ def render_layout(trace: Trace, layout: dict[str, Any], output: str | os.PathLik
             ax.set_xlabel("simulation time (s)", fontsize=7)
             if len(panel["paths"]) <= 12:
                 ax.legend(fontsize=6, loc="upper right", framealpha=0.4, ncol=2)
-        fig.suptitle(f"Foxglove layout of {Path(trace.path).name} (netsim layout)",
+        fig.suptitle(f"Foxglove layout of {Path(where).name} (netsim layout)",
                      fontsize=10)
         fig.tight_layout()
         out = Path(output)

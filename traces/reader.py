@@ -180,7 +180,8 @@ class Trace:
     truncated : bool
         The file was never finished; only complete chunks were read.
     recovered_messages : int
-        Messages read (all of them for a finished file).
+        Messages read (all of them for a finished file; format 3: the file's messages,
+        :attr:`file_counts`).
     foreign_topics : list of str
         Topics with schemas not from this project (counted, not decoded).
     library : str
@@ -205,8 +206,8 @@ class Trace:
         Messages read per topic of the file (formats 1 and 2: equal to :attr:`counts`).
     unexpanded : dict of str -> int
         Format 3: what the file holds but could not be expanded into format-2 records,
-        by kind (e.g. ``delivered``: a delivery whose sent message was in a lost chunk);
-        empty otherwise.
+        by kind (e.g. ``delivered``: deliveries of a step some of whose sends or drops
+        were in a lost chunk); empty for an intact file and formats 1 and 2.
     """
 
     path: str
@@ -705,11 +706,16 @@ class _Collector:
                                                  view.messages)
             unexpanded = view.unexpanded
             note = "; ".join(text for text in (note, view.note) if text)
+        matrices = self.matrices
+        if run.get("stacked_matrices"):  # format 3: per-agent matrices stacked as one
+            from netsim.traces.stepread import unstack_matrices
+
+            matrices = unstack_matrices(matrices, run)
         return Trace(
             drop_reasons=reasons,
             path=where,
             metadata=self.metadata,
-            matrices=self.matrices,
+            matrices=matrices,
             attachments=self.attachments,
             topics=topics,
             counts=counts,

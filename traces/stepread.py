@@ -27,9 +27,16 @@ events):
   number counts the earlier sends on that link in the file; ``payload`` the stored one,
   else the sender's estimate of step k when the layout's ``payload`` is ``estimate``,
   else empty), published at its send time;
-- per delivery and drop: ``LinkDelivered`` / ``LinkDropped``, joined on (link, sent
-  step) to the message's sent record (sequence, times, delay); logged at the arrival
-  resp. drop time, published at the send time.
+- per drop: ``LinkDropped``, joined on (link, sent step) to the message's sent record
+  (sequence, times, delay), logged at the drop time;
+- per delivery: ``LinkDelivered``. The deliveries of step k are the messages usable
+  from k on (sent at s with delay k - 1 - s) that were not dropped, in (link, s) order,
+  ``LinkDeliveries.accepted`` saying for each whether the receiver kept it; in a step
+  after the last plant step only those that arrived before the run ended (the earliest
+  ones). Logged at the arrival time. (A file listing each delivery's link and time-stamp,
+  as the layout's first version did, is joined like the drops.)
+
+Link records are published at the message's send time.
 
 Order on equal log_time (the kernel's, :mod:`netsim.vectrace`): at one instant first the
 deliveries scheduled before it and the keep-latest supersessions (by sending step,
@@ -38,10 +45,12 @@ update and freshness and, per out-link, the message sent, its drop at sending an
 in-flight message a drop-oldest buffer cancelled for it, then zero-latency deliveries.
 
 What cannot be rebuilt is left out and counted in :attr:`StepView.unexpanded` (and said
-in :attr:`StepView.note`): a delivery or drop whose sent message was in a lost chunk, an
-agent's update whose step has no ``Updates`` message, a payload equal to an estimate
-that was lost, or entries the last layout does not describe. Sequence numbers count the
-sends that were read: after a lost chunk they are smaller than the recorded ones.
+in :attr:`StepView.note`), which only happens in a damaged file: a drop whose sent
+message was in a lost chunk, the deliveries of a step whose messages do not match its
+``accepted`` list (a lost chunk held some of their sends or drops), an agent's update
+whose step has no ``Updates`` message, a payload equal to an estimate that was lost, or
+entries the last layout does not describe. Sequence numbers count the sends that were
+read: after a lost chunk they are smaller than the recorded ones.
 """
 
 from __future__ import annotations
@@ -52,6 +61,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from google.protobuf.descriptor_pb2 import FieldDescriptorProto
 from netsim.traces.bulkproto import BulkEncoder
 from netsim.traces.reader import TraceRecord
 from netsim.traces.schemas import MESSAGES as MESSAGES2
@@ -68,12 +78,15 @@ from netsim.traces.schemas import (
 from netsim.traces.schemas3 import ABSENT, LAYOUT_METADATA, TOPICS
 from netsim.traces.schemas3 import PACKAGE as PACKAGE3
 
-__all__ = ["StepLayout", "StepView", "read_layout", "is_step_trace", "expand_steps"]
+__all__ = ["StepLayout", "StepView", "read_layout", "expand_steps", "unstack_matrices"]
 
 # phases of the events at one instant (the kernel's order, see netsim.vectrace)
 _EARLY, _STEP, _LATE = 0, 1, 2
-_REPEATED = 3  # FieldDescriptorProto.LABEL_REPEATED
+_REPEATED = FieldDescriptorProto.LABEL_REPEATED
 _SEQUENCE_MASK = 0xFFFFFFFF
+#: Fields every format-2 link record has (from the message's sent record).
+_LINK_COMMON = ("sender", "receiver", "sent_step", "usable_step", "sequence", "send_time",
+                "arrival_time", "delay_steps")
 
 
 @dataclass(frozen=True)
@@ -152,13 +165,6 @@ def read_layout(record: Mapping[str, str]) -> StepLayout:
         )
     except (TypeError, ValueError) as exc:
         raise ValueError(f"trace_layout record unusable ({exc})") from None
-
-
-def is_step_trace(topics: Mapping[str, str], foreign: Iterable[str] = ()) -> bool:
-    """Whether a file's channels (topic -> schema name) hold format-3 messages."""
-    skip = set(foreign)
-    return any(name.startswith(PACKAGE3 + ".") for topic, name in topics.items()
-               if topic not in skip)
 
 
 @dataclass
@@ -310,6 +316,8 @@ class _Expander:
         self.est_steps = np.zeros(0, dtype=np.int64)
         self.est_updated = np.zeros((0, 0), dtype=bool)
         self.est = np.zeros((0, 0, 0))
+        #: the last plant step in the file (-1: none)
+        self.last_plant = -1
 
     def skip(self, kind: str, count: int = 1) -> None:
         if count:
@@ -338,17 +346,17 @@ class _Expander:
             return
         step = _ints([m.step for m in msgs])
         time = _floats([m.time for m in msgs])
+        self.last_plant = int(step.max())
         groups = _by_length([_floats(m.state) for m in msgs])
         for idx, state in groups.values():
             self._step_block("PlantState", [plant_topic()], np.zeros(len(idx), np.int64),
                              {"step": step[idx], "time": time[idx], "state": state},
                              -1, 0, 0)
+        # the states of the layout's size give the estimates' errors (NaN for others)
         n = self.layout.n_states or max(groups, key=lambda m: len(groups[m][0]))
         if n in groups:
             idx, state = groups[n]
             self.state_steps, self.states = step[idx], state
-        if len(groups) > 1:
-            self.skip("state of another size", len(msgs) - len(groups.get(n, ((),))[0]))
 
     def measurements(self) -> None:
         msgs = self.m.get("Measurements", [])
@@ -513,15 +521,18 @@ class _Expander:
         """The LinkSent blocks; returns the sends as columns for the joins."""
         msgs = self.m.get("LinkSends", [])
         L_known = len(self.layout.links)
-        empty = {"key": np.zeros(0, np.int64)}
         if not msgs:
-            return empty
+            none = np.zeros(0, dtype=np.int64)
+            return {**{key: none for key in _LINK_COMMON}, "link": none, "key": none,
+                    "publish": none.astype(np.uint64), "multiplier": np.array([1]),
+                    "arrival_time": none.astype(float)}
         step = _ints([m.step for m in msgs])
         time = _floats([m.time for m in msgs])
         delay = _padded([_ints(m.delay_steps) for m in msgs], ABSENT, np.int64)
         R, L = delay.shape
         arrival = np.full((R, L), np.nan)
-        stored: dict[int, np.ndarray] = {}
+        stored: dict[int, list[int]] = {}  # payload width -> rows storing payloads
+        payloads: dict[int, np.ndarray] = {}
         for r, m in enumerate(msgs):
             width = len(m.delay_steps)
             a = _floats(m.arrival_time)
@@ -535,7 +546,8 @@ class _Expander:
             if len(m.payload):
                 p = _floats(m.payload)
                 if width and p.shape[0] % width == 0:
-                    stored[r] = p.reshape(width, p.shape[0] // width)
+                    stored.setdefault(p.shape[0] // width, []).append(r)
+                    payloads[r] = p.reshape(width, p.shape[0] // width)
                 else:
                     self.skip("payloads", int((delay[r] != ABSENT).sum()))
         sent = delay != ABSENT
@@ -553,12 +565,17 @@ class _Expander:
         publish = _ns(self.origin, time[rs])
         # payloads: stored, else the sender's estimate of that step, else none
         width = np.zeros(rs.shape[0], dtype=np.int64)
-        from_store = np.array([r in stored for r in rs.tolist()], dtype=bool)
-        payload_rows: dict[int, np.ndarray] = {}
-        for q in np.flatnonzero(from_store).tolist():
-            row = stored[int(rs[q])]
-            payload_rows[q] = row[ls[q]] if ls[q] < row.shape[0] else np.zeros(0)
-            width[q] = payload_rows[q].shape[0]
+        store_width = np.zeros(R, dtype=np.int64)  # 0: that step stores no payloads
+        store_row = np.zeros(R, dtype=np.int64)  # its row in the stored array of its width
+        stored_values: dict[int, np.ndarray] = {}
+        for w, rows in stored.items():
+            store_width[rows] = w
+            store_row[rows] = np.arange(len(rows))
+            stored_values[w] = np.full((len(rows), L, w), np.nan)
+            for a, r in enumerate(rows):
+                stored_values[w][a, :payloads[r].shape[0]] = payloads[r]
+        from_store = store_width[rs] > 0
+        width[from_store] = store_width[rs[from_store]]
         from_estimate = ~from_store & (self.layout.payload == "estimate")
         e_row = np.searchsorted(self.est_steps, s)
         ok = from_estimate & (e_row < self.est_steps.shape[0])
@@ -573,12 +590,12 @@ class _Expander:
             columns = {key: v[g] for key, v in common.items()}
             if w:
                 values = np.empty((g.shape[0], w))
-                est_g = ok[g]
+                est_g, store_g = ok[g], from_store[g]
                 if est_g.any():
                     values[est_g] = self.est[e_row[g[est_g]], j[g[est_g]]]
-                for a, q in enumerate(g.tolist()):
-                    if q in payload_rows:
-                        values[a] = payload_rows[q]
+                if store_g.any():
+                    q = g[store_g]
+                    values[store_g] = stored_values[w][store_row[rs[q]], ls[q]]
                 columns["payload"] = values
             self.blocks.append(_Block(
                 "LinkSent", self.link_topics["sent"], ls[g], columns, time[rs[g]], _STEP,
@@ -608,42 +625,20 @@ class _Expander:
         return found, index
 
     def link_events(self, sends: dict[str, np.ndarray]) -> None:
-        common_keys = ("sender", "receiver", "sent_step", "usable_step", "sequence",
-                       "send_time", "arrival_time", "delay_steps")
-        deliveries = self.m.get("LinkDeliveries", [])
-        if deliveries:
-            bucket = np.concatenate([np.full(len(m.link), int(m.step), np.int64)
-                                     for m in deliveries])
-            link = np.concatenate([_ints(m.link) for m in deliveries])
-            if _has(deliveries[0], "sent_step"):
-                sent_step = np.concatenate([_ints(m.sent_step) for m in deliveries])
-            else:  # delay d: sent at k - 1 - d
-                sent_step = bucket - 1 - np.concatenate([_ints(m.delay_steps)
-                                                         for m in deliveries])
-            accepted = np.concatenate([_ints(m.accepted) for m in deliveries])
-            found, q = self._join(sends, link, sent_step, "delivered")
-            q, acc = q[found], accepted[found]
-            if q.size:
-                columns = {key: sends[key][q] for key in common_keys}
-                columns["accepted"] = acc
-                arrival, send_time = columns["arrival_time"], columns["send_time"]
-                late = arrival == send_time  # zero latency: after the sends of that instant
-                j, l_, s = columns["sender"], sends["link"][q], columns["sent_step"]
-                self.blocks.append(_Block(
-                    "LinkDelivered", self.link_topics["delivered"], l_, columns, arrival,
-                    np.where(late, _LATE, _EARLY), np.where(late, j, s),
-                    np.where(late, l_, j), np.where(late, 0, l_),
-                    _ns(self.origin, arrival), sends["publish"][q], columns["sequence"]))
         drops = self.m.get("LinkDrops", [])
+        dropped_keys = np.zeros(0, dtype=np.int64)
         if drops:
             link = np.concatenate([_ints(m.link) for m in drops])
             sent_step = np.concatenate([_ints(m.sent_step) for m in drops])
             reason = np.concatenate([_ints(m.reason) for m in drops])
             drop_time = np.concatenate([_floats(m.drop_time) for m in drops])
+            L1 = int(sends["multiplier"][0])
+            known = link < L1 - 1
+            dropped_keys = sent_step[known] * L1 + link[known]
             found, q = self._join(sends, link, sent_step, "dropped")
             q = q[found]
             if q.size:
-                columns = {key: sends[key][q] for key in common_keys}
+                columns = {key: sends[key][q] for key in _LINK_COMMON}
                 columns["reason"] = reason[found]
                 when = columns["drop_time"] = drop_time[found]
                 j, l_, s = columns["sender"], sends["link"][q], columns["sent_step"]
@@ -657,6 +652,106 @@ class _Expander:
                     np.where(superseded, j, 3),
                     np.where(superseded, l_, 3 * l_ + np.where(at_send, 1, 2)),
                     _ns(self.origin, when), sends["publish"][q], columns["sequence"]))
+        deliveries = self.m.get("LinkDeliveries", [])
+        if not deliveries:
+            return
+        if _has(deliveries[0], "link"):  # each delivery's link and time-stamp listed
+            q, accepted = self._listed_deliveries(sends, deliveries)
+        else:
+            q, accepted = self._implied_deliveries(sends, deliveries, dropped_keys)
+        if not q.size:
+            return
+        columns = {key: sends[key][q] for key in _LINK_COMMON}
+        columns["accepted"] = accepted
+        arrival, send_time = columns["arrival_time"], columns["send_time"]
+        late = arrival == send_time  # zero latency: after the sends of that instant
+        j, l_, s = columns["sender"], sends["link"][q], columns["sent_step"]
+        self.blocks.append(_Block(
+            "LinkDelivered", self.link_topics["delivered"], l_, columns, arrival,
+            np.where(late, _LATE, _EARLY), np.where(late, j, s), np.where(late, l_, j),
+            np.where(late, 0, l_), _ns(self.origin, arrival), sends["publish"][q],
+            columns["sequence"]))
+
+    def _listed_deliveries(self, sends: dict[str, np.ndarray], deliveries: list[Any]
+                           ) -> tuple[np.ndarray, np.ndarray]:
+        """(sends index, accepted) of deliveries listed by link and time-stamp (the
+        layout's first version: ``link`` and ``sent_step`` or ``delay_steps``)."""
+        bucket = np.concatenate([np.full(len(m.link), int(m.step), np.int64)
+                                 for m in deliveries])
+        link = np.concatenate([_ints(m.link) for m in deliveries])
+        if _has(deliveries[0], "sent_step"):
+            sent_step = np.concatenate([_ints(m.sent_step) for m in deliveries])
+        else:  # delay d: sent at k - 1 - d
+            sent_step = bucket - 1 - np.concatenate([_ints(m.delay_steps)
+                                                     for m in deliveries])
+        accepted = np.concatenate([_ints(m.accepted) for m in deliveries])
+        found, q = self._join(sends, link, sent_step, "delivered")
+        return q[found], accepted[found]
+
+    def _implied_deliveries(self, sends: dict[str, np.ndarray], deliveries: list[Any],
+                            dropped_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(sends index, accepted) of the deliveries of step k: the messages usable from
+        k on that were not dropped, in (link, time-stamp) order; in a step after the
+        last plant step, those that arrived before the run ended (the earliest ones)."""
+        keys = sends["key"]
+        usable = sends["usable_step"]
+        candidate = np.flatnonzero(~np.isin(keys, dropped_keys))
+        candidate = candidate[np.lexsort((sends["sent_step"][candidate],
+                                          sends["link"][candidate], usable[candidate]))]
+        by_step = usable[candidate]
+        arrival = sends["arrival_time"]
+        picked: list[np.ndarray] = []
+        accepted: list[np.ndarray] = []
+        for m in deliveries:
+            k = int(m.step)
+            flags = _ints(m.accepted)
+            c = flags.shape[0]
+            lo, hi = np.searchsorted(by_step, [k, k + 1])
+            found = candidate[lo:hi]
+            if found.shape[0] > c and k > self.last_plant:  # the run ended meanwhile
+                times = np.sort(arrival[found])
+                if c == 0 or times[c - 1] < times[c]:
+                    found = found[arrival[found] <= times[c - 1]] if c else found[:0]
+            if found.shape[0] != c:
+                self.skip("delivered", c)
+                continue
+            picked.append(found)
+            accepted.append(flags)
+        if not picked:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64)
+        return np.concatenate(picked), np.concatenate(accepted)
+
+
+def unstack_matrices(matrices: Mapping[str, np.ndarray], run: Mapping[str, str]
+                     ) -> dict[str, np.ndarray]:
+    """The per-agent matrices ``X_0 .. X_{N-1}`` of attachments stacked as one ``X``.
+
+    A format-3 recorder attaches per-agent matrices of one shape as one array of shape
+    (N, ...) and lists their names in ``run.stacked_matrices``
+    (:func:`netsim.traces.recorder.stack_matrices`); this gives them back as the
+    format-2 attachments ``X_i``, in place of ``X`` (the same order).
+
+    Parameters
+    ----------
+    matrices : mapping str -> numpy.ndarray
+        The ``.npy`` attachments by name.
+    run : mapping str -> str
+        The ``run`` metadata record.
+
+    Returns
+    -------
+    dict of str -> numpy.ndarray
+    """
+    stacked = {name for name in str(run.get("stacked_matrices", "")).split(",") if name}
+    if not stacked:
+        return dict(matrices)
+    out: dict[str, np.ndarray] = {}
+    for name, matrix in matrices.items():
+        if name in stacked and np.ndim(matrix) >= 1:
+            out.update({f"{name}_{i}": np.asarray(matrix[i]) for i in range(len(matrix))})
+        else:
+            out[name] = matrix
+    return out
 
 
 def _describe(unexpanded: Mapping[str, int]) -> str:
@@ -664,7 +759,7 @@ def _describe(unexpanded: Mapping[str, int]) -> str:
         return ""
     parts = ", ".join(f"{count} {kind}" for kind, count in unexpanded.items())
     return (f"format 3 read as format 2; left out what could not be rebuilt ({parts}): "
-            "their messages or layout were lost")
+            "part of what they need was lost")
 
 
 def expand_steps(records: Mapping[str, list[TraceRecord]], topics: Mapping[str, str],
@@ -690,7 +785,8 @@ def expand_steps(records: Mapping[str, list[TraceRecord]], topics: Mapping[str, 
     -------
     StepView
     """
-    foreign = [t for t in topics if t in set(foreign)]
+    skip = set(foreign)
+    foreign = [t for t in topics if t in skip]
     run = metadata.get("run", {})
     origin_text = str(run.get("time_origin_ns", "0"))
     origin = int(origin_text) if origin_text.isdigit() else 0
@@ -706,18 +802,20 @@ def expand_steps(records: Mapping[str, list[TraceRecord]], topics: Mapping[str, 
     blocks: list[_Block] = []
     layout_record = metadata.get(LAYOUT_METADATA)
     total = sum(len(v) for v in messages3.values())
+    problem = ""
     if layout_record is None:
-        if total:
-            unexpanded["messages (no trace_layout metadata)"] = total
+        problem = "no trace_layout metadata record"
     else:
         try:
             layout = read_layout(layout_record)
         except ValueError as exc:
-            unexpanded[f"messages ({exc})"] = total
+            problem = str(exc)
         else:
             expander = _Expander(messages3, layout, origin, sample_period)
             blocks = expander.run()
             unexpanded = expander.unexpanded
+    if problem and total:  # nothing says what the arrays are indexed by
+        unexpanded["messages"] = total
     view = _merge(blocks)
     # netsim topics of another format in the file: kept as they are
     others = [t for t in topics if t not in foreign and t not in TOPICS]
@@ -732,7 +830,10 @@ def expand_steps(records: Mapping[str, list[TraceRecord]], topics: Mapping[str, 
         view.topics[t] = topics[t]
         view.counts[t] = counts.get(t, 0)
     view.unexpanded = unexpanded
-    view.note = _describe(unexpanded)
+    if problem and total:
+        view.note = f"format 3: {total} messages not read ({problem})"
+    else:
+        view.note = _describe(unexpanded)
     return view
 
 

@@ -4,6 +4,7 @@ kept when a trace cannot be written, chunk-level recovery, no raw numpy warnings
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import pytest
@@ -261,9 +262,13 @@ def test_disk_full_within_a_family_keeps_its_finished_trials(geometric, tmp_path
     code, single, _ = _run(capsys, geometric, "--trials", "1", "--estimators", "compensated",
                            "--json", "--trace", one / "s.mcap")
     assert code == 0
-    # the one finished trial's numbers are those of a run of that trial alone
-    assert (data["estimators"]["compensated"]["mse_at"]
-            == json.loads(single)["estimators"]["compensated"]["mse_at"])
+    # the one finished trial's numbers are those of a run of that trial alone (to
+    # round-off: a batch of 3 trials and one of 1 multiply matrices of other shapes)
+    mine, alone = (data["estimators"]["compensated"]["mse_at"],
+                   json.loads(single)["estimators"]["compensated"]["mse_at"])
+    assert mine.keys() == alone.keys()
+    for k in mine:
+        assert math.isclose(mine[k], alone[k], rel_tol=1e-12), (k, mine[k], alone[k])
 
 
 # -- a damaged trace: every intact chunk, and which were lost --------------------------

@@ -47,13 +47,13 @@ def traces(tmp_path_factory):
     consensus = folder / "consensus.mcap"
     assert main(["run", "lcsys2022-heterogeneous", "--tau", "3", "--trials", "1",
                  "--steps", "25", "--estimators", "compensated", "--trace", str(consensus),
-                 "--layout", "--no-progress", "--json"]) == 0
+                 "--layout", "--trace-format", "2", "--no-progress", "--json"]) == 0
     aoi = folder / "aoi.mcap"
     assert main(["run", str(ROOT / "examples" / "aoi-random-lossy.toml"), "--trials", "1",
                  "--steps", "20", "--estimators", "aoi", "--trace", str(aoi), "--layout",
-                 "--no-progress", "--json"]) == 0
+                 "--trace-format", "2", "--no-progress", "--json"]) == 0
     out = {"consensus": consensus, "aoi": aoi}
-    # format 3 (no command-line flag yet): the API, then the layout --layout writes
+    # format 3 through the API, then the layout --layout writes
     for kind, scenario, family, steps in (
             ("consensus3", "lcsys2022-heterogeneous", "compensated", 25),
             ("aoi3", str(ROOT / "examples" / "aoi-random-lossy.toml"), "aoi", 20)):

@@ -337,10 +337,15 @@ def test_trace_with_more_topics_than_mcap_channels_is_refused_in_one_line(
     assert bound == 1 + 24 + 3 * 24 + 3 * 24  # sensors, agents, cycle links
     monkeypatch.setattr(budget, "MCAP_MAX_CHANNELS", bound - 1)
     trace = tmp_path / "t.mcap"
-    assert main(["run", str(path), "--trace", str(trace), "--no-progress"]) == 2
+    assert main(["run", str(path), "--trace", str(trace), "--trace-format", "2",
+                 "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "--trace" in err[0] and f"{bound:,} topics" in err[0]
+    assert "--trace-format 3" in err[0]
     assert not list(tmp_path.glob("t*.mcap"))
+    # format 3 (the default) has its eight topics at any size
+    assert budget.trace_channels(scn.load_scenario(path), 3) == 8
+    budget.check_trace_size(scn.load_scenario(path), trace)
 
 
 def test_trace_of_a_network_too_large_for_a_dense_P_is_refused_up_front(monkeypatch):

@@ -66,23 +66,29 @@ def test_foreign_or_corrupt_file_is_one_line_and_nonzero(tmp_path, capsys, conte
         assert len(err) == 1 and "bad.mcap" in err[0] and "Traceback" not in err[0]
 
 
-def test_ctrl_c_mid_run_leaves_a_finished_file_and_exits_nonzero(tmp_path):
+@pytest.mark.parametrize("trace_format, engine, size", [
+    # the vectorised engine writes format 2 in bulk once the batch is done (60,000 steps,
+    # about 50 MB, in under a second): interrupted while it writes, once its first
+    # chunks are in the file
+    ("2", "vectorised", 2_000_000),
+    # the event kernel writes format 3 step by step (a chunk every 25 steps) while it runs
+    ("3", "events", 100_000),
+])
+def test_ctrl_c_mid_run_leaves_a_finished_file_and_exits_nonzero(tmp_path, trace_format,
+                                                                engine, size):
     trace = tmp_path / "long.mcap"
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(
         [sys.executable, "-m", "netsim.cli", "run", "lcsys2022-time-varying", "--trials", "1",
          "--steps", "60000", "--estimators", "compensated", "--trace", str(trace),
-         "--no-progress"],
+         "--trace-format", trace_format, "--engine", engine, "--no-progress"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env,
     )
     deadline = time.time() + 60
     while not trace.exists() and time.time() < deadline:
         time.sleep(0.05)
     assert trace.exists(), "the run never started writing its trace"
-    # the vectorised engine writes the trace in bulk once the batch is done (60,000
-    # steps, about 50 MB, in under a second): interrupt while it writes, once its first
-    # chunks are in the file
-    while (trace.stat().st_size < 2_000_000 and proc.poll() is None
+    while (trace.stat().st_size < size and proc.poll() is None
            and time.time() < deadline):
         time.sleep(0.002)
     assert proc.poll() is None, "the run ended before it could be interrupted"

@@ -228,7 +228,7 @@ def test_time_origin_and_bit_reproducible_files(tmp_path):
         reader = make_reader(f)
         stats = reader.get_summary().statistics
         assert stats.message_start_time == origin
-        assert reader.get_header().library.startswith("netsim-trace/2 ")
+        assert reader.get_header().library.startswith("netsim-trace/3 ")  # the default
     np.testing.assert_array_equal(trace.estimates(), read_trace(a).estimates())
 
 

@@ -55,11 +55,23 @@ def _record(path, scenario, gains, observer_wrapper=None, family="compensated", 
     return recorder, result
 
 
-@pytest.fixture(scope="module")
-def recorded(setup, tmp_path_factory):
+@pytest.fixture(scope="module", params=[2, 3], ids=["format2", "format3"])
+def recorded(setup, tmp_path_factory, request):
+    """A kernel run recorded in each trace format (flushed every 5 steps)."""
     scenario, gains = setup
     path = tmp_path_factory.mktemp("trace") / "run.mcap"
-    recorder, result = _record(path, scenario, gains, flush_every=5)
+    recorder, result = _record(path, scenario, gains, flush_every=5,
+                               trace_format=request.param)
+    return path, recorder, result
+
+
+@pytest.fixture(scope="module")
+def recorded2(setup, tmp_path_factory):
+    """The run in format 2, whose file holds one message per event of the reader's view
+    (the damage tests below pair file messages with read ones)."""
+    scenario, gains = setup
+    path = tmp_path_factory.mktemp("trace2") / "run.mcap"
+    recorder, result = _record(path, scenario, gains, flush_every=5, trace_format=2)
     return path, recorder, result
 
 
@@ -71,11 +83,13 @@ def test_read_back_matches_trial_result(setup, recorded):
     path, recorder, result = recorded
     trace = read_trace(path)
     assert not trace.truncated
-    assert trace.recovered_messages == recorder.messages_written == sum(trace.counts.values())
+    assert trace.recovered_messages == recorder.messages_written == sum(
+        trace.file_counts.values())
     assert trace.status["status"] == "complete"
     assert trace.status["last_step"] == str(STEPS)
     assert trace.family == "compensated" and trace.trial == 0 and trace.seed == str(SEED)
-    assert trace.run["trace_format"] == TRACE_FORMAT
+    assert trace.run["trace_format"] == f"netsim-trace/{recorder.trace_format}"
+    assert trace.format == recorder.trace_format
     assert trace.scenario["name"] == "lcsys2022-time-varying"
     assert json.loads(trace.scenario["delays"])["tau"] == 4
     assert trace.steps == list(range(STEPS + 1))
@@ -131,8 +145,11 @@ def test_link_events_match_kernel_messages(recorded):
                                       result.estimates[record.message.sent_step, 0])
 
 
-def test_plain_mcap_reader_reads_the_file(recorded):
+def test_plain_mcap_reader_reads_the_file(setup, recorded):
     path, recorder, result = recorded
+    if recorder.trace_format == 3:
+        _plain_reader_reads_format3(path, recorder, result, setup[0].links)
+        return
     with open(path, "rb") as f:
         reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
         summary = reader.get_summary()
@@ -177,6 +194,36 @@ def test_plain_mcap_reader_reads_the_file(recorded):
         count = sum(1 for _ in NonSeekingReader(f, validate_crcs=True).iter_messages(
             log_time_order=False))
     assert count == recorder.messages_written
+
+
+def _plain_reader_reads_format3(path, recorder, result, scenario_links):
+    """Format 3 with the plain reader: eight topics at most, one message per step each,
+    every agent's estimate of step k in /agents/estimate (agent major)."""
+    from netsim.traces.schemas3 import PACKAGE as PACKAGE3
+    from netsim.traces.schemas3 import TOPICS
+
+    with open(path, "rb") as f:
+        reader = make_reader(f, validate_crcs=True, decoder_factories=[DecoderFactory()])
+        summary = reader.get_summary()
+        assert summary.statistics.message_count == recorder.messages_written
+        assert len(summary.chunk_indexes) > 5  # flushed regularly
+        assert {c.topic for c in summary.channels.values()} <= set(TOPICS)
+        assert all(s.encoding == "protobuf" and s.name.startswith(PACKAGE3 + ".")
+                   for s in summary.schemas.values())
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        assert set(metadata) == {"scenario", "run", "run_status", "trace_layout"}
+        links = {tuple(link) for link in json.loads(metadata["trace_layout"]["links"])}
+        assert links == set(scenario_links) and len(links) == len(scenario_links)
+        estimates = np.full_like(result.estimates, np.nan)
+        N, n = result.estimates.shape[1:]
+        for _, channel, message, decoded in reader.iter_decoded_messages(
+                log_time_order=False):
+            assert message.sequence == decoded.step
+            assert message.log_time == message.publish_time == DEFAULT_TIME_ORIGIN_NS + to_ns(
+                decoded.time) and decoded.time == decoded.step * 1.0
+            if channel.topic == "/agents/estimate":
+                estimates[decoded.step] = np.reshape(decoded.estimate, (N, n))
+        np.testing.assert_array_equal(estimates, result.estimates)
 
 
 # -- inspection -------------------------------------------------------------------------
@@ -280,7 +327,13 @@ def test_truncated_file_recovers_complete_chunks(recorded, tmp_path, where):
     assert trace.status is None
     assert trace.recovered_messages == expected > 0
     full = read_trace(path)
-    assert _signature(trace.messages) == _signature(full.messages[:expected])
+    if trace.format == 2:  # a file message per read message
+        assert _signature(trace.messages) == _signature(full.messages[:expected])
+    # every topic holds the first records of the full trace's, every step up to the cut
+    assert trace.records and set(trace.records) <= set(full.records)
+    for topic, records in trace.records.items():
+        assert _signature(records) == _signature(full.records[topic][:len(records)]), topic
+    assert trace.steps == full.steps[:len(trace.steps)] and len(trace.steps) > 1
     assert trace.scenario == full.scenario
     assert set(trace.matrices) == set(full.matrices)
 
@@ -290,16 +343,22 @@ def test_truncated_file_recovers_complete_chunks(recorded, tmp_path, where):
     assert "TRUNCATED" in report.format_text()
 
 
-def test_unfinished_file_readable_while_open(setup, tmp_path):
+@pytest.mark.parametrize("trace_format", [2, 3])
+def test_unfinished_file_readable_while_open(setup, tmp_path, trace_format):
     scenario, gains = setup
     path = tmp_path / "open.mcap"
-    recorder = TraceRecorder.for_run(path, scenario, gains, "compensated", 0, steps=STEPS)
+    recorder = TraceRecorder.for_run(path, scenario, gains, "compensated", 0, steps=STEPS,
+                                     trace_format=trace_format)
     try:
         result = run_trial(scenario, "compensated", gains, SEED, STEPS, observer=recorder)
         recorder.flush()
         trace = read_trace(path)  # no footer yet: as if the process died now
         assert trace.truncated and trace.recovered_messages == recorder.messages_written
-        np.testing.assert_array_equal(trace.estimates(), result.estimates)
+        # format 3 writes a step when the next one starts (or at close): the last step,
+        # which could still have had events, is not in the file yet
+        last = STEPS if trace_format == 2 else STEPS - 1
+        assert trace.steps == list(range(last + 1))
+        np.testing.assert_array_equal(trace.estimates(), result.estimates[:last + 1])
     finally:
         recorder.close()
     assert not read_trace(path).truncated
@@ -459,7 +518,7 @@ def _damage(data, at):
 def test_corrupted_chunk_is_skipped_and_every_other_chunk_read(setup, tmp_path, compression):
     scenario, gains = setup
     path = tmp_path / f"crc-{compression}.mcap"
-    _record(path, scenario, gains, compression=compression, flush_every=10)
+    _record(path, scenario, gains, compression=compression, flush_every=10, trace_format=2)
     spans = _chunk_spans(path)
     assert len(spans) >= 4
     bad = tmp_path / "bad.mcap"
@@ -481,9 +540,9 @@ def test_corrupted_chunk_is_skipped_and_every_other_chunk_read(setup, tmp_path, 
     assert "DAMAGED" in text and f"lost chunk 2 at byte {spans[2][0]}" in text
 
 
-def test_corrupted_chunk_in_unfinished_file_is_skipped(recorded, tmp_path):
+def test_corrupted_chunk_in_unfinished_file_is_skipped(recorded2, tmp_path):
     """Corruption before the truncation point loses that chunk only."""
-    path, _, _ = recorded
+    path, _, _ = recorded2
     spans = _chunk_spans(path)
     cut = spans[-1][1] - 10  # the last chunk cut off: truncated
     bad = tmp_path / "bad-unfinished.mcap"
@@ -496,8 +555,8 @@ def test_corrupted_chunk_in_unfinished_file_is_skipped(recorded, tmp_path):
     assert lost.index == 1 and lost.messages == len(spans[1][2])
 
 
-def test_destroyed_chunk_header_resynchronises_on_the_next_chunk(recorded, tmp_path):
-    path, _, _ = recorded
+def test_destroyed_chunk_header_resynchronises_on_the_next_chunk(recorded2, tmp_path):
+    path, _, _ = recorded2
     spans = _chunk_spans(path)
     data = bytearray(path.read_bytes()[: spans[-1][1] - 10])
     start = spans[2][0]
@@ -613,9 +672,17 @@ def test_recorder_rejects_events_out_of_time_order(tmp_path):
         send_time, arrival_time = 5.0, 6.0
 
     with TraceRecorder(tmp_path / "order.mcap", scenario_metadata={"name": "t"}, matrices={},
-                       family="f", trial=0) as rec:
+                       family="f", trial=0, trace_format=2) as rec:
         rec.on_plant(7, np.zeros(2), [np.zeros(1)])
         with pytest.raises(RuntimeError, match="time order"):
+            rec.on_sent(Msg())
+    # format 3 files every event under its step: one of another step is refused
+    from netsim.traces.stepwriter import TraceLayoutError
+
+    with TraceRecorder(tmp_path / "order3.mcap", scenario_metadata={"name": "t"}, matrices={},
+                       family="f", trial=0, trace_format=3) as rec:
+        rec.on_plant(7, np.zeros(2), [np.zeros(1)])
+        with pytest.raises(TraceLayoutError, match="outside plant step 7"):
             rec.on_sent(Msg())
 
 

@@ -445,3 +445,35 @@ def test_a_graceful_interrupt_stops_both_engines_at_the_same_event(monkeypatch):
     monkeypatch.setattr(interrupt, "_requested", False)
     assert_same_calls(*logs)
     assert logs[1][-1][0] == "on_delivered" and 12 < logs[1][-1][1][5] <= 13
+
+
+def test_an_interrupt_between_windows_finishes_a_format3_trace(tmp_path, monkeypatch):
+    """The bulk format-3 path checks for a graceful Ctrl-C between its windows: the file
+    then ends with the last complete window, finished and indexed, status interrupted."""
+    import netsim.vectrace as vectrace
+
+    scenario = with_delays(lcsys(), model="asynchronous", tau=4)
+    gains = lcsys_gains()
+    seeds = [child_sequence(0, "trial", 0)]
+    steps = 200
+    batch = run_batch(scenario, "compensated", gains, seeds, steps, record_estimates=True)
+    monkeypatch.setattr(vectrace, "ENCODE_BLOCK_BYTES", 8 * 1024)  # windows of ~10 steps
+    path = tmp_path / "cut.mcap"
+    recorder = TraceRecorder.for_run(path, scenario, gains, "compensated", 0, steps=steps,
+                                     trace_format=3)
+    flushes = []
+
+    def flush(wait=True):
+        flushes.append(recorder.last_step)
+        TraceRecorder.flush(recorder, wait)
+        monkeypatch.setattr(interrupt, "_requested", True)  # Ctrl-C after a window
+
+    monkeypatch.setattr(recorder, "flush", flush)
+    with pytest.raises(KeyboardInterrupt), recorder:
+        write_trial(batch, 0, scenario, "compensated", recorder)
+    monkeypatch.setattr(interrupt, "_requested", False)
+    trace = read_trace(path)
+    assert not trace.truncated and trace.status["status"] == "interrupted"
+    assert flushes and 0 < flushes[0] < steps
+    assert trace.steps == list(range(flushes[0] + 1))
+    np.testing.assert_array_equal(trace.estimates(), batch.results[0].estimates[:flushes[0] + 1])

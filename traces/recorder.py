@@ -120,7 +120,7 @@ __all__ = [
 ]
 
 #: Trace format written unless asked otherwise (``netsim run --trace-format``).
-DEFAULT_TRACE_FORMAT = 2
+DEFAULT_TRACE_FORMAT = 3
 #: Media type of the ``.npy`` matrix attachments.
 NPY_MEDIA_TYPE = "application/x-npy"
 #: Largest backwards step in log_time (ns) silently absorbed (float rounding).

@@ -241,14 +241,15 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         "drops, age of information)",
         description=(
             "Write a Foxglove layout for a trace written by 'netsim run --trace' (format "
-            "2): Plot panels of each agent's error norm, the state against the agents' "
-            "estimates, the effective delay per link, delivered delays, drops and, for "
-            "AoI traces, the freshness indices. In Foxglove: open the .mcap file, then "
+            "3 or 2): Plot panels of each agent's error norm, the state against the "
+            "agents' estimates, the effective delay per link, message delays, drops and, "
+            "for AoI traces, the freshness indices (format 3: indexed message paths such "
+            "as /agents/estimate.error_norm[2]). In Foxglove: open the .mcap file, then "
             "Layouts > Import from file. Optionally a PNG of the same panels drawn from "
             "the trace."
         ),
     )
-    layout.add_argument("trace", help="an MCAP file written by netsim (format 2)")
+    layout.add_argument("trace", help="an MCAP file written by netsim (format 2 or 3)")
     layout.add_argument("-o", "--output", metavar="FILE.json",
                         help="layout file to write (default: beside the trace, "
                         "TRACE.layout.json)")

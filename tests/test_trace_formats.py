@@ -153,7 +153,7 @@ def _same_report(a, b, where: str = "") -> None:
 def _report(capsys, command: str, path: Path) -> dict:
     assert main([command, str(path), "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
-    for key in ("path", "topics", "trace_format", "time_origin"):
+    for key in ("path", "topics", "file_topics", "trace_format", "time_origin"):
         data.pop(key, None)
     return data
 

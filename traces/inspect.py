@@ -134,9 +134,12 @@ class InspectReport:
     orphaned_messages: int = 0
     #: How the file was read, when its summary was unusable.
     read_note: str = ""
-    #: Trace format (1 or 2) and time origin of log_time (ISO 8601 UTC).
+    #: Trace format (1, 2 or 3) and time origin of log_time (ISO 8601 UTC).
     trace_format: int = 1
     time_origin: str = ""
+    #: Messages per topic of the file itself (format 3: its per-step topics, which
+    #: ``topics`` gives as the per-agent and per-link view; else equal to ``topics``).
+    file_topics: dict[str, int] = field(default_factory=dict)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -161,6 +164,7 @@ class InspectReport:
             "orphaned_messages": self.orphaned_messages,
             "read_note": self.read_note,
             "topics": dict(self.topics),
+            "file_topics": dict(self.file_topics),
             "steps": {
                 "first": self.first_step,
                 "last": self.last_step,
@@ -220,7 +224,14 @@ class InspectReport:
             f"(accepted {t['accepted']}, stale {t['discarded']}), dropped {t['dropped']}, "
             f"reordered {t['reordered']}, in flight at end {t['in_flight']}"
         )
-        lines.append("topics")
+        if self.file_topics and self.file_topics != self.topics:
+            lines.append("topics in the file (one message per step)")
+            width = max((len(name) for name in self.file_topics), default=10)
+            for name, count in self.file_topics.items():
+                lines.append(f"  {name:<{width}}  {count:>8}")
+            lines.append("topics as read (per agent and per link event, as format 2)")
+        else:
+            lines.append("topics")
         width = max((len(name) for name in self.topics), default=10)
         for name, count in _first(self.topics.items(), lines, "topics"):
             lines.append(f"  {name:<{width}}  {count:>8}")
@@ -374,6 +385,8 @@ def inspect_trace(trace: Trace) -> InspectReport:
         truncated=trace.truncated,
         recovered_messages=trace.recovered_messages,
         topics=dict(sorted(trace.counts.items(), key=lambda kv: _topic_key(kv[0]))),
+        file_topics=dict(sorted(getattr(trace, "file_counts", trace.counts).items(),
+                                key=lambda kv: _topic_key(kv[0]))),
         first_step=steps[0] if steps else None,
         last_step=steps[-1] if steps else None,
         steps_recorded=len(steps),

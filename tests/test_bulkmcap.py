@@ -286,7 +286,8 @@ JS = REPO / "benchmarks" / "js"
 @pytest.mark.skipif(shutil.which("node") is None or not (JS / "node_modules" / "@mcap"
                                                          / "core").is_dir(),
                     reason="node or benchmarks/js/node_modules (npm install) not present")
-def test_typescript_reader_validates_and_decodes_a_traced_run(tmp_path):
+@pytest.mark.parametrize("trace_format", [2, 3])
+def test_typescript_reader_validates_and_decodes_a_traced_run(tmp_path, trace_format):
     """@mcap/core (CRCs validated) and protobufjs read a trace the vectorised engine
     wrote in bulk: every message, the same counts and values as the Python reader."""
     import warnings
@@ -302,15 +303,24 @@ def test_typescript_reader_validates_and_decodes_a_traced_run(tmp_path):
         gains = scenario_gains(scenario)
     path = tmp_path / "run.mcap"
     run_monte_carlo(scenario, steps=60, trials=1, families=["compensated"], gains=gains,
-                    trace=str(path), engine="vectorised")
+                    trace=str(path), engine="vectorised",
+                    trace_options={"trace_format": trace_format})
     out = subprocess.run(["node", str(JS / "check_mcap.mjs"), str(path), "--json"],
                          capture_output=True, text=True, timeout=120)
     report = json.loads(out.stdout)
     assert out.returncode == 0 and not report["errors"], report["errors"]
     assert report["data_section_crc"] == "ok"
     trace = read_trace(path)
-    assert report["messages"] == sum(trace.counts.values()) == report["statistics_messages"]
-    assert {t: e["count"] for t, e in report["topics"].items()} == trace.counts
+    assert report["messages"] == sum(trace.file_counts.values()) == report[
+        "statistics_messages"]
+    assert {t: e["count"] for t, e in report["topics"].items()} == trace.file_counts
+    if trace_format == 3:  # every agent's estimate of step 0 in one message
+        first = report["topics"]["/agents/estimate"]["first"]
+        assert first["estimate"] == trace.estimates()[0].ravel().tolist()
+        assert first["error_norm"] == [m[0].message.error_norm for m in (
+            trace.records[f"/agent_{i}/estimate"] for i in trace.agents)]
+        assert int(first["step"]) == 0
+        return
     first = report["topics"]["/agent_1/estimate"]["first"]
     ours = trace.records["/agent_1/estimate"][0].message
     assert first["estimate"] == list(ours.estimate)

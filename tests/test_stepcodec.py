@@ -92,6 +92,28 @@ def test_checked_in_proto_equals_runtime_descriptors():
         assert [f.name for f in fields[:2]] == ["step", "time"], name
 
 
+@pytest.mark.parametrize("big", [False, True])
+def test_one_ragged_field_records_equal_message_records(big):
+    """The one-field path (a step's deliveries) builds the same bytes."""
+    from netsim.traces.bulkmcap import message_records
+    from netsim.traces.stepcodec import encode_records
+
+    rng = np.random.default_rng(int(big))
+    rows = 9
+    step = np.arange(rows) + 2**33
+    time = rng.normal(size=rows)
+    counts = rng.integers(0, 300 if big else 5, rows)
+    counts[3] = 0
+    columns = {"accepted": Column(rng.integers(0, 2, counts.sum()).astype(bool), counts)}
+    log_time = rng.integers(0, 2**60, rows).astype(np.uint64)
+    records, starts = encode_records("LinkDeliveries", step, time, columns, 7, log_time)
+    payloads, offsets = encode_steps("LinkDeliveries", step, time, columns)
+    expected, expected_starts = message_records(7, step.astype(np.uint32), log_time, log_time,
+                                                payloads, offsets)
+    assert records.tobytes() == expected.tobytes()
+    np.testing.assert_array_equal(starts, expected_starts)
+
+
 @pytest.mark.parametrize("ragged", [False, True])
 def test_records_equal_message_records_of_the_encoded_rows(ragged):
     from netsim.traces.bulkmcap import message_records

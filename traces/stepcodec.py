@@ -148,6 +148,8 @@ def encode_records(type_name: str, step: np.ndarray, time: np.ndarray,
 
     rows = int(np.shape(step)[0])
     parts, uniform = _prepare(type_name, rows, columns)
+    if not uniform and len(parts) == 1:
+        return _one_ragged_field_records(rows, step, time, parts[0], channel_id, log_time)
     if not uniform:
         payloads, offsets = _encode_ragged(rows, step, time, parts)
         return message_records(channel_id, np.asarray(step).astype(np.uint32), log_time,
@@ -270,3 +272,42 @@ def _encode_ragged(rows: int, step: np.ndarray, time: np.ndarray,
         out[np.repeat(data_start[:, f] - source_start, lengths)
             + np.arange(raw.shape[0], dtype=np.int64)] = raw
     return out, offsets
+
+
+def _one_ragged_field_records(rows: int, step: np.ndarray, time: np.ndarray,
+                              part: tuple[Any, ...], channel_id: int, log_time: np.ndarray
+                              ) -> tuple[np.ndarray, np.ndarray]:
+    """MCAP records of messages with one repeated field of unequal lengths (e.g. a
+    step's deliveries): each record is a fixed part (record header, step, time, the
+    field's tag and length) and the field's data, which lies in the source in record
+    order, so one mask puts every data byte in place."""
+    from netsim.traces.bulkmcap import MESSAGE_HEADER_DTYPE, OP_MESSAGE
+
+    number, dtype, values, counts, _ = part
+    width = np.dtype(dtype).itemsize
+    data_len = np.asarray(counts, dtype=np.int64) * width
+    vbytes, vlen = _varint_bytes(data_len)
+    fixed = np.dtype(MESSAGE_HEADER_DTYPE.descr + _HEAD.descr + [("prefix", "u1", (6,))])
+    meta = np.empty(rows, dtype=fixed)
+    meta["opcode"] = OP_MESSAGE
+    prefix_len = np.where(data_len > 0, 1 + vlen, 0)
+    meta_len = fixed.itemsize - 6 + prefix_len
+    meta["length"] = meta_len - 9 + data_len
+    meta["channel_id"] = channel_id
+    meta["sequence"] = step
+    meta["log_time"] = log_time
+    meta["publish_time"] = log_time
+    meta["t1"], meta["step"] = _STEP_TAG[0], step
+    meta["t2"], meta["time"] = _TIME_TAG[0], time
+    meta["prefix"][:, 0] = varint(number << 3 | 2)[0]
+    meta["prefix"][:, 1:] = vbytes
+    sizes = meta_len + data_len
+    starts = np.cumsum(sizes) - sizes
+    out = np.empty(int(sizes.sum()), dtype=np.uint8)
+    used = np.arange(fixed.itemsize)[None, :] < meta_len[:, None]
+    at = (starts[:, None] + np.arange(fixed.itemsize))[used]
+    is_meta = np.zeros(out.shape[0], dtype=bool)
+    is_meta[at] = True
+    out[at] = meta.view(np.uint8).reshape(rows, fixed.itemsize)[used]
+    out[~is_meta] = np.ascontiguousarray(values, dtype=dtype).reshape(-1).view(np.uint8)
+    return out, starts

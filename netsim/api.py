@@ -255,6 +255,7 @@ def run(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any], *,
         steps: int | None = None, trials: int | None = None, seed: int | None = None,
         estimators: Sequence[str | EstimatorFamily] | None = None, engine: str = "auto",
         trace: str | os.PathLike[str] | None = None,
+        trace_format: int | None = None, trace_compression: str | None = None,
         progress: Callable[[int], None] | None = None) -> RunResult:
     """Run Monte Carlo trials of the scenario's estimators (or ``estimators``).
 
@@ -270,6 +271,11 @@ def run(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any], *,
         ``events``.
     trace : path, optional
         Record MCAP traces (see ``netsim run --trace``).
+    trace_format : int, optional
+        3 (the default, :data:`netsim.traces.recorder.DEFAULT_TRACE_FORMAT`: a message
+        per step and kind) or 2 (a message per agent and per link event).
+    trace_compression : str, optional
+        ``none`` or ``zstd`` (default: none for format 3, zstd for format 2).
     progress : callable(int), optional
         Called with the number of trials finished.
 
@@ -281,10 +287,15 @@ def run(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any], *,
 
     if not isinstance(scenario, Scenario):
         scenario = load_scenario(scenario)
+    options: dict[str, Any] = {}
+    if trace_format is not None:
+        options["trace_format"] = int(trace_format)
+    if trace_compression is not None:
+        options["compression"] = str(trace_compression)
     result = run_monte_carlo(scenario, steps=steps, trials=trials, seed=seed,
                              families=estimators, engine=engine, progress=progress,
                              trace=None if trace is None else os.fspath(trace),
-                             keep_trials=True)
+                             keep_trials=True, trace_options=options or None)
     out = RunResult(scenario, result)
     for name, runs in result.runs.items():
         out.families[name] = _stack(name, runs, result.estimators[name])

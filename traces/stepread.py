@@ -17,7 +17,7 @@ events):
 
 - ``PlantState``; a ``Measurement`` per sensor (``values`` split by ``sensor_widths``);
 - per agent that updated (``Estimates.updated``): ``Estimate`` (``error`` = estimate -
-  x_k elementwise, NaN without x_k; ``squared_error`` as stored, else recomputed as the
+  x_k elementwise, NaN without x_k; ``squared_error`` recomputed from it as the
   recorder computes it; ``error_norm`` as stored) and ``EstimatorUpdate`` (the
   in-neighbours j of its ``Updates`` entries [j, i] that are not ``ABSENT``, sorted;
   ``effective_delay`` r; ``used_timestamp`` k - 1 - r, or -1 when r < 0);
@@ -33,8 +33,7 @@ events):
   from k on (sent at s with delay k - 1 - s) that were not dropped, in (link, s) order,
   ``LinkDeliveries.accepted`` saying for each whether the receiver kept it; in a step
   after the last plant step only those that arrived before the run ended (the earliest
-  ones). Logged at the arrival time. (A file listing each delivery's link and time-stamp,
-  as the layout's first version did, is joined like the drops.)
+  ones). Logged at the arrival time.
 
 Link records are published at the message's send time.
 
@@ -199,10 +198,6 @@ class StepView:
 
 
 # -- reading the format-3 messages ---------------------------------------------------
-
-
-def _has(message: Any, name: str) -> bool:
-    return name in message.DESCRIPTOR.fields_by_name
 
 
 def _ints(values: Any) -> np.ndarray:
@@ -392,14 +387,10 @@ class _Expander:
         R, N = updated.shape
         est = np.full((R, N, n), np.nan)
         norm = np.full((R, N), np.nan)
-        stored_sq = _has(good[0], "squared_error")
-        sq = np.full((R, N), np.nan)
         for r, m in enumerate(good):
             width = len(m.updated)
             est[r, :width] = _floats(m.estimate).reshape(width, n)
             norm[r, :width] = _floats(m.error_norm)[:width]
-            if stored_sq:
-                sq[r, :width] = _floats(m.squared_error)[:width]
         self.est_steps, self.est_updated, self.est = step, updated, est
         rr, ii = np.nonzero(updated)
         x_hat = est[rr, ii]
@@ -412,11 +403,8 @@ class _Expander:
         error = np.full(x_hat.shape, np.nan)
         if found.any():
             error[found] = x_hat[found] - self.states[where[found]]
-        if stored_sq:
-            squared = sq[rr, ii]
-        else:
-            squared = np.einsum("ij,ij->i", error, error)
-            squared[~found] = np.nan
+        squared = np.einsum("ij,ij->i", error, error)  # as the recorder computes it
+        squared[~found] = np.nan
         agents = max(N, self.layout.agents)
         self._step_block("Estimate", [estimate_topic(i) for i in range(agents)], ii,
                          {"step": step[rr], "time": time[rr], "agent": ii, "estimate": x_hat,
@@ -655,10 +643,7 @@ class _Expander:
         deliveries = self.m.get("LinkDeliveries", [])
         if not deliveries:
             return
-        if _has(deliveries[0], "link"):  # each delivery's link and time-stamp listed
-            q, accepted = self._listed_deliveries(sends, deliveries)
-        else:
-            q, accepted = self._implied_deliveries(sends, deliveries, dropped_keys)
+        q, accepted = self._implied_deliveries(sends, deliveries, dropped_keys)
         if not q.size:
             return
         columns = {key: sends[key][q] for key in _LINK_COMMON}
@@ -671,22 +656,6 @@ class _Expander:
             np.where(late, _LATE, _EARLY), np.where(late, j, s), np.where(late, l_, j),
             np.where(late, 0, l_), _ns(self.origin, arrival), sends["publish"][q],
             columns["sequence"]))
-
-    def _listed_deliveries(self, sends: dict[str, np.ndarray], deliveries: list[Any]
-                           ) -> tuple[np.ndarray, np.ndarray]:
-        """(sends index, accepted) of deliveries listed by link and time-stamp (the
-        layout's first version: ``link`` and ``sent_step`` or ``delay_steps``)."""
-        bucket = np.concatenate([np.full(len(m.link), int(m.step), np.int64)
-                                 for m in deliveries])
-        link = np.concatenate([_ints(m.link) for m in deliveries])
-        if _has(deliveries[0], "sent_step"):
-            sent_step = np.concatenate([_ints(m.sent_step) for m in deliveries])
-        else:  # delay d: sent at k - 1 - d
-            sent_step = bucket - 1 - np.concatenate([_ints(m.delay_steps)
-                                                     for m in deliveries])
-        accepted = np.concatenate([_ints(m.accepted) for m in deliveries])
-        found, q = self._join(sends, link, sent_step, "delivered")
-        return q[found], accepted[found]
 
     def _implied_deliveries(self, sends: dict[str, np.ndarray], deliveries: list[Any],
                             dropped_keys: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

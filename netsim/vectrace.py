@@ -66,6 +66,16 @@ def _neighbours(P: Any) -> list[list[int]]:
     return [cols[bounds[i]:bounds[i + 1]] for i in range(P.shape[0])]
 
 
+def _traced_result(batch: VectorisedBatch, trial: int) -> tuple[Any, int]:
+    """A trial's result and its last step (K, or the step it diverged at); refused if
+    the batch kept no estimates."""
+    result = batch.results[trial]
+    if result.estimates.shape[0] == 0:
+        raise ValueError("the batch kept no estimates; run it with record_estimates=True")
+    K = result.states.shape[0] - 1
+    return result, K if result.diverged_at is None else int(result.diverged_at)
+
+
 def trial_events(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str
                  ) -> list[tuple[Any, ...]]:
     """Return the kernel's observer calls for one trial, in order.
@@ -131,13 +141,8 @@ def replay_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family:
 
 def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
             call: Any, *, check: bool) -> None:
-    result = batch.results[trial]
-    estimates = result.estimates
-    if estimates.shape[0] == 0:
-        raise ValueError("the batch kept no estimates; run it with record_estimates=True")
-    states = result.states
-    K = states.shape[0] - 1
-    end = K if result.diverged_at is None else int(result.diverged_at)
+    result, end = _traced_result(batch, trial)
+    estimates, states = result.estimates, result.states
     ys = result.measurements
     ts = float(scenario.sample_period)
     schedule, selection = batch.schedule, batch.selection
@@ -343,13 +348,8 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
     if getattr(recorder, "trace_format", 2) == 3:
         write_trial_steps(batch, trial, scenario, family, recorder)
         return
-    result = batch.results[trial]
-    estimates = result.estimates
-    if estimates.shape[0] == 0:
-        raise ValueError("the batch kept no estimates; run it with record_estimates=True")
-    states = result.states
-    K = states.shape[0] - 1
-    end = K if result.diverged_at is None else int(result.diverged_at)
+    result, end = _traced_result(batch, trial)
+    estimates, states = result.estimates, result.states
     ys = result.measurements
     ts = float(scenario.sample_period)
     origin = int(getattr(recorder, "time_origin_ns", 0))
@@ -643,13 +643,8 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
     from netsim.traces.stepcodec import Column
     from netsim.traces.stepwriter import StepWriter, arrival_column
 
-    result = batch.results[trial]
-    estimates = result.estimates
-    if estimates.shape[0] == 0:
-        raise ValueError("the batch kept no estimates; run it with record_estimates=True")
-    states = result.states
-    K = states.shape[0] - 1
-    end = K if result.diverged_at is None else int(result.diverged_at)
+    result, end = _traced_result(batch, trial)
+    estimates, states = result.estimates, result.states
     ts = float(scenario.sample_period)
     N, n = estimates.shape[1], estimates.shape[2]
     R = end + 1

@@ -80,6 +80,8 @@ __all__ = [
     "FieldLayout",
     "TopicInfo",
     "field_layout",
+    "pinned_file_descriptor",
+    "classes_of",
     "file_descriptor_proto",
     "file_descriptor_set",
     "message_class",
@@ -255,11 +257,13 @@ def schema_name(type_name: str) -> str:
     return f"{PACKAGE}.{type_name}"
 
 
-@cache
-def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
-    """Return the format-2 ``FileDescriptorProto`` (proto2, pinned field numbers)."""
-    fd = descriptor_pb2.FileDescriptorProto(name=PROTO_FILE, package=PACKAGE, syntax="proto2")
-    for name, fields in MESSAGES.items():
+def pinned_file_descriptor(proto_file: str, package: str,
+                           messages: dict[str, tuple[Field, ...]]
+                           ) -> descriptor_pb2.FileDescriptorProto:
+    """A proto2 ``FileDescriptorProto`` of ``messages`` (name -> fields with their pinned
+    numbers; repeated fields packed): formats 2 and 3 are built by it."""
+    fd = descriptor_pb2.FileDescriptorProto(name=proto_file, package=package, syntax="proto2")
+    for name, fields in messages.items():
         message = fd.message_type.add(name=name)
         for field in fields:
             added = message.field.add(name=field.name, number=field.number, type=field.type,
@@ -267,6 +271,21 @@ def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
             if field.label == _MANY:
                 added.options.packed = True
     return fd
+
+
+def classes_of(fd: descriptor_pb2.FileDescriptorProto) -> dict[str, Any]:
+    """The message classes of one file descriptor by short name, from a private
+    descriptor pool (no clash with other protobuf definitions in the process)."""
+    pool = descriptor_pool.DescriptorPool()
+    pool.Add(fd)
+    return {m.name: message_factory.GetMessageClass(
+        pool.FindMessageTypeByName(f"{fd.package}.{m.name}")) for m in fd.message_type}
+
+
+@cache
+def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
+    """Return the format-2 ``FileDescriptorProto`` (proto2, pinned field numbers)."""
+    return pinned_file_descriptor(PROTO_FILE, PACKAGE, MESSAGES)
 
 
 def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
@@ -283,12 +302,7 @@ def message_classes() -> dict[str, Any]:
     The classes live in a private descriptor pool, so they never clash with other
     protobuf definitions loaded in the same process.
     """
-    pool = descriptor_pool.DescriptorPool()
-    pool.Add(file_descriptor_proto())
-    return {
-        name: message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name(name)))
-        for name in MESSAGES
-    }
+    return classes_of(file_descriptor_proto())
 
 
 def message_class(type_name: str) -> Any:

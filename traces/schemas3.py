@@ -59,8 +59,8 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
-from netsim.traces.schemas import Field
+from google.protobuf import descriptor_pb2
+from netsim.traces.schemas import Field, classes_of, pinned_file_descriptor
 
 __all__ = [
     "FORMAT",
@@ -162,15 +162,7 @@ def schema_name(type_name: str) -> str:
 @cache
 def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
     """Return the format-3 ``FileDescriptorProto`` (proto2, pinned field numbers)."""
-    fd = descriptor_pb2.FileDescriptorProto(name=PROTO_FILE, package=PACKAGE, syntax="proto2")
-    for name, fields in MESSAGES.items():
-        message = fd.message_type.add(name=name)
-        for field in fields:
-            added = message.field.add(name=field.name, number=field.number, type=field.type,
-                                      label=field.label)
-            if field.label == _MANY:
-                added.options.packed = True
-    return fd
+    return pinned_file_descriptor(PROTO_FILE, PACKAGE, MESSAGES)
 
 
 def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
@@ -183,7 +175,4 @@ def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
 @cache
 def message_classes() -> dict[str, Any]:
     """Return the format-3 message classes by short name (private descriptor pool)."""
-    pool = descriptor_pool.DescriptorPool()
-    pool.Add(file_descriptor_proto())
-    return {name: message_factory.GetMessageClass(pool.FindMessageTypeByName(schema_name(name)))
-            for name in MESSAGES}
+    return classes_of(file_descriptor_proto())

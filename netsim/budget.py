@@ -50,6 +50,7 @@ __all__ = [
     "vectorised_batch_bytes",
     "kernel_trial_bytes",
     "trace_bytes",
+    "trace_write_bytes",
     "trace_channels",
     "check_trace_size",
     "MCAP_MAX_CHANNELS",
@@ -329,6 +330,17 @@ def trace_bytes(scenario: Any, steps: int) -> int:
     return (int(steps) + 1) * ((1 + N + L) * (8 * n + 64) + 8 * m)
 
 
+def trace_write_bytes(scenario: Any, steps: int) -> int:
+    """Memory the vectorised engine's bulk writer takes to write one trial's trace
+    (format 3, :func:`netsim.vectrace.write_trial_steps`): its tables of every step
+    (per link the message's delay, fate and order of delivery; per in-link the effective
+    delay; every agent's estimate and error norm) and their records. Measured 47 bytes
+    per step and link at N = 1,000 with 28,394 links; counted as 48 per link, 8 per
+    in-link and 16 per state value of every agent, per step."""
+    n, N, L, _, _, _ = _sizes(scenario)
+    return (int(steps) + 1) * (48 * L + 8 * L + 16 * N * n)
+
+
 #: Channels one MCAP file can hold (16-bit channel ids).
 MCAP_MAX_CHANNELS = 65536
 
@@ -347,16 +359,27 @@ def trace_channels(scenario: Any, trace_format: int = 2) -> int:
 
 
 def check_trace_size(scenario: Any, trace: str | os.PathLike[str],
-                     trace_format: int | None = None) -> None:
+                     trace_format: int | None = None, steps: int | None = None,
+                     engine: str = "vectorised") -> None:
     """Refuse (:class:`ResourceError`, one line naming ``--trace``) a trace of
     ``scenario`` that cannot be written: more topics than MCAP's channels
-    (:func:`trace_channels`; format 2 only), or sparse weights beyond the dense-P limit
-    (a trace stores P as a dense ``.npy``). Run before the simulation, so nothing
-    computed is lost. ``trace_format``: None for the recorder's default."""
+    (:func:`trace_channels`; format 2 only), sparse weights beyond the dense-P limit
+    (a trace stores P as a dense ``.npy``), or (``steps`` given, vectorised engine) more
+    memory than the machine can give to write one trial's trace in bulk
+    (:func:`trace_write_bytes`, beside the trial itself). Run before the simulation, so
+    nothing computed is lost. ``trace_format``: None for the recorder's default."""
     if trace_format is None:
         from netsim.traces.recorder import DEFAULT_TRACE_FORMAT
 
         trace_format = DEFAULT_TRACE_FORMAT
+    if steps is not None and engine == "vectorised":
+        _, N, L, _, _, _ = _sizes(scenario)
+        _, one = run_bytes(scenario, steps, 1, "vectorised", keep_estimates=True)
+        check_memory(one + trace_write_bytes(scenario, steps), "--steps",
+                     f"writing the trace of one trial (N = {N} agents, {L} links) from "
+                     f"the vectorised engine's arrays", steps,
+                     hint="lower --steps, or trace with --engine events (it writes as "
+                     "it runs)")
     channels = trace_channels(scenario, trace_format)
     if channels > MCAP_MAX_CHANNELS:
         _, N, L, _, _, _ = _sizes(scenario)

@@ -678,8 +678,8 @@ def run_monte_carlo(
     engine = choose_engine(engine, declared, traced=trace is not None, scenario=scenario)
     budget.check_run(scenario, steps, trials, list(engines.values()), keep_trials=keep_trials)
     if trace is not None:
-        budget.check_trace_size(scenario, trace,
-                                (trace_options or {}).get("trace_format"))
+        budget.check_trace_size(scenario, trace, (trace_options or {}).get("trace_format"),
+                                steps=steps, engine=engine)
     needs_gains = any(f.needs_gains for f in declared)
     if gains is None and needs_gains:
         gains = scenario_gains(scenario)

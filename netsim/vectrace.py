@@ -672,8 +672,7 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
     links = list(schedule.links) if schedule is not None else []
     entries = [(j, i) for i in range(N) for j in neighbours[i]] if schedule is not None else []
     L, E = len(links), len(entries)
-    delays = np.full((R, E), ABSENT, dtype=np.int32)
-    sends_delay = np.full((R, L), ABSENT, dtype=np.int32)
+    delays = sends_delay = None  # (R, E) and (R, L), int32; ABSENT where nothing
     sends_arrival = np.empty((R, L))  # filled only when arrivals are not at steps
     deliveries = drops = None
     in_steps = True
@@ -696,16 +695,25 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
             delays[not_updated] = ABSENT
         else:  # an entry without a link (never for the built-in families)
             ku = up[(up <= end) & (up > 0)]
+            delays = np.full((R, E), ABSENT, dtype=np.int32)
             delays[up[up <= end]] = -1
             for e, l_ in enumerate(entry_link.tolist()):
                 if l_ >= 0 and ku.size:
                     held = np.asarray(selection.chosen[ku, l_, trial], dtype=np.int64)
                     ok = held >= 0
                     delays[ku[ok], e] = ku[ok] - 1 - send[held[ok]]
+        sends_delay = np.empty((R, L), dtype=np.int32)
+        silent = np.ones(R, dtype=bool)  # steps without sends
+        silent[send[:n_sends]] = False
+        sends_delay[silent] = ABSENT
         if n_sends:
             deliveries, drops, in_steps = _step_link_events(
                 recorder, schedule, selection, trial, n_sends, end, ts, sends_delay,
                 sends_arrival)
+    if delays is None:
+        delays = np.full((R, E), ABSENT, dtype=np.int32)
+    if sends_delay is None:
+        sends_delay = np.full((R, L), ABSENT, dtype=np.int32)
     tables.append(("Updates", k, {"effective_delay": Column(delays)}))
     # arrival times follow from the delays (left out) unless some arrive between steps
     arrival = (Column(np.zeros((R, 0))) if in_steps
@@ -746,7 +754,7 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     if not in_steps:
         sends_arrival.fill(np.nan)
         sends_arrival[send] = ((send[None, :] + wait) * ts).T
-    usable = send[None, :] + 1 + delay  # (L, S)
+    usable = (send + 1).astype(delay.dtype)[None, :] + delay  # (L, S)
     lossless = bool(getattr(schedule, "lossless_steps", False))
     fate = None if lossless else np.asarray(schedule.fate[t, :, :n_sends])
     arrived = usable <= end if in_steps else send[None, :] + wait <= end

@@ -12,7 +12,7 @@ an empty repeated field left out); a test holds the two equal.
 from __future__ import annotations
 
 from collections.abc import Mapping
-from functools import cache
+from functools import cache, lru_cache
 from typing import Any, NamedTuple
 
 import numpy as np
@@ -144,7 +144,7 @@ def encode_records(type_name: str, step: np.ndarray, time: np.ndarray,
     records : numpy.ndarray, shape (total,), uint8
     starts : numpy.ndarray, shape (rows,), int64
     """
-    from netsim.traces.bulkmcap import MESSAGE_HEADER_DTYPE, OP_MESSAGE, message_records
+    from netsim.traces.bulkmcap import OP_MESSAGE, message_records
 
     rows = int(np.shape(step)[0])
     parts, uniform = _prepare(type_name, rows, columns)
@@ -154,7 +154,7 @@ def encode_records(type_name: str, step: np.ndarray, time: np.ndarray,
         payloads, offsets = _encode_ragged(rows, step, time, parts)
         return message_records(channel_id, np.asarray(step).astype(np.uint32), log_time,
                                log_time, payloads, offsets)
-    out, size = _uniform_rows(rows, step, time, parts, MESSAGE_HEADER_DTYPE.descr)
+    out, size = _uniform_rows(rows, step, time, parts, record=True)
     out["opcode"] = OP_MESSAGE
     out["length"] = size - 9
     out["channel_id"] = channel_id
@@ -207,18 +207,30 @@ def _prepare(type_name: str, rows: int, columns: Mapping[str, Column]
     return parts, uniform
 
 
-def _uniform_rows(rows: int, step: np.ndarray, time: np.ndarray,
-                  parts: list[tuple[Any, ...]], prefix: list[Any] | None = None
-                  ) -> tuple[np.ndarray, int]:
-    """Equal-length rows as a structured array (``prefix`` fields first) and its size."""
-    spec = list(prefix or []) + list(_HEAD.descr)
+@lru_cache(maxsize=256)
+def _row_dtype(fields: tuple[tuple[int, str, int], ...], record: bool
+               ) -> tuple[np.dtype, dict[str, np.ndarray]]:
+    """The structured dtype of equal-length rows (an MCAP Message record header first
+    when ``record``) of fields (number, dtype, count), and each field's tag bytes."""
+    from netsim.traces.bulkmcap import MESSAGE_HEADER_DTYPE
+
+    spec = (list(MESSAGE_HEADER_DTYPE.descr) if record else []) + list(_HEAD.descr)
     tags = {}
-    for number, dtype, _, _, count in parts:
+    for number, dtype, count in fields:
         width = np.dtype(dtype).itemsize
         tag = varint(number << 3 | 2) + varint(count * width)
         tags[f"t{number}"] = np.frombuffer(tag, np.uint8)
         spec += [(f"t{number}", "u1", (len(tag),)), (f"v{number}", dtype, (count,))]
-    dtype_row = np.dtype(spec)
+    return np.dtype(spec), tags
+
+
+def _uniform_rows(rows: int, step: np.ndarray, time: np.ndarray,
+                  parts: list[tuple[Any, ...]], record: bool = False
+                  ) -> tuple[np.ndarray, int]:
+    """Equal-length rows as a structured array (an MCAP record header first when
+    ``record``) and its size."""
+    dtype_row, tags = _row_dtype(tuple((number, dtype, count)
+                                       for number, dtype, _, _, count in parts), record)
     out = np.empty(rows, dtype=dtype_row)
     out["t1"] = _STEP_TAG[0]
     out["step"] = step

@@ -119,8 +119,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
                      "(/agent_<i>/estimate, /link_<j>_<i>/sent ...)")
     run.add_argument("--trace-compression", choices=["none", "zstd"], default=None,
                      help="with --trace: chunk compression (default: none for format 3, "
-                     "whose float64 arrays zstd shrinks by a fifth to a third at about half "
-                     "the run's time; zstd for format 2)")
+                     "whose float64 arrays zstd shrinks by a fifth to a third for about half "
+                     "again the trace's cost; zstd for format 2)")
     run.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
                      help="vectorised: all trials advance together in numpy arrays (fast; "
                      "same results and traces as the kernel, to round-off); events: the "

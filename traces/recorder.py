@@ -330,7 +330,7 @@ class TraceRecorder:
         ``zstd`` (level 1: compressed chunks 0.3-24% larger than level 3's in 0.3-0.6x
         the time, benchmarks/README.md) or ``none``. Default: ``zstd`` for format 2,
         ``none`` for format 3, whose messages are mostly float64 arrays that zstd
-        shrinks by a fifth to a third at about half an untraced run's time
+        shrinks by a fifth to a third for about half again the cost of writing them
         (benchmarks/trace_throughput.py).
     record_payloads : bool
         Store each sent message's payload (the transmitted estimate).

@@ -553,24 +553,22 @@ class TraceRecorder:
         (``/agent_<i>/update``; r = -1 means i substituted its own estimate)."""
         self._check_open()
         agent, k = int(agent), int(k)
-        t = k * self.sample_period
-        ns = self._ns(t)
         x_hat = np.asarray(estimate, dtype=float).ravel()
-        c = self._classes
+        error = sq = None
         if self._state is not None and self._state_step == k:
             error = x_hat - self._state
             sq = float(np.einsum("i,i->", error, error))
-            fields: dict[str, Any] = {
-                "error": error.tolist(), "squared_error": sq,
-                "error_norm": math.sqrt(sq) if sq >= 0 else math.nan,
-            }
-        else:  # no true state for this step (never in the kernel's event order)
-            fields = {"error": [math.nan] * x_hat.size, "squared_error": math.nan,
-                      "error_norm": math.nan}
+        norm = math.nan if sq is None or not sq >= 0 else math.sqrt(sq)
         if self._steps is not None:
-            self._steps.update(agent, k, x_hat, delays, fields["squared_error"],
-                               fields["error_norm"])
+            self._steps.update(agent, k, x_hat, delays, norm)
             return
+        t = k * self.sample_period
+        ns = self._ns(t)
+        c = self._classes
+        fields: dict[str, Any] = (  # NaN: no true state for this step (never in the kernel)
+            {"error": [math.nan] * x_hat.size, "squared_error": math.nan} if error is None
+            else {"error": error.tolist(), "squared_error": sq})
+        fields["error_norm"] = norm
         self._write(estimate_topic(agent), "Estimate",
                     c["Estimate"](step=k, time=t, agent=agent, estimate=x_hat.tolist(),
                                   **fields), ns, ns, k)

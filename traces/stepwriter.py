@@ -127,7 +127,7 @@ class _Step:
         self.k, self.time = k, time
         self.state: np.ndarray | None = None
         self.measurements: list[np.ndarray] | None = None
-        self.estimates: dict[int, tuple[np.ndarray, float, float]] = {}
+        self.estimates: dict[int, tuple[np.ndarray, float]] = {}
         self.updates: dict[int, int] = {}  # update entry -> r
         self.freshness: dict[int, tuple[list[int], list[int], list[int], int]] = {}
         self.sends: dict[int, tuple[int, float, np.ndarray | None]] = {}
@@ -207,10 +207,10 @@ class StepLog:
         return step
 
     def update(self, agent: int, k: int, estimate: np.ndarray, delays: Mapping[int, int],
-               squared_error: float, error_norm: float) -> None:
+               error_norm: float) -> None:
         step = self._step(k, f"agent {agent}'s update")
         x_hat = np.array(estimate, dtype=float).ravel()
-        step.estimates[agent] = (x_hat, squared_error, error_norm)
+        step.estimates[agent] = (x_hat, error_norm)
         self.n_agents = max(self.n_agents, agent + 1)
         for j, r in delays.items():
             key = (int(j), agent)
@@ -311,7 +311,7 @@ class StepLog:
             norm = np.full((len(steps), N), np.nan)
             delays = np.full((len(steps), E), ABSENT, dtype=np.int32)
             for r, s in enumerate(steps):
-                for i, (x_hat, _, e) in s.estimates.items():
+                for i, (x_hat, e) in s.estimates.items():
                     updated[r, i] = True
                     est[r, i] = x_hat
                     norm[r, i] = e

@@ -466,10 +466,6 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
     delay = np.asarray(schedule.delay_steps[t, :, :n_sends], dtype=np.int64)
     drop_step = np.asarray(schedule.drop_time[t, :, :n_sends])
     discarded = np.asarray(selection.discarded[t, :, :n_sends])
-    reasons = schedule.reasons
-    code_oldest = reasons.index(REASON_DROP_OLDEST) + 1 if REASON_DROP_OLDEST in reasons else -1
-    code_superseded = (reasons.index(REASON_SUPERSEDED) + 1
-                       if REASON_SUPERSEDED in reasons else -1)
     sender = np.array([j for j, _ in links], dtype=np.int64)
     receiver = np.array([i for _, i in links], dtype=np.int64)
     s_f = send.astype(float)
@@ -513,37 +509,53 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
         groups.append(_Group("LinkDelivered", [link_topic(j, i, "delivered") for j, i in links],
                              ll[m], a[m], log_time, publish[m], seq[m], columns, {}, order))
         recorder.max_delay_steps = max(recorder.max_delay_steps, int(dd[m].max()))
-    # drops: at sending, drop-oldest victims (at the cancelling send), superseded
-    at_send = ~np.isin(flat_fate, [DELIVERED, code_superseded, code_oldest])
-    drop_at = flat(drop_step)
-    victim = (flat_fate == code_oldest) & (drop_at <= end)
-    superseded = (flat_fate == code_superseded) & (a <= end)
-    m = np.flatnonzero(at_send | victim | superseded)
+    m, when, reason = _dropped_messages(recorder, schedule, flat_fate, ss, a,
+                                        flat(drop_step), qq, ll, end)
     if not m.size:
         return
-    when = np.where(superseded[m], a[m], np.where(victim[m], drop_at[m], ss[m]))
-    when = when.astype(float)
-    ph = np.where(superseded[m], phase[m], _STEP)
-    sub = victim[m].astype(np.int64)
-    # global kernel order (for the reason codes' first appearance): at a send step, by
-    # sender, its out-links in order, at-send drop before the victim; timed ones by q, l
-    x = np.where(ph == _STEP, sender[ll[m]], qq[m])
-    order = np.lexsort((sub, ll[m], x, ph, when))
-    codes = flat_fate[m]
-    reason_text = np.array([REASON_SUPERSEDED if s_ else REASON_DROP_OLDEST if v else
-                            reasons[c - 1] for s_, v, c in zip(
-                                superseded[m].tolist(), victim[m].tolist(), codes.tolist(),
-                                strict=True)], dtype=object)
-    seen: dict[str, int] = {}
-    for text in reason_text[order].tolist():
-        if text not in seen:
-            seen[text] = recorder._drop_code(text)  # writes the drop_reasons table
     columns = {key: v[m] for key, v in common.items()}
-    columns["reason"] = np.array([seen[r] for r in reason_text.tolist()], dtype=np.uint32)
+    columns["reason"] = reason
     columns["drop_time"] = when * ts
-    log_time = _ns(origin, when * ts)
     groups.append(_Group("LinkDropped", [link_topic(j, i, "dropped") for j, i in links],
-                         ll[m], when, log_time, publish[m], seq[m], columns, {}, order))
+                         ll[m], when, _ns(origin, when * ts), publish[m], seq[m], columns, {}))
+
+
+def _dropped_messages(recorder: Any, schedule: Any, fate: np.ndarray, sent: np.ndarray,
+                      arrival: np.ndarray, drop_at: np.ndarray, q: np.ndarray,
+                      link: np.ndarray, end: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The drops among messages (1-D per message: fate code, send step, arrival and drop
+    steps, send index, link) in the kernel's order: at sending, drop-oldest victims (at
+    the cancelling send) and keep-latest supersessions (at arrival), the run's end
+    permitting.
+
+    Returns their indices, their times in steps and their reason codes, registered
+    with the recorder (its ``drop_reasons`` table) in the order the kernel meets them.
+    """
+    reasons = schedule.reasons
+    code_oldest = reasons.index(REASON_DROP_OLDEST) + 1 if REASON_DROP_OLDEST in reasons else -1
+    code_superseded = (reasons.index(REASON_SUPERSEDED) + 1
+                       if REASON_SUPERSEDED in reasons else -1)
+    victim = (fate == code_oldest) & (drop_at <= end)
+    superseded = (fate == code_superseded) & (arrival <= end)
+    at_send = ~np.isin(fate, [DELIVERED, code_superseded, code_oldest])
+    m = np.flatnonzero(at_send | victim | superseded)
+    victim, superseded = victim[m], superseded[m]
+    when = np.where(superseded, arrival[m], np.where(victim, drop_at[m], sent[m])).astype(float)
+    phase = np.where(superseded, np.where(arrival[m] <= sent[m], _LATE, _EARLY), _STEP)
+    # at a send step: by sender, its out-links in order, at-send drop before the victim;
+    # the timed ones by send index, then link
+    sender = np.array([j for j, _ in schedule.links], dtype=np.int64)
+    x = np.where(phase == _STEP, sender[link[m]], q[m])
+    order = np.lexsort((victim.astype(np.int64), link[m], x, phase, when))
+    m, when = m[order], when[order]
+    texts = [REASON_SUPERSEDED if s_ else REASON_DROP_OLDEST if v else reasons[c - 1]
+             for s_, v, c in zip(superseded[order].tolist(), victim[order].tolist(),
+                                 fate[m].tolist(), strict=True)]
+    code_of: dict[str, int] = {}
+    for text in texts:  # codes of first appearance (writes the drop_reasons table)
+        if text not in code_of:
+            code_of[text] = recorder._drop_code(text)
+    return m, when, np.array([code_of[text] for text in texts], dtype=np.uint32)
 
 
 #: The bulk path encodes the records of about this many bytes of windows at once.
@@ -778,42 +790,19 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     if not m.size:
         return deliveries, drops, in_steps
     q, l_ = m // L, m % L
-    reasons = schedule.reasons
-    code_oldest = reasons.index(REASON_DROP_OLDEST) + 1 if REASON_DROP_OLDEST in reasons else -1
-    code_superseded = (reasons.index(REASON_SUPERSEDED) + 1
-                       if REASON_SUPERSEDED in reasons else -1)
-    codes = fate[l_, q]
     ss = send[q]
     a = (usable[l_, q] if in_steps else ss + wait[l_, q]).astype(float)
     drop_at = np.asarray(schedule.drop_time[t, :, :n_sends])[l_, q]
-    victim = (codes == code_oldest) & (drop_at <= end)
-    superseded = (codes == code_superseded) & (a <= end)
-    at_send = (codes != code_oldest) & (codes != code_superseded)
-    keep = at_send | victim | superseded
-    if not keep.any():
+    kept, when, reason = _dropped_messages(recorder, schedule, fate[l_, q], ss, a, drop_at,
+                                           q, l_, end)
+    if not kept.size:
         return deliveries, drops, in_steps
-    q, l_, codes, a, ss = q[keep], l_[keep], codes[keep], a[keep], ss[keep]
-    drop_at, victim, superseded = drop_at[keep], victim[keep], superseded[keep]
-    when = np.where(superseded, a, np.where(victim, drop_at, ss)).astype(float)
-    ph = np.where(superseded, np.where(a <= ss, _LATE, _EARLY), _STEP)
-    sender = np.array([j for j, _ in schedule.links], dtype=np.int64)
-    x = np.where(ph == _STEP, sender[l_], q)
-    order = np.lexsort((victim.astype(np.int64), l_, x, ph, when))
-    l_, when, codes, ss = l_[order], when[order], codes[order], ss[order]
-    superseded, victim = superseded[order], victim[order]
-    texts = [REASON_SUPERSEDED if s_ else REASON_DROP_OLDEST if v else reasons[c - 1]
-             for s_, v, c in zip(superseded.tolist(), victim.tolist(), codes.tolist(),
-                                 strict=True)]
-    code_of: dict[str, int] = {}
-    for text in texts:  # in the kernel's order: the codes of first appearance
-        if text not in code_of:
-            code_of[text] = recorder._drop_code(text)
+    l_, ss = l_[kept], ss[kept]
     # the step that lists a drop: netsim.traces.stepwriter.drop_bucket, in steps
     bucket = np.ceil(when - 1e-9).astype(np.int64)
     rows, counts = _by_bucket(bucket, end + 1)
     drops = (rows, {"link": Column(l_, counts), "sent_step": Column(ss, counts),
-                    "reason": Column(np.array([code_of[x_] for x_ in texts]), counts),
-                    "drop_time": Column(when * ts, counts)})
+                    "reason": Column(reason, counts), "drop_time": Column(when * ts, counts)})
     return deliveries, drops, in_steps
 
 

@@ -773,15 +773,14 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     delivered = arrived if lossless else arrived & (fate == DELIVERED)
     deliveries = drops = None
     if delivered.any():
-        # the deliveries of each usable step in increasing (link, sent step): a stable
-        # sort by usable step of the link-major order (radix sort for int16)
-        u = usable[delivered]
-        order = np.argsort(u.astype(np.int16) if u.max() < 2**15 else u, kind="stable")
-        kept = ~np.asarray(selection.discarded[t, :, :n_sends])[delivered][order]
-        counts_all = np.bincount(u, minlength=end + 2)
+        kept = _in_usable_order(usable, delivered,
+                                ~np.asarray(selection.discarded[t, :, :n_sends]))
+        # order-free: in memory order (the schedule's arrays are send-major)
+        mask, usable_, delay_ = _memory_order(delivered, usable, delay)
+        counts_all = np.bincount(usable_[mask], minlength=end + 2)
         rows = np.flatnonzero(counts_all)
         deliveries = (rows, {"accepted": Column(kept, counts_all[rows])})
-        recorder.max_delay_steps = max(recorder.max_delay_steps, int(delay[delivered].max()))
+        recorder.max_delay_steps = max(recorder.max_delay_steps, int(delay_[mask].max()))
     if lossless:
         return deliveries, drops, in_steps
     # drops, message major (m = q L + l): at sending, drop-oldest victims (at the
@@ -804,6 +803,52 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     drops = (rows, {"link": Column(l_, counts), "sent_step": Column(ss, counts),
                     "reason": Column(reason, counts), "drop_time": Column(when * ts, counts)})
     return deliveries, drops, in_steps
+
+
+def _in_usable_order(usable: np.ndarray, delivered: np.ndarray, flags: np.ndarray
+                     ) -> np.ndarray:
+    """The flags of the delivered messages ordered by (usable step, link, sent step).
+
+    Parameters
+    ----------
+    usable, delivered, flags : numpy.ndarray, shape (L, S)
+        Per link and send: the step from which the message is usable (int), whether it
+        is delivered by the run's end, and its flag (bool).
+
+    Returns
+    -------
+    numpy.ndarray, shape (delivered.sum(),), bool
+        ``flags[delivered]`` in the deliveries' order.
+
+    Notes
+    -----
+    When the keys fit 31 bits, each message is one int32, ``(usable * L S + l S + q) * 2
+    + flag``: unique, so a plain (SIMD) sort orders them as the stable sort by usable
+    step of the link-major order would, and the flag rides in the lowest bit (at
+    N = 32, 63,000 messages: 0.15 ms against 0.55 ms for the radix argsort and the
+    gather it needs). Else that argsort.
+    """
+    L, S = usable.shape
+    span = 2 * L * S
+    if usable.size and (int(usable.max()) + 1) * span < 2**31:
+        key = usable.astype(np.int32)  # in the arrays' memory order (S-major here)
+        key *= np.int32(span)
+        key += (np.arange(L, dtype=np.int32) * np.int32(2 * S))[:, None]
+        key += np.arange(0, 2 * S, 2, dtype=np.int32)[None, :]
+        key += flags
+        key, mask = _memory_order(key, delivered)
+        return (np.sort(key[mask]) & 1).astype(bool)
+    order = np.argsort(usable[delivered], kind="stable")
+    return flags[delivered][order]
+
+
+def _memory_order(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """The 2-D arrays, or their transposes when the first is laid out column-major: views
+    whose C order is the first's memory order (for order-free reductions and sort
+    keys; a boolean mask among them selects the same elements either way)."""
+    if arrays[0].flags.f_contiguous and not arrays[0].flags.c_contiguous:
+        return tuple(a.T for a in arrays)
+    return arrays
 
 
 def _write_step_windows(recorder: Any, out: Any, tables: list[tuple[str, np.ndarray, dict]],

@@ -326,3 +326,61 @@ def test_typescript_reader_validates_and_decodes_a_traced_run(tmp_path, trace_fo
     assert first["estimate"] == list(ours.estimate)
     assert first["error_norm"] == ours.error_norm
     assert int(first["step"]) == ours.step == 0
+
+
+def _data_section_crc(path):
+    """(stored, recomputed) data-section CRC: the Data End record lies just before the
+    summary section (the Footer's summary_start); the data section is every byte
+    before it, magic included."""
+    import struct
+    import zlib
+
+    data = Path(path).read_bytes()
+    summary_start = struct.unpack_from("<Q", data, len(data) - 8 - 29 + 9)[0]
+    assert data[summary_start - 13] == 0x0F  # Data End opcode
+    stored = struct.unpack_from("<I", data, summary_start - 4)[0]
+    return stored, zlib.crc32(data[:summary_start - 13])
+
+
+@pytest.mark.parametrize("compression", ["zstd", "none"])
+@pytest.mark.parametrize("combine", [True, False])
+def test_data_section_crc_is_the_crc_of_the_data_section(tmp_path, monkeypatch,
+                                                         compression, combine):
+    """Whether the chunks enter the data-section CRC by combination (zlib's
+    crc32_combine) or by a second pass, it is the CRC of the bytes written."""
+    from netsim.traces import crc32
+
+    if combine and not crc32.AVAILABLE:
+        pytest.skip("no zlib library to call on this machine")
+    monkeypatch.setattr(crc32, "AVAILABLE", combine)
+    rng = np.random.default_rng(9)
+    channel, log_time, publish, sequence, rows = _batch(rng, 20000, 3, width=30)
+    path = tmp_path / f"{compression}{combine}.mcap"
+    with BulkMcapWriter(path, chunk_size=150 * 1024, compression=compression) as w:
+        sid = w.add_schema("s", "protobuf", b"")
+        for c in range(3):
+            w.add_channel(f"/c{c}", "protobuf", sid)
+        for part in np.array_split(np.arange(20000), 5):
+            w.add_messages(channel[part], log_time[part], rows[part],
+                           publish_time=publish[part], sequence=sequence[part])
+            w.flush(wait=False)
+        w.add_message(0, int(log_time[-1]), b"last", int(log_time[-1]), 1)
+    stored, recomputed = _data_section_crc(path)
+    assert stored == recomputed != 0
+    with open(path, "rb") as f:
+        summary = make_reader(f, validate_crcs=True).get_summary()
+    assert summary.statistics.chunk_count >= 4
+
+
+def test_crc32_combine_is_the_crc_of_the_concatenation():
+    import zlib
+
+    from netsim.traces import crc32
+
+    if not crc32.AVAILABLE:
+        pytest.skip("no zlib library to call on this machine")
+    rng = np.random.default_rng(2)
+    for length in (0, 1, 7, 4096, 1 << 20, 3_000_001):
+        a = rng.integers(0, 256, int(rng.integers(0, 100)), dtype=np.uint8).tobytes()
+        b = rng.integers(0, 256, length, dtype=np.uint8).tobytes()
+        assert crc32.crc32_combine(zlib.crc32(a), zlib.crc32(b), len(b)) == zlib.crc32(a + b)

@@ -551,3 +551,27 @@ def test_damaged_format3_chunk_is_skipped_and_counted(pairs, tmp_path):
                     if r.message.step in kept]
         assert [(r[:4], r.message.SerializeToString()) for r in records] == expected, topic
     assert read_trace(bad).estimates().shape == full.estimates().shape
+
+
+@pytest.mark.parametrize("layout", ["C", "F", "mixed"])
+@pytest.mark.parametrize("steps,first", [(40, 1), (3000, 1), (300, 10**6)])
+def test_deliveries_order_is_the_stable_sort_by_usable_step(steps, first, layout):
+    """The bulk path's delivery order (packed int32 keys when they fit, the stable
+    argsort beyond) is the order the format defines: by usable step, then link, then
+    sent step; written out here as a plain sort of tuples."""
+    from netsim.vectrace import _in_usable_order
+
+    rng = np.random.default_rng(steps)
+    L, S = 7, steps
+    usable = np.arange(first, first + S)[None, :] + rng.integers(0, 5, size=(L, S))
+    # (the last case's keys need more than 31 bits)
+    assert ((usable.max() + 1) * 2 * L * S >= 2**31) == (first > 1)
+    delivered = rng.random((L, S)) < 0.8
+    flags = rng.random((L, S)) < 0.5
+    expected = [flags[l_, q] for _, l_, q in sorted(
+        (usable[l_, q], l_, q) for l_ in range(L) for q in range(S) if delivered[l_, q])]
+    if layout != "C":  # the schedule's arrays are send-major: column-major (L, S) views
+        usable, flags = np.asfortranarray(usable), np.asfortranarray(flags)
+        if layout == "F":
+            delivered = np.asfortranarray(delivered)
+    assert _in_usable_order(usable, delivered, flags).tolist() == expected

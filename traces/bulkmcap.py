@@ -52,6 +52,7 @@ from typing import IO, Any
 
 import numpy as np
 import zstandard
+from netsim.traces import crc32
 
 __all__ = [
     "MAGIC",
@@ -328,15 +329,20 @@ def _pool() -> ThreadPoolExecutor:
         return _POOL
 
 
-def _compress(level: int | None, pieces: list[Any], size: int) -> tuple[int, Any]:
-    """(CRC32 of the uncompressed records, the chunk's compressed records); zstd at
-    ``level`` (None: uncompressed, the pieces as given), one compressor per thread and
-    level."""
+def _compress(level: int | None, pieces: list[Any], size: int
+              ) -> tuple[int, Any, int | None]:
+    """(CRC32 of the uncompressed records, the chunk's compressed records, CRC32 of the
+    compressed records or None); zstd at ``level`` (None: uncompressed, the pieces as
+    given), one compressor per thread and level.
+
+    The third is what the data-section CRC takes up by combination
+    (:func:`netsim.traces.crc32.crc32_combine`) instead of a second pass over the bytes
+    written; None when no combination is available."""
     crc = 0
     for piece in pieces:
         crc = zlib.crc32(piece, crc)
     if level is None:  # written piece by piece (no copy of the chunk)
-        return crc, pieces
+        return crc, pieces, crc if crc32.AVAILABLE else None
     cctxs = getattr(_LOCAL, "cctxs", None)
     if cctxs is None:
         cctxs = _LOCAL.cctxs = {}
@@ -345,7 +351,8 @@ def _compress(level: int | None, pieces: list[Any], size: int) -> tuple[int, Any
         cctx = cctxs[level] = zstandard.ZstdCompressor(level=level)
     # one call on the whole chunk: ZstdCompressor.compress releases the GIL (a
     # compressobj's compress does not)
-    return crc, cctx.compress(pieces[0] if len(pieces) == 1 else b"".join(pieces))
+    compressed = cctx.compress(pieces[0] if len(pieces) == 1 else b"".join(pieces))
+    return crc, compressed, zlib.crc32(compressed) if crc32.AVAILABLE else None
 
 
 @atexit.register
@@ -690,7 +697,7 @@ class BulkMcapWriter:
             self._pending.popleft()
 
     def _write_chunk(self, chunk: _ChunkBuilder, job: Any) -> None:
-        crc, compressed = job.result() if isinstance(job, Future) else job
+        crc, compressed, written_crc = job.result() if isinstance(job, Future) else job
         pieces = compressed if isinstance(compressed, list) else [compressed]
         compressed_size = sum(p.nbytes if isinstance(p, (np.ndarray, memoryview)) else len(p)
                               for p in pieces)
@@ -701,8 +708,14 @@ class BulkMcapWriter:
         head = struct.pack("<BQ", OP_CHUNK, len(body) + compressed_size)
         chunk_start = self._position
         self._write(head + body)
-        for piece in pieces:
-            self._write(piece)
+        if written_crc is None:
+            for piece in pieces:
+                self._write(piece)
+        else:  # the data-section CRC by combination (no second pass over the bytes)
+            for piece in pieces:
+                self._stream.write(piece)
+            self._position += compressed_size
+            self._crc = crc32.crc32_combine(self._crc, written_crc, compressed_size)
         chunk_length = self._position - chunk_start
         index_start = self._position
         indexes, offsets_map = chunk.message_indexes(index_start)

@@ -388,8 +388,9 @@ class BulkMcapWriter:
     fsync : bool
         Also ``os.fsync`` after each chunk (default: flush to the OS only).
     background : bool
-        Compress chunks on a shared pool of (at most 2) threads while the caller builds
-        the next ones (default True; zstd, chunks of at least 128 KiB). Chunks are
+        Compress chunks (uncompressed: compute their CRCs) on a shared pool of (at most
+        2) threads while the caller builds the next ones (default True; chunks of at
+        least 128 KiB; zlib.crc32 and zstd release the GIL). Chunks are
         written in order, each as soon as it is compressed and at most two chunks behind
         the one in progress; :meth:`flush` and :meth:`close` wait for all of them, so
         the file's bytes do not depend on the threads' timing.
@@ -415,7 +416,7 @@ class BulkMcapWriter:
             raise ValueError(f"unknown compression {compression!r}; expected zstd or none")
         self.compression = "zstd" if compression == "zstd" else ""
         self.level = int(level)
-        self.background = bool(background) and bool(self.compression)
+        self.background = bool(background)
         self._pending: collections.deque[tuple[_ChunkBuilder, Any]] = collections.deque()
         self.chunk_size = int(chunk_size)
         self.fsync = fsync

@@ -79,9 +79,12 @@ def _varint_column(kind: str, values: np.ndarray, counts: np.ndarray | None,
     if kind == "sint32":
         if low < -2**31 or high >= 2**31:
             raise ValueError(f"sint32 value out of range: {low} .. {high}")
-        if -64 <= low and high <= 63:  # one byte each: the zigzag value
-            w = v.astype(np.int32, copy=False)
-            return ((w << 1) ^ (w >> 31)).astype(np.uint8), counts
+        if -64 <= low and high <= 63:  # one byte each: the zigzag value, in int8
+            # (temporaries a quarter the size of int32 ones: fewer fresh pages)
+            b = v.astype(np.int8)
+            z = b << 1
+            z ^= b >> 7
+            return z.view(np.uint8), counts
         s = v.astype(np.int64)
         u = ((s << 1) ^ (s >> 63)).astype(np.uint64)
     else:

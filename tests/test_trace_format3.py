@@ -568,10 +568,17 @@ def test_deliveries_order_is_the_stable_sort_by_usable_step(steps, first, layout
     assert ((usable.max() + 1) * 2 * L * S >= 2**31) == (first > 1)
     delivered = rng.random((L, S)) < 0.8
     flags = rng.random((L, S)) < 0.5
-    expected = [flags[l_, q] for _, l_, q in sorted(
-        (usable[l_, q], l_, q) for l_ in range(L) for q in range(S) if delivered[l_, q])]
+    chosen = sorted((usable[l_, q], l_, q) for l_ in range(L) for q in range(S)
+                    if delivered[l_, q])
+    expected = [flags[l_, q] for _, l_, q in chosen]
+    steps = first + S + 6
+    expected_counts = [0] * steps
+    for u, _, _ in chosen:
+        expected_counts[u] += 1
     if layout != "C":  # the schedule's arrays are send-major: column-major (L, S) views
         usable, flags = np.asfortranarray(usable), np.asfortranarray(flags)
         if layout == "F":
             delivered = np.asfortranarray(delivered)
-    assert _in_usable_order(usable, delivered, flags).tolist() == expected
+    ordered, counts = _in_usable_order(usable, delivered, flags, steps)
+    assert ordered.tolist() == expected
+    assert counts.tolist() == expected_counts

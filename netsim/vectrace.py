@@ -684,7 +684,7 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
     links = list(schedule.links) if schedule is not None else []
     entries = [(j, i) for i in range(N) for j in neighbours[i]] if schedule is not None else []
     L, E = len(links), len(entries)
-    delays = sends_delay = None  # (R, E) and (R, L), int32; ABSENT where nothing
+    delays = sends_delay = None  # (R, E) and (R, L), ints; ABSENT where nothing
     sends_arrival = np.empty((R, L))  # filled only when arrivals are not at steps
     deliveries = drops = None
     in_steps = True
@@ -697,10 +697,13 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
         if E and (entry_link >= 0).all():
             # r_ij[k] = k - 1 - s of the message held (chosen) at k; -1: none held
             held = np.asarray(selection.chosen[:R, :, trial])[:, entry_link]  # (R, E)
-            sent_at = held if np.array_equal(send[:n_sends], np.arange(n_sends)) else (
-                send[np.maximum(held, 0)]).astype(np.int32)
-            delays = (k.astype(np.int32) - 1)[:, None] - sent_at
-            delays[held < 0] = -1
+            none_held = held < 0
+            # the sent step s of the message held (a fresh array, then k - 1 - s in place)
+            delays = (held.astype(np.int32, copy=False)
+                      if np.array_equal(send[:n_sends], np.arange(n_sends))
+                      else send[np.maximum(held, 0)].astype(np.int32))
+            np.subtract((k.astype(np.int32) - 1)[:, None], delays, out=delays)
+            delays[none_held] = -1
             delays[0] = -1
             not_updated = np.ones(R, dtype=bool)
             not_updated[up[up <= end]] = False
@@ -714,7 +717,11 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
                     held = np.asarray(selection.chosen[ku, l_, trial], dtype=np.int64)
                     ok = held >= 0
                     delays[ku[ok], e] = ku[ok] - 1 - send[held[ok]]
-        sends_delay = np.empty((R, L), dtype=np.int32)
+        # the narrowest integers that hold every delay (and ABSENT): the column is
+        # encoded as varints either way, and a quarter of the bytes are fresh pages
+        longest = int(np.max(schedule.delay_steps[trial], initial=0))
+        narrow = np.int8 if longest <= 127 else np.int16 if longest <= 32767 else np.int32
+        sends_delay = np.empty((R, L), dtype=narrow)
         silent = np.ones(R, dtype=bool)  # steps without sends
         silent[send[:n_sends]] = False
         sends_delay[silent] = ABSENT
@@ -766,15 +773,17 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     if not in_steps:
         sends_arrival.fill(np.nan)
         sends_arrival[send] = ((send[None, :] + wait) * ts).T
-    usable = (send + 1).astype(delay.dtype)[None, :] + delay  # (L, S)
+    # a message is usable from step send + 1 + delay (not built as an (L, S) array: at
+    # N = 32 each is 250 KB of fresh pages)
     lossless = bool(getattr(schedule, "lossless_steps", False))
     fate = None if lossless else np.asarray(schedule.fate[t, :, :n_sends])
-    arrived = usable <= end if in_steps else send[None, :] + wait <= end
+    arrived = delay <= (end - 1 - send)[None, :] if in_steps else send[None, :] + wait <= end
     delivered = arrived if lossless else arrived & (fate == DELIVERED)
     deliveries = drops = None
     if delivered.any():
         kept, counts_all = _in_usable_order(
-            usable, delivered, ~np.asarray(selection.discarded[t, :, :n_sends]), end + 2)
+            delay, send + 1, delivered, ~np.asarray(selection.discarded[t, :, :n_sends]),
+            end + 2)
         rows = np.flatnonzero(counts_all)
         deliveries = (rows, {"accepted": Column(kept, counts_all[rows])})
         longest = int(np.max(delay, where=delivered, initial=-1))
@@ -788,7 +797,7 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
         return deliveries, drops, in_steps
     q, l_ = m // L, m % L
     ss = send[q]
-    a = (usable[l_, q] if in_steps else ss + wait[l_, q]).astype(float)
+    a = (ss + 1 + delay[l_, q] if in_steps else ss + wait[l_, q]).astype(float)
     drop_at = np.asarray(schedule.drop_time[t, :, :n_sends])[l_, q]
     kept, when, reason = _dropped_messages(recorder, schedule, fate[l_, q], ss, a, drop_at,
                                            q, l_, end)
@@ -803,16 +812,19 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
     return deliveries, drops, in_steps
 
 
-def _in_usable_order(usable: np.ndarray, delivered: np.ndarray, flags: np.ndarray,
-                     steps: int) -> tuple[np.ndarray, np.ndarray]:
+def _in_usable_order(delay: np.ndarray, first: np.ndarray, delivered: np.ndarray,
+                     flags: np.ndarray, steps: int) -> tuple[np.ndarray, np.ndarray]:
     """The flags of the delivered messages ordered by (usable step, link, sent step), and
     the deliveries per usable step.
 
     Parameters
     ----------
-    usable, delivered, flags : numpy.ndarray, shape (L, S)
-        Per link and send: the step from which the message is usable (int, below
-        ``steps``), whether it is delivered by the run's end, and its flag (bool).
+    delay, delivered, flags : numpy.ndarray, shape (L, S)
+        Per link and send: the delay in steps (int), whether the message is delivered
+        by the run's end, and its flag (bool).
+    first : numpy.ndarray, shape (S,), int
+        Per send, the step its messages would be usable from without delay: message
+        (l, q) is usable from ``first[q] + delay[l, q]`` (below ``steps``).
     steps : int
         Length of the counts.
 
@@ -830,27 +842,31 @@ def _in_usable_order(usable: np.ndarray, delivered: np.ndarray, flags: np.ndarra
     step of the link-major order would, the flag rides in the lowest bit and the counts
     are where each step's keys begin (at N = 32, 63,000 messages: 0.15 ms against
     0.55 ms for the radix argsort and the gather it needs). Else that argsort. The
-    temporaries are few and made in place: each is a fresh 250 KB at N = 32, and a
-    fresh page costs about as much as sorting it.
+    temporaries are few and made in place: each is a fresh 250 KB at N = 32, and
+    a fresh page costs about as much as sorting it.
     """
-    L, S = usable.shape
+    L, S = delay.shape
     span = 2 * L * S
-    if usable.size and (int(usable.max()) + 1) * span < 2**31:
-        key = usable.astype(np.int32)  # in the arrays' memory order (S-major here)
+    if delay.size and (int(delay.max()) + int(first.max()) + 1) * span < 2**31:
+        key = delay.astype(np.int32)  # in the arrays' memory order (S-major here)
+        key += first.astype(np.int32)[None, :]
         key *= np.int32(span)
         key += (np.arange(L, dtype=np.int32) * np.int32(2 * S))[:, None]
         key += np.arange(0, 2 * S, 2, dtype=np.int32)[None, :]
         key += flags
-        key, mask = _memory_order(key, delivered)
-        chosen = key[mask]
+        # sorted in place, the undelivered last (every key is below 2**31 - 1, so the
+        # clipped bounds stay int32 and count only delivered keys)
+        key[~delivered] = np.int32(2**31 - 1)
+        chosen = _memory_order(key)[0].reshape(-1)  # a view: the arrays are contiguous
         chosen.sort()
-        # every key is below 2**31 - 1, so the clipped bounds stay int32
+        chosen = chosen[:int(np.count_nonzero(delivered))]
         bounds = np.minimum(np.arange(steps + 1, dtype=np.int64) * span, 2**31 - 1)
         counts = np.diff(np.searchsorted(chosen, bounds.astype(np.int32)))
         chosen &= 1
         return chosen.astype(bool), counts
-    order = np.argsort(usable[delivered], kind="stable")
-    return flags[delivered][order], np.bincount(usable[delivered], minlength=steps)
+    usable = (np.asarray(first, dtype=np.int64)[None, :] + delay)[delivered]
+    order = np.argsort(usable, kind="stable")
+    return flags[delivered][order], np.bincount(usable, minlength=steps)
 
 
 def _memory_order(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:

@@ -575,10 +575,12 @@ def test_deliveries_order_is_the_stable_sort_by_usable_step(steps, first, layout
     expected_counts = [0] * steps
     for u, _, _ in chosen:
         expected_counts[u] += 1
+    first_usable = np.arange(first, first + S)
+    delay = usable - first_usable[None, :]
     if layout != "C":  # the schedule's arrays are send-major: column-major (L, S) views
-        usable, flags = np.asfortranarray(usable), np.asfortranarray(flags)
+        delay, flags = np.asfortranarray(delay), np.asfortranarray(flags)
         if layout == "F":
             delivered = np.asfortranarray(delivered)
-    ordered, counts = _in_usable_order(usable, delivered, flags, steps)
+    ordered, counts = _in_usable_order(delay, first_usable, delivered, flags, steps)
     assert ordered.tolist() == expected
     assert counts.tolist() == expected_counts

@@ -319,10 +319,13 @@ def _one_ragged_field_records(rows: int, step: np.ndarray, time: np.ndarray,
     sizes = meta_len + data_len
     starts = np.cumsum(sizes) - sizes
     out = np.empty(int(sizes.sum()), dtype=np.uint8)
+    # which bytes are the fixed parts: runs of meta_len True, data_len False, per record
+    # (a bool per byte; no index arrays)
+    runs = np.empty(2 * rows, dtype=np.int64)
+    runs[0::2], runs[1::2] = meta_len, data_len
+    is_meta = np.repeat(np.tile(np.array([True, False]), rows), runs)
     used = np.arange(fixed.itemsize)[None, :] < meta_len[:, None]
-    at = (starts[:, None] + np.arange(fixed.itemsize))[used]
-    is_meta = np.zeros(out.shape[0], dtype=bool)
-    is_meta[at] = True
-    out[at] = meta.view(np.uint8).reshape(rows, fixed.itemsize)[used]
-    out[~is_meta] = np.ascontiguousarray(values, dtype=dtype).reshape(-1).view(np.uint8)
+    out[is_meta] = meta.view(np.uint8).reshape(rows, fixed.itemsize)[used]
+    np.logical_not(is_meta, out=is_meta)
+    out[is_meta] = np.ascontiguousarray(values, dtype=dtype).reshape(-1).view(np.uint8)
     return out, starts

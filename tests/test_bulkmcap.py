@@ -112,6 +112,18 @@ def test_file_reads_back_like_mcaps_own_writer(tmp_path, chunk_size):
 
 
 
+def _add_in_parts(w, channels, parts, channel, log_time, publish, sequence, rows):
+    """A schema, ``channels`` channels, and the batch in ``parts`` bulk calls, each
+    followed by a non-waiting flush (chunks in flight on the pool)."""
+    sid = w.add_schema("s", "protobuf", b"")
+    for c in range(channels):
+        w.add_channel(f"/c{c}", "protobuf", sid)
+    for part in np.array_split(np.arange(len(log_time)), parts):
+        w.add_messages(channel[part], log_time[part], rows[part],
+                       publish_time=publish[part], sequence=sequence[part])
+        w.flush(wait=False)
+
+
 def test_background_compression_writes_the_bytes_of_the_synchronous_writer(tmp_path):
     """Chunks compressed on the pool (>= 128 KiB each, several in flight) give the file
     the writer gives compressing each chunk at once; it reads back with CRCs."""
@@ -122,13 +134,7 @@ def test_background_compression_writes_the_bytes_of_the_synchronous_writer(tmp_p
     for background in (True, False):
         path = tmp_path / f"bg{background}.mcap"
         with BulkMcapWriter(path, chunk_size=200 * 1024, background=background) as w:
-            sid = w.add_schema("s", "protobuf", b"")
-            for c in range(4):
-                w.add_channel(f"/c{c}", "protobuf", sid)
-            for part in np.array_split(np.arange(30000), 7):
-                w.add_messages(channel[part], log_time[part], rows[part],
-                               publish_time=publish[part], sequence=sequence[part])
-                w.flush(wait=False)
+            _add_in_parts(w, 4, 7, channel, log_time, publish, sequence, rows)
         paths.append(path)
     assert paths[0].read_bytes() == paths[1].read_bytes()
     with open(paths[0], "rb") as f:
@@ -357,13 +363,7 @@ def test_data_section_crc_is_the_crc_of_the_data_section(tmp_path, monkeypatch,
     channel, log_time, publish, sequence, rows = _batch(rng, 20000, 3, width=30)
     path = tmp_path / f"{compression}{combine}.mcap"
     with BulkMcapWriter(path, chunk_size=150 * 1024, compression=compression) as w:
-        sid = w.add_schema("s", "protobuf", b"")
-        for c in range(3):
-            w.add_channel(f"/c{c}", "protobuf", sid)
-        for part in np.array_split(np.arange(20000), 5):
-            w.add_messages(channel[part], log_time[part], rows[part],
-                           publish_time=publish[part], sequence=sequence[part])
-            w.flush(wait=False)
+        _add_in_parts(w, 3, 5, channel, log_time, publish, sequence, rows)
         w.add_message(0, int(log_time[-1]), b"last", int(log_time[-1]), 1)
     stored, recomputed = _data_section_crc(path)
     assert stored == recomputed != 0

@@ -25,9 +25,11 @@ waiting :meth:`BulkMcapWriter.flush` is written and flushed to the OS at once (i
 message indexes right after it), so a writer killed at any moment leaves a file
 readable to its last complete chunk (no summary: readers scan it). Chunks completed by
 :meth:`BulkMcapWriter.add_records` (the bulk path) or ``flush(wait=False)`` are
-compressed on a background thread (zstd releases the GIL) while the caller builds the
-next ones (chunks of at least 128 KiB), and written in order as soon as done, at most
-two chunks behind. :meth:`close`
+compressed (uncompressed ones: their CRCs computed) on a background thread (zstd and
+zlib.crc32 release the GIL) while the caller builds the next ones (chunks of at least
+128 KiB), and written in order as soon as done, at most two chunks behind. The
+data-section CRC takes up each chunk's bytes by combining CRCs
+(:func:`netsim.traces.crc32.crc32_combine`) rather than by a second pass over them. :meth:`close`
 (idempotent) finishes the file; use the writer as a context manager (a Ctrl-C
 raising KeyboardInterrupt inside the ``with`` still finishes the file) and it also
 registers itself with :mod:`atexit` for an interpreter that exits without closing it.

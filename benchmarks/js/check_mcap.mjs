@@ -96,4 +96,5 @@ if (json) {
   }
   for (const error of report.errors) console.log(`ERROR ${error}`);
 }
-process.exit(report.errors.length ? 1 : 0);
+// exitCode, not process.exit(): exit() would cut a large report written to a pipe
+process.exitCode = report.errors.length ? 1 : 0;

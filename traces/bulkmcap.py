@@ -686,7 +686,8 @@ class BulkMcapWriter:
             pieces = [chunk.content()] if level is not None else [
                 p if isinstance(p, bytes) else memoryview(p) for p in chunk.pieces]
             job: Any = None
-            if self.background and chunk.size >= _BACKGROUND_MIN:
+            # (a waiting flush computes its own chunk here: handing it over gains nothing)
+            if self.background and not wait and chunk.size >= _BACKGROUND_MIN:
                 try:
                     job = _pool().submit(_compress, level, pieces, chunk.size)
                 except RuntimeError:  # interpreter shutting down: compress here

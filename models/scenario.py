@@ -437,9 +437,10 @@ class Scenario:
     def n_agents(self) -> int:
         return self.weights.shape[0]
 
-    @property
+    @cached_property
     def max_delay(self) -> int:
-        """Delay bound tau-bar in steps implied by the delay specification."""
+        """Delay bound tau-bar in steps implied by the delay specification (built once:
+        it builds a delay model)."""
         return int(self.delay_model(0).max_delay)
 
     @property

@@ -234,29 +234,27 @@ def stack_matrices(matrices: Mapping[str, np.ndarray]
     reader gives ``X_i`` back): at N = 32 a run has 133 matrices, whose attachment
     records cost more than writing its 500 steps' messages. Returns the matrices to
     attach and the names stacked."""
+    arrays = {name: np.asarray(matrix) for name, matrix in matrices.items()}
     groups: dict[str, list[str]] = {}
-    for name in matrices:
+    for name in arrays:
         prefix, _, index = name.rpartition("_")
         if prefix and index.isdigit():
             groups.setdefault(prefix, []).append(name)
-    arrays = {name: np.asarray(matrix) for name, matrix in matrices.items()}
-    stackable = set()
+    members_of: dict[str, str] = {}  # name -> the prefix it is stacked under
     for prefix, members in groups.items():
-        shapes = {(arrays[m].shape, arrays[m].dtype.str) for m in members}
-        if (len(shapes) == 1 and prefix not in matrices
+        if (prefix not in arrays
+                and len({(arrays[m].shape, arrays[m].dtype) for m in members}) == 1
                 and members == [f"{prefix}_{i}" for i in range(len(members))]):
-            stackable.add(prefix)
+            members_of.update(dict.fromkeys(members, prefix))
     out: dict[str, np.ndarray] = {}
     stacked: list[str] = []
-    members_of = {name: prefix for prefix in stackable for name in groups[prefix]}
-    for name in matrices:
+    for name, array in arrays.items():
         prefix = members_of.get(name)
-        if prefix is not None:
-            if prefix not in out:
-                out[prefix] = np.stack([arrays[m] for m in groups[prefix]])
-                stacked.append(prefix)
-            continue
-        out[name] = arrays[name]
+        if prefix is None:
+            out[name] = array
+        elif prefix not in out:  # (np.array of equal shapes: np.stack, 3x faster)
+            out[prefix] = np.array([arrays[m] for m in groups[prefix]])
+            stacked.append(prefix)
     return out, stacked
 
 

@@ -56,6 +56,10 @@ _HEAD = np.dtype([("t1", "u1"), ("step", "<u8"), ("t2", "u1"), ("time", "<f8")])
 
 def _varint_bytes(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Minimal varints of non-negative int64 ``values``: (bytes (n, 5), lengths (n,))."""
+    if values.size and int(values.max()) < 128:  # one byte each (e.g. a step's lengths)
+        out = np.zeros((values.shape[0], 5), dtype=np.uint8)
+        out[:, 0] = values
+        return out, np.ones(values.shape, dtype=np.int64)
     v = values.astype(np.uint64)
     length = np.ones(v.shape, dtype=np.int64)
     for bits in (7, 14, 21, 28):
@@ -289,6 +293,15 @@ def _encode_ragged(rows: int, step: np.ndarray, time: np.ndarray,
     return out, offsets
 
 
+@cache
+def _ragged_head_dtype() -> np.dtype:
+    """The fixed part of a one-ragged-field record: MCAP Message header, step and time,
+    the field's tag and byte length (at most 6 bytes, the used ones first)."""
+    from netsim.traces.bulkmcap import MESSAGE_HEADER_DTYPE
+
+    return np.dtype(MESSAGE_HEADER_DTYPE.descr + _HEAD.descr + [("prefix", "u1", (6,))])
+
+
 def _one_ragged_field_records(rows: int, step: np.ndarray, time: np.ndarray,
                               part: tuple[Any, ...], channel_id: int, log_time: np.ndarray
                               ) -> tuple[np.ndarray, np.ndarray]:
@@ -296,13 +309,13 @@ def _one_ragged_field_records(rows: int, step: np.ndarray, time: np.ndarray,
     step's deliveries): each record is a fixed part (record header, step, time, the
     field's tag and length) and the field's data, which lies in the source in record
     order, so one mask puts every data byte in place."""
-    from netsim.traces.bulkmcap import MESSAGE_HEADER_DTYPE, OP_MESSAGE
+    from netsim.traces.bulkmcap import OP_MESSAGE
 
     number, dtype, values, counts, _ = part
     width = np.dtype(dtype).itemsize
     data_len = np.asarray(counts, dtype=np.int64) * width
     vbytes, vlen = _varint_bytes(data_len)
-    fixed = np.dtype(MESSAGE_HEADER_DTYPE.descr + _HEAD.descr + [("prefix", "u1", (6,))])
+    fixed = _ragged_head_dtype()
     meta = np.empty(rows, dtype=fixed)
     meta["opcode"] = OP_MESSAGE
     prefix_len = np.where(data_len > 0, 1 + vlen, 0)

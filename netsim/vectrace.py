@@ -718,7 +718,7 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
                     ok = held >= 0
                     delays[ku[ok], e] = ku[ok] - 1 - send[held[ok]]
         # the narrowest integers that hold every delay (and ABSENT): the column is
-        # encoded as varints either way, and a quarter of the bytes are fresh pages
+        # encoded as varints either way (int8: a quarter of the fresh memory of int32)
         longest = int(np.max(schedule.delay_steps[trial], initial=0))
         narrow = np.int8 if longest <= 127 else np.int16 if longest <= 32767 else np.int32
         sends_delay = np.empty((R, L), dtype=narrow)
@@ -857,7 +857,7 @@ def _in_usable_order(delay: np.ndarray, first: np.ndarray, delivered: np.ndarray
         # sorted in place, the undelivered last (every key is below 2**31 - 1, so the
         # clipped bounds stay int32 and count only delivered keys)
         key[~delivered] = np.int32(2**31 - 1)
-        chosen = _memory_order(key)[0].reshape(-1)  # a view: the arrays are contiguous
+        chosen = _memory_order(key).reshape(-1)  # a view (astype made key contiguous)
         chosen.sort()
         chosen = chosen[:int(np.count_nonzero(delivered))]
         bounds = np.minimum(np.arange(steps + 1, dtype=np.int64) * span, 2**31 - 1)
@@ -869,13 +869,10 @@ def _in_usable_order(delay: np.ndarray, first: np.ndarray, delivered: np.ndarray
     return flags[delivered][order], np.bincount(usable, minlength=steps)
 
 
-def _memory_order(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
-    """The 2-D arrays, or their transposes when the first is laid out column-major: views
-    whose C order is the first's memory order (for order-free reductions and sort
-    keys; a boolean mask among them selects the same elements either way)."""
-    if arrays[0].flags.f_contiguous and not arrays[0].flags.c_contiguous:
-        return tuple(a.T for a in arrays)
-    return arrays
+def _memory_order(a: np.ndarray) -> np.ndarray:
+    """A contiguous 2-D array, or its transpose when it is laid out column-major: a view
+    whose C order is its memory order."""
+    return a.T if a.flags.f_contiguous and not a.flags.c_contiguous else a
 
 
 def _write_step_windows(recorder: Any, out: Any, tables: list[tuple[str, np.ndarray, dict]],

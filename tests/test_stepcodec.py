@@ -95,9 +95,6 @@ def test_checked_in_proto_equals_runtime_descriptors():
 @pytest.mark.parametrize("big", [False, True])
 def test_one_ragged_field_records_equal_message_records(big):
     """The one-field path (a step's deliveries) builds the same bytes."""
-    from netsim.traces.bulkmcap import message_records
-    from netsim.traces.stepcodec import encode_records
-
     rng = np.random.default_rng(int(big))
     rows = 9
     step = np.arange(rows) + 2**33
@@ -106,19 +103,11 @@ def test_one_ragged_field_records_equal_message_records(big):
     counts[3] = 0
     columns = {"accepted": Column(rng.integers(0, 2, counts.sum()).astype(bool), counts)}
     log_time = rng.integers(0, 2**60, rows).astype(np.uint64)
-    records, starts = encode_records("LinkDeliveries", step, time, columns, 7, log_time)
-    payloads, offsets = encode_steps("LinkDeliveries", step, time, columns)
-    expected, expected_starts = message_records(7, step.astype(np.uint32), log_time, log_time,
-                                                payloads, offsets)
-    assert records.tobytes() == expected.tobytes()
-    np.testing.assert_array_equal(starts, expected_starts)
+    _assert_records_are_message_records("LinkDeliveries", step, time, columns, 7, log_time)
 
 
 @pytest.mark.parametrize("ragged", [False, True])
 def test_records_equal_message_records_of_the_encoded_rows(ragged):
-    from netsim.traces.bulkmcap import message_records
-    from netsim.traces.stepcodec import encode_records
-
     rng = np.random.default_rng(5)
     rows = 7
     step = np.arange(3, 3 + rows)
@@ -129,9 +118,18 @@ def test_records_equal_message_records_of_the_encoded_rows(ragged):
                "reason": Column(rng.integers(1, 4, counts.sum()), counts),
                "drop_time": Column(rng.normal(size=counts.sum()), counts)}
     log_time = (10**9 + step * 250_000_000).astype(np.uint64)
-    records, starts = encode_records("LinkDrops", step, time, columns, 4, log_time)
-    payloads, offsets = encode_steps("LinkDrops", step, time, columns)
-    expected, expected_starts = message_records(4, step.astype(np.uint32), log_time, log_time,
-                                                payloads, offsets)
+    _assert_records_are_message_records("LinkDrops", step, time, columns, 4, log_time)
+
+
+def _assert_records_are_message_records(type_name, step, time, columns, channel, log_time):
+    """encode_records' bytes and starts are bulkmcap.message_records applied to
+    encode_steps' messages (sequence = step, publish_time = log_time)."""
+    from netsim.traces.bulkmcap import message_records
+    from netsim.traces.stepcodec import encode_records
+
+    records, starts = encode_records(type_name, step, time, columns, channel, log_time)
+    payloads, offsets = encode_steps(type_name, step, time, columns)
+    expected, expected_starts = message_records(channel, step.astype(np.uint32), log_time,
+                                                log_time, payloads, offsets)
     assert records.tobytes() == expected.tobytes()
     np.testing.assert_array_equal(starts, expected_starts)

@@ -14,11 +14,12 @@ from __future__ import annotations
 
 import ctypes
 import sys
+from typing import Any
 
 __all__ = ["AVAILABLE", "crc32_combine"]
 
 
-def _load() -> ctypes._CFuncPtr | None:
+def _load() -> Any:
     names = ["libz.so.1", "libz.dylib", "libz.1.dylib"]
     found = None
     if sys.platform != "win32":

@@ -478,28 +478,40 @@ def foxglove_layout(source: LayoutSource | Trace, *, max_series: int = MAX_SERIE
     return _assemble(tabs)
 
 
+def _error_and_state_tabs(panels: _Panels, colour: Callable[[int], str], agents: list[int],
+                          *, error_path: Callable[[int], str],
+                          state_path: Callable[[int], str],
+                          estimate_path: Callable[[int, int], str], states: int) -> _Tabs:
+    """The Errors tab (each agent's error norm) and the State tab (the first ``states``
+    components of the true state against every agent's estimate), either format: the
+    paths say where agent i's values and state component s are."""
+    tabs: _Tabs = []
+    errors = [_series(error_path(i), f"agent {i}", colour(i)) for i in agents]
+    if errors:
+        tabs.append(("Errors", panels("Error norm ||x-hat^i_k - x_k|| per agent", errors,
+                                      y_min=0)))
+    state: list[_Panel] = []
+    for s in range(states):
+        series = [_series(state_path(s), f"x[{s}] (true)", _TRUTH, size=2.5)]
+        series += [_series(estimate_path(i, s), f"agent {i}", colour(i), size=1.0)
+                   for i in agents]
+        state += panels(f"State x[{s}] against the agents' estimates", series)
+    if state:
+        tabs.append(("State", state))
+    return tabs
+
+
 def _record_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], str], *,
                  max_states: int) -> _Tabs:
     """The format-2 tabs: one topic per agent and per link event."""
     topics = set(source.topics)
-    tabs: _Tabs = []
     agents = [i for i in source.agents("estimate") if estimate_topic(i) in topics]
-    errors = [_series(f"{estimate_topic(i)}.error_norm", f"agent {i}", colour(i))
-              for i in agents]
-    if errors:
-        tabs.append(("Errors", panels("Error norm ||x-hat^i_k - x_k|| per agent", errors,
-                                      y_min=0)))
-
-    state: list[tuple[str, dict[str, Any]]] = []
-    if plant_topic() in topics:
-        for s in range(min(source.n_states, max_states)):
-            series = [_series(f"{plant_topic()}.state[{s}]", f"x[{s}] (true)", _TRUTH,
-                              size=2.5)]
-            series += [_series(f"{estimate_topic(i)}.estimate[{s}]", f"agent {i}",
-                               colour(i), size=1.0) for i in agents]
-            state += panels(f"State x[{s}] against the agents' estimates", series)
-    if state:
-        tabs.append(("State", state))
+    tabs = _error_and_state_tabs(
+        panels, colour, agents,
+        error_path=lambda i: f"{estimate_topic(i)}.error_norm",
+        state_path=lambda s: f"{plant_topic()}.state[{s}]",
+        estimate_path=lambda i, s: f"{estimate_topic(i)}.estimate[{s}]",
+        states=min(source.n_states, max_states) if plant_topic() in topics else 0)
 
     all_links = sorted(set(source.links("sent")) | set(source.links("delivered"))
                        | set(source.links("dropped"))
@@ -546,25 +558,13 @@ def _record_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], 
 def _step_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], str], *,
                max_series: int, max_states: int) -> _Tabs:
     """The format-3 tabs: indexed paths into the per-step arrays (module docstring)."""
-    tabs: _Tabs = []
     n = source.n_states
-    agents = source.agents("estimate")
-    errors = [_series(f"/agents/estimate.error_norm[{i}]", f"agent {i}", colour(i))
-              for i in agents]
-    if errors:
-        tabs.append(("Errors", panels("Error norm ||x-hat^i_k - x_k|| per agent", errors,
-                                      y_min=0)))
-
-    state: list[_Panel] = []
-    if source.has_messages("/plant/state"):
-        for s in range(min(n, max_states)):
-            series = [_series(f"/plant/state.state[{s}]", f"x[{s}] (true)", _TRUTH,
-                              size=2.5)]
-            series += [_series(f"/agents/estimate.estimate[{i * n + s}]", f"agent {i}",
-                               colour(i), size=1.0) for i in agents]
-            state += panels(f"State x[{s}] against the agents' estimates", series)
-    if state:
-        tabs.append(("State", state))
+    tabs = _error_and_state_tabs(
+        panels, colour, source.agents("estimate"),
+        error_path=lambda i: f"/agents/estimate.error_norm[{i}]",
+        state_path=lambda s: f"/plant/state.state[{s}]",
+        estimate_path=lambda i, s: f"/agents/estimate.estimate[{i * n + s}]",
+        states=min(n, max_states) if source.has_messages("/plant/state") else 0)
 
     every_link = sorted(set(source.step_links) | set(source.step_updates))
     link_colour = {link: colour(q) for q, link in enumerate(every_link)}

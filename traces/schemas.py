@@ -82,6 +82,7 @@ __all__ = [
     "field_layout",
     "pinned_file_descriptor",
     "classes_of",
+    "descriptor_set_of",
     "file_descriptor_proto",
     "file_descriptor_set",
     "message_class",
@@ -288,11 +289,18 @@ def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
     return pinned_file_descriptor(PROTO_FILE, PACKAGE, MESSAGES)
 
 
-def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
-    """Return the ``FileDescriptorSet`` written as MCAP schema data (one file, no deps)."""
+def descriptor_set_of(fd: descriptor_pb2.FileDescriptorProto
+                      ) -> descriptor_pb2.FileDescriptorSet:
+    """Return ``fd`` as the ``FileDescriptorSet`` written as MCAP schema data (one file,
+    no dependencies)."""
     fds = descriptor_pb2.FileDescriptorSet()
-    fds.file.append(file_descriptor_proto())
+    fds.file.append(fd)
     return fds
+
+
+def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
+    """Return the format-2 ``FileDescriptorSet`` written as MCAP schema data."""
+    return descriptor_set_of(file_descriptor_proto())
 
 
 @cache

@@ -60,7 +60,7 @@ from pathlib import Path
 from typing import Any
 
 from google.protobuf import descriptor_pb2
-from netsim.traces.schemas import Field, classes_of, pinned_file_descriptor
+from netsim.traces.schemas import Field, classes_of, descriptor_set_of, pinned_file_descriptor
 
 __all__ = [
     "FORMAT",
@@ -167,9 +167,7 @@ def file_descriptor_proto() -> descriptor_pb2.FileDescriptorProto:
 
 def file_descriptor_set() -> descriptor_pb2.FileDescriptorSet:
     """Return the ``FileDescriptorSet`` written as each format-3 schema's data."""
-    fds = descriptor_pb2.FileDescriptorSet()
-    fds.file.append(file_descriptor_proto())
-    return fds
+    return descriptor_set_of(file_descriptor_proto())
 
 
 @cache

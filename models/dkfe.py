@@ -147,6 +147,7 @@ __all__ = [
     "chain_patterns",
     "lemma7_f",
     "second_moment_radius",
+    "second_moment_parts",
     "condition_77",
     "condition_74",
     "condition_76",
@@ -627,6 +628,35 @@ def second_moment_radius(
     return float(np.max(np.abs(np.linalg.eigvals(M))))
 
 
+def second_moment_parts(
+    A: np.ndarray, Phi: np.ndarray, selection: SelectionScheme, d: int
+) -> dict[str, float]:
+    """Where :func:`second_moment_radius` comes from.
+
+    A_i(t) (66) is block upper triangular, so E{A_i kron A_i} has the eigenvalues of its
+    diagonal blocks: the selection chain's E{S kron S} with S = A^d (I - H(t)) A (the
+    part the random selection governs), the local Kalman filter's Phi_K^(d+1) kron
+    Phi_K^(d+1) (radius rho(Phi_K)^(2(d+1))), and the cross blocks E{S} kron
+    Phi_K^(d+1). Returns the three radii and ``radius``, their maximum (equal to
+    :func:`second_moment_radius`), and ``set_by``: which part attains it.
+    """
+    n = A.shape[0]
+    Ad = np.linalg.matrix_power(A, d)
+    S = [Ad @ (np.eye(n) - np.diag(row)) @ A for row in selection.patterns]
+    probs = selection.probabilities
+    ES2 = sum(p * np.kron(M, M) for p, M in zip(probs, S, strict=True))
+    ES = sum(p * M for p, M in zip(probs, S, strict=True))
+    rho_phi = float(np.max(np.abs(np.linalg.eigvals(Phi))))
+    parts = {"selection_chain": float(np.max(np.abs(np.linalg.eigvals(ES2)))),
+             "local_filter": rho_phi ** (2 * (d + 1)),
+             "cross": float(np.max(np.abs(np.linalg.eigvals(ES)))) * rho_phi ** (d + 1)}
+    top = max(parts, key=lambda k: parts[k])
+    return {**parts, "radius": parts[top],
+            "set_by": {"selection_chain": "the selection chain E{S kron S}",
+                       "local_filter": "the local Kalman filter rho(Phi_K)^(2(d+1))",
+                       "cross": "the cross term rho(E{S}) rho(Phi_K)^(d+1)"}[top]}
+
+
 def condition_77(A: np.ndarray, selection: SelectionScheme, d: int) -> float:
     """rho(A^d (I - H_i) A) of eq. (77) (the condition is that it is < 1)."""
     n = A.shape[0]
@@ -820,6 +850,7 @@ def sink_conditions(setup: DkfeSetup, lmis: bool = True) -> list[dict[str, Any]]
             "c74": condition_74(A, ss.Phi, sel, d),
             "c76_lambda_max": condition_76(A, sel) if d == 0 else None,
             "second_moment_radius": second_moment_radius(A, ss.Phi, sel, d),
+            "second_moment_parts": second_moment_parts(A, ss.Phi, sel, d),
             "rho_phi_k": float(np.max(np.abs(np.linalg.eigvals(ss.Phi)))),
         }
         if lmis:

@@ -79,6 +79,13 @@ __all__ = [
 ESTIMATOR_NAMES = ("local", "cse", "dkfe", "sdkfe", "odkfe", "centralized-kf")
 
 
+
+def _radius_parts(c: dict[str, Any]) -> str:
+    """What sets a sink's mean-square radius (:func:`netsim.models.dkfe.second_moment_parts`)."""
+    p = c["second_moment_parts"]
+    return (f"{p['set_by']} (selection chain {_f(p['selection_chain'])}, local filter "
+            f"{_f(p['local_filter'])})")
+
 def _no_measurement(ys: Sequence[np.ndarray]) -> None:
     return None
 
@@ -275,8 +282,9 @@ class FusionRunResult:
             lines.append(
                 f"  sink {c['sink']} (d = {c['delay']}): (58) {_f(c['c58']['holds'])}; "
                 f"(77) rho = {_f(c['c77_rho'])}; (74) zeta_inf = {_f(c['c74']['zeta_inf'])}, "
-                f"zeta_2 = {_f(c['c74']['zeta_2'])}; exact MS radius = "
-                f"{_f(c['second_moment_radius'])}"
+                f"zeta_2 = {_f(c['c74']['zeta_2'])}; exact MS radius of the error chain "
+                f"(65) = {_f(c['second_moment_radius'])}"
+                + (" = " + _radius_parts(c) if "second_moment_parts" in c else "")
                 + (f"; LMI (71)-(72) {'feasible' if c['lmi71_72']['feasible'] else 'infeasible'}"
                    if "lmi71_72" in c else "")
             )
@@ -686,8 +694,9 @@ def example2(json: bool = False) -> tuple[dict[str, Any], str]:
         lines.append(
             f"  sink {i + 1}: (71)-(72) {'feasible' if c['lmi71_72']['feasible'] else 'infeasible'}"
             f" ({c['lmi71_72']['status']}), (75) "
-            f"{'feasible' if c['lmi75']['feasible'] else 'infeasible'}, radius "
-            f"{_f(c['second_moment_radius'])}; (58) {_f(c['c58']['holds'])}")
+            f"{'feasible' if c['lmi75']['feasible'] else 'infeasible'}, mean-square radius "
+            f"of the centre's error chain (65) {_f(c['second_moment_radius'])} = "
+            + _radius_parts(c) + f"; (58) {_f(c['c58']['holds'])}")
     lines.append("Phi_K (88): largest difference to the printed matrices "
                  + ", ".join(_f(v) for v in data["Phi_K_minus_paper_eq88_max_abs"]))
     return data, "\n".join(lines) + "\n"

@@ -1,26 +1,69 @@
 """The claim registry's data types: a paper statement, its check and the check's outcome.
 
 Every checkable statement of the four papers is one :class:`Claim`; its ``check`` gets a
-:class:`Context` (seed, time budget, output folder, cached instances) and returns an
-:class:`Outcome`: ``holds``, ``fails`` (with the deciding numbers and a counterexample)
-or ``not checkable`` (with the reason). A theorem with a counterexample ``fails``.
+:class:`Context` (seed, instance counts, optional time budget, output folder, cached
+instances) and returns an :class:`Outcome` in the one verdict vocabulary of
+:data:`netsim.verdicts.VERDICT_TABLE`:
+
+- ``refuted``: a counterexample, verified by exact analysis and by simulation (for a
+  printed number: the exact recomputation of the paper's own instance);
+- ``proved for this instance``: an exact computation on a fixed instance;
+- ``no counterexample``: printed ``no counterexample in M instances of <family> (seed
+  s)``: a search counted in instances drawn from a seed found none;
+- ``undecided``: with the reason (a search cut short by its time budget, a number of the
+  paper's unprinted system, a counterexample the simulation did not confirm, ...).
+
+An instance where a claim's hypotheses fail is never evidence for it. No verdict depends on
+wall-clock time: searches are counted, and a budget (off by default) can only cut one short,
+which makes its verdict ``undecided`` unless a counterexample was already found.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["HOLDS", "FAILS", "NOT_CHECKABLE", "VERDICTS", "Claim", "Context", "Outcome"]
+__all__ = ["REFUTED", "PROVED", "NO_COUNTEREXAMPLE", "UNDECIDED", "VERDICTS", "Claim",
+           "Context", "Outcome", "Evidence"]
 
-HOLDS = "holds"
-FAILS = "fails"
-NOT_CHECKABLE = "not checkable"
-#: The three verdicts of a check.
-VERDICTS = (HOLDS, FAILS, NOT_CHECKABLE)
+REFUTED = "refuted"
+PROVED = "proved for this instance"
+NO_COUNTEREXAMPLE = "no counterexample"
+UNDECIDED = "undecided"
+#: The four verdicts of a check (:data:`netsim.verdicts.VERDICT_TABLE`).
+VERDICTS = (REFUTED, PROVED, NO_COUNTEREXAMPLE, UNDECIDED)
+
+
+@dataclass(frozen=True)
+class Evidence:
+    """What a ``no counterexample`` verdict rests on: a counted, seeded search.
+
+    Attributes
+    ----------
+    instances : int
+        Instances searched that satisfy the claim's hypotheses (and optimiser
+        evaluations, counted the same way).
+    family : str
+        The instance families searched, in words.
+    seed : int
+        The seed they were drawn from.
+    """
+
+    instances: int
+    family: str
+    seed: int
+
+    def words(self) -> str:
+        """``M instances of <family> (seed s)``."""
+        return f"{self.instances} instances of {self.family} (seed {self.seed})"
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-safe form."""
+        return {"instances": self.instances, "family": self.family, "seed": self.seed}
 
 
 @dataclass
@@ -36,14 +79,16 @@ class Outcome:
     numbers : dict
         The deciding numbers by name (JSON-safe).
     counterexample : dict or None
-        For ``fails``: the instance that contradicts the statement (and, when written,
-        ``scenario``: the path of a scenario file reproducing it).
+        For ``refuted``: the instance that contradicts the statement, with its two
+        verifications (and, when written, ``scenario``: the path of a scenario file
+        reproducing it).
     reason : str or None
-        For ``not checkable``: why.
+        For ``undecided``: why.
     headline : str or None
-        The deciding numbers without what depends on the machine's speed (how many
-        instances a search tried in its budget, seconds); None: ``summary`` has none.
-        The README's findings are made of headlines.
+        The deciding numbers without seconds; None: ``summary`` has none. The README's
+        findings are made of headlines.
+    evidence : Evidence or None
+        For ``no counterexample``: the counted search it rests on (required).
     """
 
     verdict: str
@@ -52,16 +97,32 @@ class Outcome:
     counterexample: dict[str, Any] | None = None
     reason: str | None = None
     headline: str | None = None
+    evidence: Evidence | None = None
 
     def __post_init__(self) -> None:
         if self.verdict not in VERDICTS:
             raise ValueError(f"verdict must be one of {VERDICTS}, got {self.verdict!r}")
+        if self.verdict == NO_COUNTEREXAMPLE and self.evidence is None:
+            raise ValueError("a 'no counterexample' verdict needs its Evidence")
+        if self.verdict == UNDECIDED and not self.reason:
+            raise ValueError("an 'undecided' verdict needs its reason")
+
+    @property
+    def label(self) -> str:
+        """The verdict as printed: ``no counterexample in M instances of <family> (seed
+        s)``, ``undecided: <reason>``, ``refuted``, ``proved for this instance``."""
+        if self.verdict == NO_COUNTEREXAMPLE and self.evidence is not None:
+            return f"no counterexample in {self.evidence.words()}"
+        if self.verdict == UNDECIDED and self.reason:
+            return f"undecided: {self.reason}"
+        return self.verdict
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form."""
-        return {"verdict": self.verdict, "summary": self.summary, "numbers": self.numbers,
-                "counterexample": self.counterexample, "reason": self.reason,
-                "headline": self.headline or self.summary}
+        return {"verdict": self.verdict, "label": self.label, "summary": self.summary,
+                "numbers": self.numbers, "counterexample": self.counterexample,
+                "reason": self.reason, "headline": self.headline or self.summary,
+                "evidence": None if self.evidence is None else self.evidence.to_dict()}
 
 
 @dataclass
@@ -72,8 +133,14 @@ class Context:
     ----------
     seed : int
         Seed of every random search.
-    budget : float
-        Seconds a counterexample search may spend (per search).
+    budget : float or None
+        Seconds a counterexample search may spend (per search) before it is cut short
+        (its verdict then ``undecided``); None (the default): no time limit, the search
+        runs its counted instances.
+    instances : int or None
+        Random instances each search draws (None: each search's default,
+        :data:`netsim.claims.search.DEFAULT_INSTANCES`); the hard families and the
+        optimiser scale with it.
     out : pathlib.Path or None
         Folder for counterexample scenarios (None: nothing is written).
     cache : dict
@@ -81,7 +148,8 @@ class Context:
     """
 
     seed: int = 0
-    budget: float = 20.0
+    budget: float | None = None
+    instances: int | None = None
     out: Path | None = None
     cache: dict[str, Any] = field(default_factory=dict)
 
@@ -92,8 +160,8 @@ class Context:
         return self.cache[key]
 
     def deadline(self) -> float:
-        """``time.monotonic()`` at which a search started now must stop."""
-        return time.monotonic() + self.budget
+        """``time.monotonic()`` at which a search started now must stop (inf: none)."""
+        return math.inf if self.budget is None else time.monotonic() + self.budget
 
 
 @dataclass(frozen=True)
@@ -142,7 +210,7 @@ class Claim:
     def run(self, context: Context) -> Outcome:
         """Run the standalone check (``not checkable`` if there is none)."""
         if self.check is None:
-            return Outcome(NOT_CHECKABLE, "no standalone check",
+            return Outcome(UNDECIDED, "no standalone check",
                            reason="only checked on a bench report")
         return self.check(context)
 

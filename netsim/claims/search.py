@@ -1,4 +1,10 @@
-"""Seeded counterexample search for LCSYS2022 Theorem 1 over scalar plants.
+"""Counted, seeded counterexample searches; the LCSYS2022 Theorem 1 search over scalar plants.
+
+The engine (:func:`counted_search`) searches instance families counted in instances drawn
+from a seed, then an optimiser over the claim's hypothesis set (:class:`Attack`,
+scipy.optimize Nelder-Mead from seeded starts, counted in evaluations), and shrinks the
+first hit with a counted number of judge calls. The same seed gives the same result on
+any machine at any load; a time budget can only cut a search short (``cut_short``).
 
 Theorem 1's hypotheses, in the papers' own setting: a row-stochastic ``P`` on a
 strongly connected, self-looped graph (Lemma 1; self-loops undelayed), a plant
@@ -16,16 +22,20 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from netsim.claims.core import Evidence
 from netsim.models.augmented import augmented_spectral_radius, spectral_radius, tau_star
 
-__all__ = ["ScalarInstance", "SearchResult", "Found", "random_search", "shrink",
-           "search_theorem1", "scenario_toml", "write_scenario", "MARGIN", "TAU_MAX"]
+__all__ = ["ScalarInstance", "Found", "Phase", "Attack", "counted_search", "random_search",
+           "shrink", "search_theorem1", "theorem1_score", "encode_scalar", "decode_scalar",
+           "scenario_toml", "write_scenario", "MARGIN", "TAU_MAX", "DEFAULT_INSTANCES",
+           "MAX_DRAWS_PER_INSTANCE", "SHRINK_EVALUATIONS", "RANDOM_FAMILY", "HARD_FAMILY",
+           "OPTIMISER_FAMILY"]
 
 #: A counterexample must have exact rho >= 1 + MARGIN (so that a run visibly diverges
 #: and round-off cannot flip the verdict).
@@ -127,48 +137,6 @@ class ScalarInstance:
                 "k": list(self.k)}
 
 
-@dataclass
-class SearchResult:
-    """What :func:`search_theorem1` found.
-
-    Attributes
-    ----------
-    tried : int
-        Instances satisfying the hypotheses with ``tau* >= 1``.
-    hits : int
-        Among them, those with a ``tau <= tau*`` of exact rho ``>= 1 + MARGIN``.
-    elapsed : float
-        Seconds spent (search and shrinking).
-    instance : ScalarInstance or None
-        The shrunk counterexample.
-    tau, tau_star : int or None
-        Its delay and Theorem 1's tau*.
-    exact_rho, rho_delay_free, bound_eq26 : float or None
-        Its exact augmented rho at ``tau``, ``rho(A-hat)`` and the eq. (26) value at tau.
-    first : dict or None
-        The first hit before shrinking.
-    """
-
-    tried: int
-    hits: int
-    elapsed: float
-    instance: ScalarInstance | None = None
-    tau: int | None = None
-    tau_star: int | None = None
-    exact_rho: float | None = None
-    rho_delay_free: float | None = None
-    bound_eq26: float | None = None
-    first: dict[str, Any] | None = None
-
-    def to_dict(self) -> dict[str, Any]:
-        """JSON-safe form."""
-        return {"tried": self.tried, "hits": self.hits, "elapsed_s": round(self.elapsed, 3),
-                "instance": None if self.instance is None else self.instance.to_dict(),
-                "tau": self.tau, "tau_star": self.tau_star, "exact_rho": self.exact_rho,
-                "rho_delay_free": self.rho_delay_free, "bound_eq26": self.bound_eq26,
-                "first": self.first}
-
-
 def _random_instance(rng: np.random.Generator, a_max: float = 2.0,
                      k_range: tuple[float, float] = (-1.0, 2.0),
                      a_edge: float = 0.0) -> ScalarInstance:
@@ -231,20 +199,87 @@ def _simpler(inst: ScalarInstance) -> list[ScalarInstance]:
     return out
 
 
+#: Random instances a search draws by default (``netsim claims --instances``).
+DEFAULT_INSTANCES = 400
+#: Draws a family may spend per counted instance before the search says that the family
+#: rarely meets the hypotheses (the search is then ``exhausted``, not complete).
+MAX_DRAWS_PER_INSTANCE = 50
+#: Judge evaluations the shrinking of a hit may spend.
+SHRINK_EVALUATIONS = 300
+
+
+class _CutShort(Exception):
+    """The search's time budget ran out (raised inside the optimiser's objective)."""
+
+
+@dataclass(frozen=True)
+class Phase:
+    """One instance family of a counted search.
+
+    Attributes
+    ----------
+    family : str
+        The family in words (it names the evidence: "no counterexample in M instances
+        of <family>").
+    count : int
+        Instances satisfying the hypotheses to draw.
+    draw : callable(numpy.random.Generator) -> instance or None
+        One random instance (None: the draw did not satisfy the hypotheses; not counted).
+    """
+
+    family: str
+    count: int
+    draw: Callable[[np.random.Generator], Any | None]
+
+
+@dataclass(frozen=True)
+class Attack:
+    """Optimisation over a claim's hypothesis set (scipy.optimize, Nelder-Mead).
+
+    From ``starts`` seeded start instances, maximise ``score`` (exact spectral radius
+    minus one, or minus the claimed bound; > 0: a counterexample) over the continuous
+    parameters of the instance, ``evaluations`` objective evaluations per start. Every
+    evaluation whose instance satisfies the hypotheses counts as one instance searched.
+
+    Attributes
+    ----------
+    family : str
+        In words.
+    starts, evaluations : int
+    start : callable(numpy.random.Generator) -> instance or None
+        A start instance (None: draw again).
+    encode : callable(instance) -> numpy.ndarray
+        Its free parameters.
+    decode : callable(instance, numpy.ndarray) -> instance or None
+        The instance of the start's structure with these parameters (None: none).
+    score : callable(instance) -> float
+        ``-inf`` where the hypotheses fail; > 0 exactly for a counterexample.
+    """
+
+    family: str
+    starts: int
+    evaluations: int
+    start: Callable[[np.random.Generator], Any | None]
+    encode: Callable[[Any], np.ndarray]
+    decode: Callable[[Any, np.ndarray], Any | None]
+    score: Callable[[Any], float]
+
+
 @dataclass
 class Found:
-    """What :func:`random_search` found (any claim).
+    """What a counted search (:func:`counted_search`) found, for any claim.
 
     Attributes
     ----------
     claim : str
         The claim searched.
     tried : int
-        Instances drawn that satisfy the claim's hypotheses.
+        Instances searched that satisfy the claim's hypotheses (optimiser evaluations
+        included).
     hits : int
         Among them, counterexamples.
     elapsed : float
-        Seconds spent (search and shrinking).
+        Seconds spent (reported, never deciding).
     instance : object or None
         The shrunk counterexample (None: none found).
     details : dict or None
@@ -253,6 +288,19 @@ class Found:
         The judge's numbers on the first hit before shrinking.
     confirmed : dict or None
         What the simulation of ``instance`` showed (filled in by the caller).
+    planned : int
+        Instances the search was to search (the families' counts plus the optimiser's
+        evaluations).
+    cut_short : bool
+        The time budget stopped the search before ``planned``.
+    exhausted : list of str
+        Families that rarely meet the hypotheses and gave up before their count.
+    families : list of dict
+        Per family: ``family``, ``planned``, ``tried``, ``hits``.
+    seed : int or None
+        The seed (entropy) the instances were drawn from.
+    violations : dict
+        Hits per violated statement, when the judge names them (``violated``).
     """
 
     claim: str
@@ -263,26 +311,66 @@ class Found:
     details: dict[str, Any] | None = None
     first: dict[str, Any] | None = None
     confirmed: dict[str, Any] | None = None
+    planned: int = 0
+    cut_short: bool = False
+    exhausted: list[str] = field(default_factory=list)
+    families: list[dict[str, Any]] = field(default_factory=list)
+    seed: int | None = None
+    violations: dict[str, int] = field(default_factory=dict)
+
+    @property
+    def complete(self) -> bool:
+        """Every family ran its count (the optimiser may converge before its evaluations
+        are spent): neither cut short by the budget nor exhausted."""
+        return not self.cut_short and not self.exhausted
+
+    @property
+    def family(self) -> str:
+        """The families searched, in words."""
+        return " + ".join(f["family"] for f in self.families) or "no family"
+
+    def evidence(self) -> Evidence:
+        """The search as the evidence of a ``no counterexample`` verdict."""
+        return Evidence(self.tried, self.family, int(self.seed or 0))
+
+    def incomplete_reason(self) -> str:
+        """Why the search is not complete, in words ("" when it is)."""
+        if self.cut_short:
+            return (f"search cut short by its time budget: {self.tried} of {self.planned} "
+                    "instances searched")
+        if self.exhausted:
+            return (f"{self.tried} of {self.planned} instances searched: "
+                    + ", ".join(self.exhausted) + " rarely meet the hypotheses")
+        return ""
+
+    def count_words(self) -> str:
+        """``h of M instances of <family> (seed s)``."""
+        return f"{self.hits} of {self.tried} instances of {self.family} (seed {self.seed})"
 
     def to_dict(self) -> dict[str, Any]:
-        """JSON-safe form."""
+        """JSON-safe form (no seconds: the same seed gives the same dict)."""
         inst = self.instance
         return {"claim": self.claim, "tried": self.tried, "hits": self.hits,
-                "elapsed_s": round(self.elapsed, 3),
+                "planned": self.planned, "cut_short": self.cut_short,
+                "exhausted": list(self.exhausted), "families": list(self.families),
+                "seed": self.seed, "violations": dict(self.violations),
                 "instance": inst.to_dict() if hasattr(inst, "to_dict") else inst,
                 "details": self.details, "first": self.first, "confirmed": self.confirmed}
 
 
 def shrink(instance: Any, judge: Callable[[Any], dict[str, Any] | None],
-           simpler: Callable[[Any], list[Any]], deadline: float) -> Any:
+           simpler: Callable[[Any], list[Any]],
+           max_evaluations: int = SHRINK_EVALUATIONS) -> Any:
     """Greedy shrinking: replace ``instance`` by its first simpler candidate that is still
-    a counterexample (``judge`` not None), until none is or ``deadline`` passes."""
-    improved = True
-    while improved and time.monotonic() < deadline:
+    a counterexample (``judge`` not None), until none is or ``max_evaluations`` judge
+    calls are spent (a count, so the result does not depend on the machine)."""
+    improved, spent = True, 0
+    while improved and spent < max_evaluations:
         improved = False
         for cand in simpler(instance):
-            if time.monotonic() >= deadline:
+            if spent >= max_evaluations:
                 break
+            spent += 1
             if judge(cand) is not None:
                 instance = cand
                 improved = True
@@ -290,69 +378,96 @@ def shrink(instance: Any, judge: Callable[[Any], dict[str, Any] | None],
     return instance
 
 
-def random_search(claim: str, draw: Callable[[np.random.Generator], Any | None],
-                  judge: Callable[[Any], dict[str, Any] | None],
-                  simpler: Callable[[Any], list[Any]] | None = None, *, seed: int = 0,
-                  budget: float = 10.0, max_instances: int = 400,
-                  stop_at_hit: bool = False,
-                  progress: Callable[[float], None] | None = None) -> Found:
-    """Seeded random search for a counterexample, then shrinking of the first hit.
+def _entropy(seed: Any) -> tuple[np.random.SeedSequence, int]:
+    ss = seed if isinstance(seed, np.random.SeedSequence) else np.random.SeedSequence(seed)
+    ent = ss.entropy if isinstance(ss.entropy, int) else 0
+    return ss, int(ent)
+
+
+def counted_search(claim: str, phases: list[Phase],
+                   judge: Callable[[Any], dict[str, Any] | None],
+                   simpler: Callable[[Any], list[Any]] | None = None, *,
+                   seed: Any = 0, attack: Attack | None = None,
+                   deadline: float = math.inf,
+                   progress: Callable[[float], None] | None = None) -> Found:
+    """Search for a counterexample over counted instances from a seed, then shrink the
+    first hit.
+
+    The families of ``phases`` are searched in order, each from its own stream
+    (``SeedSequence(seed).spawn``), then the optimiser ``attack``. The first hit (in that
+    order) is shrunk (:func:`shrink`, a counted number of judge calls). Nothing depends on
+    the clock except ``deadline``: past it the search stops (``cut_short``), which a
+    verdict must report as ``undecided`` unless a hit was found already.
 
     Parameters
     ----------
     claim : str
         The claim's id (recorded in the result).
-    draw : callable(numpy.random.Generator) -> instance or None
-        A random instance satisfying the claim's hypotheses (None: the draw did not,
-        and does not count).
+    phases : list of Phase
+        The instance families and their counts.
     judge : callable(instance) -> dict or None
         The deciding numbers if the instance contradicts the claim, else None.
     simpler : callable(instance) -> list, optional
-        Simpler candidates of an instance, simplest first (for :func:`shrink`).
-    seed : int
-        Seed of the generator (``numpy.random.default_rng(seed)``).
-    budget : float
-        Seconds for search and shrinking; a quarter (at least 1 s) is kept for
-        shrinking once there is a hit.
-    max_instances : int
-        Stop after this many instances satisfying the hypotheses.
-    stop_at_hit : bool
-        Stop drawing at the first hit.
+        Simpler candidates of an instance, simplest first.
+    seed : int or numpy.random.SeedSequence
+    attack : Attack, optional
+        The optimiser's attack on the hypothesis set.
+    deadline : float
+        ``time.monotonic()`` past which the search is cut short (default: never).
     progress : callable(float), optional
-        Called with the fraction of the budget used.
+        Called with the fraction of the planned instances searched.
 
     Returns
     -------
     Found
     """
     start = time.monotonic()
-    end = start + budget
-    rng = np.random.default_rng(seed)
-    tried = hits = 0
-    first: Any = None
-    first_details: dict[str, Any] | None = None
-    reserve = max(1.0, budget / 4)
-    while tried < max_instances and time.monotonic() < end - (0 if first is not None
-                                                              else reserve):
-        inst = draw(rng)
-        if inst is None:
-            continue
-        tried += 1
-        d = judge(inst)
+    ss, entropy = _entropy(seed)
+    streams = ss.spawn(len(phases) + 1)
+    planned = sum(p.count for p in phases) + (attack.starts * attack.evaluations
+                                              if attack is not None else 0)
+    found = Found(claim, 0, 0, 0.0, planned=planned, seed=entropy)
+    hit: list[Any] = []  # [instance, details] of the first hit
+
+    def record(inst: Any, d: dict[str, Any] | None, row: dict[str, Any]) -> None:
+        found.tried += 1
+        row["tried"] += 1
         if d is not None:
-            hits += 1
-            if first is None:
-                first, first_details = inst, d
-                if stop_at_hit:
-                    break
-        if progress is not None:
-            progress(min(1.0, (time.monotonic() - start) / budget))
-    found = Found(claim, tried, hits, 0.0)
-    if first is not None:
+            found.hits += 1
+            row["hits"] += 1
+            for v in d.get("violated", ()) or ():
+                found.violations[v] = found.violations.get(v, 0) + 1
+            if not hit:
+                hit.extend([inst, d])
+        if progress is not None and planned:
+            progress(min(1.0, found.tried / planned))
+
+    for phase, stream in zip(phases, streams, strict=False):
+        row = {"family": phase.family, "planned": phase.count, "tried": 0, "hits": 0}
+        found.families.append(row)
+        rng = np.random.default_rng(stream)
+        draws = 0
+        while row["tried"] < phase.count:
+            if time.monotonic() > deadline:
+                found.cut_short = True
+                break
+            if draws >= MAX_DRAWS_PER_INSTANCE * max(phase.count, 1):
+                found.exhausted.append(phase.family)
+                break
+            draws += 1
+            inst = phase.draw(rng)
+            if inst is None:
+                continue
+            record(inst, judge(inst), row)
+        if found.cut_short:
+            break
+    if attack is not None and not found.cut_short:
+        _run_attack(attack, streams[-1], judge, record, found, deadline)
+    if hit:
+        first, first_details = hit
         found.first = {**(first.to_dict() if hasattr(first, "to_dict") else {}),
                        **(first_details or {})}
-        small = first if simpler is None else shrink(first, judge, simpler,
-                                                     max(end, time.monotonic() + 1.0))
+        small = first if simpler is None else shrink(first, judge, simpler)
         found.instance, found.details = small, judge(small)
     found.elapsed = time.monotonic() - start
     if progress is not None:
@@ -360,13 +475,132 @@ def random_search(claim: str, draw: Callable[[np.random.Generator], Any | None],
     return found
 
 
+def _run_attack(attack: Attack, stream: np.random.SeedSequence,
+                judge: Callable[[Any], dict[str, Any] | None],
+                record: Callable[[Any, dict[str, Any] | None, dict[str, Any]], None],
+                found: Found, deadline: float) -> None:
+    """Nelder-Mead from ``attack.starts`` seeded starts, ``attack.evaluations`` each."""
+    from scipy.optimize import minimize
+
+    row = {"family": attack.family, "planned": attack.starts * attack.evaluations,
+           "tried": 0, "hits": 0}
+    found.families.append(row)
+    rng = np.random.default_rng(stream)
+    for _ in range(attack.starts):
+        template = None
+        for _draw in range(MAX_DRAWS_PER_INSTANCE):
+            template = attack.start(rng)
+            if template is not None:
+                break
+        if template is None:
+            found.exhausted.append(attack.family)
+            return
+        spent = [0]
+
+        def objective(v: np.ndarray, template: Any = template, spent: list[int] = spent
+                      ) -> float:
+            if time.monotonic() > deadline:
+                raise _CutShort
+            spent[0] += 1
+            inst = attack.decode(template, v)
+            value = -math.inf if inst is None else attack.score(inst)
+            if math.isfinite(value):
+                record(inst, judge(inst) if value > 0 else None, row)
+                return -value
+            return 1e6  # outside the hypotheses: a wall
+        x0 = attack.encode(template)
+        try:
+            minimize(objective, x0, method="Nelder-Mead",
+                     options={"maxfev": attack.evaluations, "xatol": 1e-9, "fatol": 1e-12,
+                              "initial_simplex": x0 + np.vstack(
+                                  [np.zeros(len(x0)), 0.3 * np.eye(len(x0))])})
+        except _CutShort:
+            found.cut_short = True
+            return
+
+
+def random_search(claim: str, draw: Callable[[np.random.Generator], Any | None],
+                  judge: Callable[[Any], dict[str, Any] | None],
+                  simpler: Callable[[Any], list[Any]] | None = None, *, seed: Any = 0,
+                  instances: int = DEFAULT_INSTANCES, family: str = "random instances",
+                  deadline: float = math.inf,
+                  progress: Callable[[float], None] | None = None) -> Found:
+    """:func:`counted_search` over one family: ``instances`` draws of ``draw``."""
+    return counted_search(claim, [Phase(family, instances, draw)], judge, simpler,
+                          seed=seed, deadline=deadline, progress=progress)
+
+
+# -- LCSYS2022 Theorem 1 ----------------------------------------------------------------
+
+#: The families of the scalar searches, in words.
+RANDOM_FAMILY = "random scalar plants, N 2..4, a ~ U(-2, 2)"
+HARD_FAMILY = "scalar N = 2, self-loops undelayed, a = +-1 or +-U(1, 2)"
+OPTIMISER_FAMILY = "Nelder-Mead on (a, K, P)"
+
+
+def _hard_instance(rng: np.random.Generator, a_max: float = 2.0,
+                   k_range: tuple[float, float] = (-1.0, 2.0)) -> ScalarInstance:
+    """A member of the family known to be hard: N = 2 with both links (self-loops
+    undelayed), one or two sensors, a = +-1 (half of the draws) or +-U(1, a_max)."""
+    w = rng.uniform(0.05, 0.95, 2)
+    P = np.array([[1 - w[0], w[0]], [w[1], 1 - w[1]]])
+    c = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]][int(rng.integers(3))])
+    k = np.where(c != 0, rng.uniform(k_range[0], k_range[1], 2), 0.0)
+    sign = float(rng.choice([-1.0, 1.0]))
+    a = sign * (1.0 if rng.random() < 0.5 or a_max <= 1 else float(rng.uniform(1.0, a_max)))
+    return ScalarInstance(a, tuple(map(tuple, P.tolist())), tuple(c.tolist()),
+                          tuple(k.tolist()))
+
+
+def _links(inst: ScalarInstance) -> list[tuple[int, int]]:
+    P = np.array(inst.P)
+    return [(i, j) for i in range(inst.N) for j in range(inst.N) if i != j and P[i, j] != 0]
+
+
+def encode_scalar(inst: ScalarInstance) -> np.ndarray:
+    """The free parameters of a scalar instance: ``a``, the gains of the sensing agents
+    and the log-ratio ``log(p_ij / p_ii)`` of each link."""
+    P = np.array(inst.P)
+    ks = [k for k, c in zip(inst.k, inst.c, strict=True) if c != 0]
+    ratios = [math.log(P[i, j] / P[i, i]) for i, j in _links(inst)]
+    return np.array([inst.a, *ks, *ratios], dtype=float)
+
+
+def decode_scalar(template: ScalarInstance, v: np.ndarray) -> ScalarInstance | None:
+    """The instance of ``template``'s graph and sensors with parameters ``v``
+    (:func:`encode_scalar`), rounded to 12 digits; None if not finite."""
+    if not np.all(np.isfinite(v)) or np.any(np.abs(v) > 50):
+        return None
+    N = template.N
+    sensing = [i for i in range(N) if template.c[i] != 0]
+    k = list(template.k)
+    for n, i in enumerate(sensing):
+        k[i] = float(v[1 + n])
+    W = np.eye(N)
+    for (i, j), r in zip(_links(template), v[1 + len(sensing):], strict=True):
+        W[i, j] = math.exp(float(r))
+    P = np.round(W / W.sum(axis=1, keepdims=True), 12)
+    P[np.diag_indices(N)] = 0.0
+    P[np.diag_indices(N)] = 1.0 - P.sum(axis=1)
+    return ScalarInstance(float(round(v[0], 12)), tuple(map(tuple, P.tolist())),
+                          template.c, tuple(round(x, 12) for x in k))
+
 
 def _theorem1_draw(rng: np.random.Generator) -> ScalarInstance | None:
     inst = _random_instance(rng)
+    return inst if _theorem1_ok(inst) else None
+
+
+def _theorem1_hard_draw(rng: np.random.Generator) -> ScalarInstance | None:
+    inst = _hard_instance(rng)
+    return inst if _theorem1_ok(inst) else None
+
+
+def _theorem1_ok(inst: ScalarInstance) -> bool:
     if inst.hypotheses() is not None:
-        return None
+        return False
     star = inst.tau_star()
-    return inst if star is not None and star >= 1 else None
+    return star is not None and star >= 1
 
 
 def _theorem1_judge(inst: ScalarInstance) -> dict[str, Any] | None:
@@ -374,43 +608,45 @@ def _theorem1_judge(inst: ScalarInstance) -> dict[str, Any] | None:
     return None if v is None else {"tau_star": v[0], "tau": v[1], "exact_rho": v[2]}
 
 
-def search_theorem1(seed: int = 0, budget: float = 10.0, max_instances: int = 400,
-                    progress: Callable[[float], None] | None = None) -> SearchResult:
-    """Random search (seeded) for a counterexample to LCSYS2022 Theorem 1.
+def theorem1_score(inst: ScalarInstance) -> float:
+    """``max over 1 <= tau <= tau*`` of exact rho minus (1 + MARGIN); ``-inf`` where the
+    hypotheses fail or ``tau* < 1`` (> 0 exactly for a counterexample)."""
+    if not _theorem1_ok(inst):
+        return -math.inf
+    star = inst.tau_star() or 0
+    return max(inst.exact_rho(t) for t in range(1, star + 1)) - (1.0 + MARGIN)
 
-    Uses :func:`random_search` over :func:`_random_instance` draws that satisfy the
-    hypotheses with ``tau* >= 1``, judged by :meth:`ScalarInstance.violation`.
 
-    Parameters
-    ----------
-    seed : int
-        Seed of the instance generator.
-    budget : float
-        Seconds for the whole search; a quarter of it (at least 1 s) is kept for
-        shrinking the first hit.
-    max_instances : int
-        Stop after this many instances satisfying the hypotheses (with ``tau* >= 1``).
-    progress : callable(float), optional
-        Called with the fraction of the budget used.
+def search_theorem1(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
+                    deadline: float = math.inf,
+                    progress: Callable[[float], None] | None = None) -> Found:
+    """Counted search for a counterexample to LCSYS2022 Theorem 1.
+
+    Three families, each counted from the seed: ``instances`` random scalar instances
+    (:func:`_random_instance`), ``instances // 2`` of the hard family
+    (:func:`_hard_instance`), and the optimiser (:class:`Attack`: 8 starts from the hard
+    family, ``instances // 8`` evaluations each) maximising :func:`theorem1_score`. Every
+    instance satisfies the hypotheses with ``tau* >= 1``; a hit is judged by
+    :meth:`ScalarInstance.violation` and shrunk. The details of the shrunk hit add its
+    ``rho_delay_free`` and the eq. (26) value ``bound_eq26`` at its tau.
 
     Returns
     -------
-    SearchResult
+    Found
     """
-    found = random_search("L-theorem1", _theorem1_draw, _theorem1_judge, _simpler,
-                          seed=seed, budget=budget, max_instances=max_instances,
-                          progress=progress)
-    result = SearchResult(tried=found.tried, hits=found.hits, elapsed=found.elapsed)
-    if found.instance is not None:
+    phases = [Phase(RANDOM_FAMILY, instances, _theorem1_draw),
+              Phase(HARD_FAMILY, max(1, instances // 2), _theorem1_hard_draw)]
+    attack = Attack(OPTIMISER_FAMILY, 8, max(1, instances // 8), _theorem1_hard_draw,
+                    encode_scalar, decode_scalar, theorem1_score)
+    found = counted_search("L-theorem1", phases, _theorem1_judge, _simpler, seed=seed,
+                           attack=attack, deadline=deadline, progress=progress)
+    if found.instance is not None and found.details is not None:
         from netsim.models.augmented import delay_bound_lcsys
 
-        shrunk, d = found.instance, found.details or {}
-        result.first = found.first
-        result.instance, result.tau, result.tau_star = shrunk, d["tau"], d["tau_star"]
-        result.exact_rho = d["exact_rho"]
-        result.rho_delay_free = shrunk.rho_delay_free()
-        result.bound_eq26 = float(delay_bound_lcsys(*shrunk.matrices(), d["tau"]))
-    return result
+        x, d = found.instance, found.details
+        d["rho_delay_free"] = x.rho_delay_free()
+        d["bound_eq26"] = float(delay_bound_lcsys(*x.matrices(), d["tau"]))
+    return found
 
 
 def _toml_list(v: Any) -> str:

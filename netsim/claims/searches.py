@@ -1,10 +1,13 @@
 """Counterexample searches for the claims stated over a class of systems.
 
-Each search draws seeded random instances that satisfy a claim's hypotheses, judges
-them by the exact analytics (spectral radii of the augmented closed loops, the exact
-second-moment radius of the dkfe error chain, the noise-free aoi run, which is exact),
-shrinks the first hit with :func:`netsim.claims.search.shrink` and confirms it by
-simulation. The engine is :func:`netsim.claims.search.random_search`; :data:`SEARCHES`
+Each search draws a counted number of seeded random instances that satisfy a claim's
+hypotheses (draws outside them are not counted), for the scalar stability claims also a
+family known to be hard (N = 2, self-loops undelayed, a = +-1) and an optimiser over the
+hypothesis set; it judges them by the exact analytics (spectral radii of the augmented
+closed loops, the exact second-moment radius of the dkfe error chain, the noise-free aoi
+run, which is exact), shrinks the first hit with :func:`netsim.claims.search.shrink` and
+the checks verify it by simulation (:func:`verify_counterexample`). The engine is
+:func:`netsim.claims.search.counted_search`; :data:`SEARCHES`
 names the search of each claim, and :func:`run_search` runs one by name (a top-level
 function, so that ``netsim claims`` can run the searches in worker processes).
 
@@ -33,7 +36,9 @@ Searches (claim: hypotheses drawn; counterexample):
 
 from __future__ import annotations
 
+import functools
 import math
+import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,11 +47,21 @@ from typing import Any
 import numpy as np
 
 from netsim.claims.search import (
+    DEFAULT_INSTANCES,
+    HARD_FAMILY,
     MARGIN,
+    OPTIMISER_FAMILY,
+    RANDOM_FAMILY,
+    Attack,
     Found,
+    Phase,
     ScalarInstance,
+    _hard_instance,
     _random_instance,
     _simpler,
+    counted_search,
+    decode_scalar,
+    encode_scalar,
     random_search,
     search_theorem1,
 )
@@ -60,7 +75,8 @@ __all__ = ["DelayedInstance", "AoiInstance", "DkfeInstance", "aoi_numbers", "dkf
            "SEARCHES", "run_search", "simulate_error_growth",
            "search_eq26", "search_lemma5", "search_tolerant_theorem1", "search_aoi",
            "search_dkfe", "delayed_scenario_toml", "write_delayed_scenario", "confirm_run",
-           "BOUND_SLACK"]
+           "verify_counterexample", "BOUND_SLACK", "T1_RANDOM_FAMILY", "T1_HARD_FAMILY",
+           "AOI_FAMILY", "DKFE_FAMILY", "SLOW_SEARCH_SHARE"]
 
 #: An exact rho counts as above a bound only if it exceeds it by at least this much
 #: (so that a simulation shows the difference plainly).
@@ -171,10 +187,59 @@ def _eq26_judge(x: DelayedInstance) -> dict[str, Any] | None:
             "exact_rho": exact, "bound": bound, "rho_delay_free": x.inst.rho_delay_free()}
 
 
-def search_eq26(seed: Any = 0, budget: float = 10.0) -> Found:
-    """Search LCSYS2022 eq. (26) / Lemma 5 (compensated loop) for an exact rho above it."""
-    return random_search("L-eq26-bound", _eq26_draw, _eq26_judge, _simpler_delayed,
-                         seed=seed, budget=budget)
+def _eq26_hard_draw(rng: np.random.Generator) -> DelayedInstance | None:
+    inst = _hard_instance(rng)
+    if inst.hypotheses() is not None:
+        return None
+    star = inst.tau_star()
+    if star is None or star < 1:
+        return None
+    return _draw_delays(rng, inst, int(rng.integers(1, min(star, SEARCH_TAU) + 1)))
+
+
+def _bound_score(x: DelayedInstance, compensated: bool) -> float:
+    """Exact rho minus the claimed bound minus BOUND_SLACK (-inf outside the hypotheses)."""
+    if x.tau < 1 or x.inst.hypotheses() is not None:
+        return -math.inf
+    if compensated:
+        star = x.inst.tau_star()
+        if star is None or x.tau > star:
+            return -math.inf
+        bound = float(delay_bound_lcsys(*x.inst.matrices(), x.tau))
+    else:
+        bound = float(delay_bound_tolerant(*x.inst.matrices(), x.tau))
+    return x.exact(compensated) - bound - BOUND_SLACK
+
+
+def _delayed_attack(family: str, starts: int, evaluations: int,
+                    start: Callable[[np.random.Generator], DelayedInstance | None],
+                    score: Callable[[DelayedInstance], float]) -> Attack:
+    """An :class:`Attack` on the scalar parameters of a delayed instance (delays fixed)."""
+    def decode(t: DelayedInstance, v: np.ndarray) -> DelayedInstance | None:
+        inst = decode_scalar(t.inst, v)
+        return None if inst is None else DelayedInstance(inst, t.delays)
+    return Attack(family, starts, evaluations, start, lambda x: encode_scalar(x.inst),
+                  decode, score)
+
+
+def _scalar_phases(instances: int, draw: Callable[[np.random.Generator], Any | None],
+                   hard: Callable[[np.random.Generator], Any | None],
+                   random_family: str = RANDOM_FAMILY,
+                   hard_family: str = HARD_FAMILY) -> list[Phase]:
+    return [Phase(random_family, instances, draw),
+            Phase(hard_family, max(1, instances // 2), hard)]
+
+
+def search_eq26(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
+                deadline: float = math.inf) -> Found:
+    """Search LCSYS2022 eq. (26) / Lemma 5 (compensated loop) for an exact rho above it:
+    random and hard scalar families, then the optimiser (counted, seeded)."""
+    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), _eq26_hard_draw,
+                             lambda x: _bound_score(x, True))
+    return counted_search("L-eq26-bound",
+                          _scalar_phases(instances, _eq26_draw, _eq26_hard_draw),
+                          _eq26_judge, _simpler_delayed, seed=seed, attack=attack,
+                          deadline=deadline)
 
 
 # -- delay-tolerant Lemma 5 and Theorem 1 ---------------------------------------------
@@ -199,10 +264,24 @@ def _lemma5_judge(x: DelayedInstance) -> dict[str, Any] | None:
             "rho_delay_free": x.inst.rho_delay_free()}
 
 
-def search_lemma5(seed: Any = 0, budget: float = 10.0) -> Found:
-    """Search the delay-tolerant Lemma 5 bound rho(A-hat)^(1/(tau+1)) (eq. 11 matrix)."""
-    return random_search("T-lemma5-bound", _tolerant_draw, _lemma5_judge, _simpler_delayed,
-                         seed=seed, budget=budget)
+def _tolerant_hard_draw(rng: np.random.Generator, a_max: float = 2.0, **kw: Any
+                        ) -> DelayedInstance | None:
+    inst = _hard_instance(rng, a_max=a_max, **kw)
+    if inst.hypotheses() is not None:
+        return None
+    return _draw_delays(rng, inst, int(rng.integers(1, SEARCH_TAU + 1)))
+
+
+def search_lemma5(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
+                  deadline: float = math.inf) -> Found:
+    """Search the delay-tolerant Lemma 5 bound rho(A-hat)^(1/(tau+1)) (eq. 11 matrix):
+    random and hard scalar families, then the optimiser (counted, seeded)."""
+    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), _tolerant_hard_draw,
+                             lambda x: _bound_score(x, False))
+    return counted_search("T-lemma5-bound",
+                          _scalar_phases(instances, _tolerant_draw, _tolerant_hard_draw),
+                          _lemma5_judge, _simpler_delayed, seed=seed, attack=attack,
+                          deadline=deadline)
 
 
 def _t1_draw(rng: np.random.Generator) -> DelayedInstance | None:
@@ -223,10 +302,34 @@ def _t1_judge(x: DelayedInstance) -> dict[str, Any] | None:
             "rho_delay_free": x.inst.rho_delay_free()}
 
 
-def search_tolerant_theorem1(seed: Any = 0, budget: float = 10.0) -> Found:
-    """Search the delay-tolerant Theorem 1 (|a| <= 1): eq. (11) exact rho >= 1 + MARGIN."""
-    return random_search("T-theorem1", _t1_draw, _t1_judge, _simpler_delayed,
-                         seed=seed, budget=budget, max_instances=100_000)
+def _t1_hard_draw(rng: np.random.Generator) -> DelayedInstance | None:
+    return _tolerant_hard_draw(rng, a_max=1.0, k_range=(-2.0, 4.0))
+
+
+def _t1_score(x: DelayedInstance) -> float:
+    if x.tau < 1 or abs(x.inst.a) > 1 or x.inst.hypotheses() is not None:
+        return -math.inf
+    if not x.inst.rho_delay_free() <= 1.0 - MARGIN:
+        return -math.inf
+    return x.exact(False) - (1.0 + MARGIN)
+
+
+#: The families of the delay-tolerant Theorem 1 search, in words.
+T1_RANDOM_FAMILY = "random scalar plants, N 2..4, |a| <= 1 (half a = +-1)"
+T1_HARD_FAMILY = "scalar N = 2, self-loops undelayed, a = +-1"
+
+
+def search_tolerant_theorem1(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
+                             deadline: float = math.inf) -> Found:
+    """Search the delay-tolerant Theorem 1 (|a| <= 1): eq. (11) exact rho >= 1 + MARGIN
+    (random and hard scalar families, then the optimiser; counted, seeded)."""
+    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), _t1_hard_draw,
+                             _t1_score)
+    return counted_search("T-theorem1",
+                          _scalar_phases(instances, _t1_draw, _t1_hard_draw,
+                                         T1_RANDOM_FAMILY, T1_HARD_FAMILY),
+                          _t1_judge, _simpler_delayed, seed=seed, attack=attack,
+                          deadline=deadline)
 
 
 def simulate_error_growth(x: DelayedInstance, compensated: bool, steps: int = 600,
@@ -298,17 +401,26 @@ def aoi_numbers(x: AoiInstance) -> dict[str, Any]:
             "lemma_5": b["lemma_5_freshness_max"], "assumption_1": b["assumption_1"]}
 
 
+@functools.lru_cache(maxsize=16)
+def _aoi_numbers_or_none(x: AoiInstance) -> dict[str, Any] | None:
+    try:
+        return aoi_numbers(x)
+    except Exception:  # noqa: BLE001 - a draw the generator cannot build is skipped
+        return None
+
+
 def _aoi_draw(rng: np.random.Generator) -> AoiInstance | None:
-    return AoiInstance(int(rng.integers(2, 7)), int(rng.integers(2, 6)),
-                       int(rng.integers(1, 4)), int(rng.integers(0, 2 ** 31)))
+    """A random instance whose run exists and satisfies Assumption 1 (else None: a draw
+    outside the hypotheses is not counted)."""
+    x = AoiInstance(int(rng.integers(2, 7)), int(rng.integers(2, 6)),
+                    int(rng.integers(1, 4)), int(rng.integers(0, 2 ** 31)))
+    v = _aoi_numbers_or_none(x)
+    return x if v is not None and v["assumption_1"] else None
 
 
 def _aoi_judge(x: AoiInstance) -> dict[str, Any] | None:
-    try:
-        v = aoi_numbers(x)
-    except Exception:  # noqa: BLE001 - a draw the generator cannot build is skipped
-        return None
-    if not v["assumption_1"]:
+    v = _aoi_numbers_or_none(x)
+    if v is None or not v["assumption_1"]:
         return None
     bad = []
     conv, bound = v["converged_at"], v["corollary_1"]
@@ -329,10 +441,20 @@ def _aoi_simpler(x: AoiInstance) -> list[AoiInstance]:
     return out
 
 
-def search_aoi(seed: Any = 0, budget: float = 10.0) -> Found:
-    """Search aoi Corollary 1 (and Lemmas 3, 5) over random jointly observable systems."""
+#: The family of the aoi search, in words.
+AOI_FAMILY = ("random jointly observable systems on jointly strongly connected graph "
+              "sequences (n 2..6, N 2..5, T 1..3), Assumption 1 checked")
+#: Instances of the aoi and dkfe searches per :data:`DEFAULT_INSTANCES` (they cost more).
+SLOW_SEARCH_SHARE = 0.75
+
+
+def search_aoi(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
+               deadline: float = math.inf) -> Found:
+    """Search aoi Corollary 1 (and Lemmas 3, 5) over random jointly observable systems
+    (draws where Assumption 1 fails are not counted)."""
     return random_search("A-corollary1", _aoi_draw, _aoi_judge, _aoi_simpler, seed=seed,
-                         budget=budget, max_instances=300)
+                         instances=max(1, int(instances * SLOW_SEARCH_SHARE)),
+                         family=AOI_FAMILY, deadline=deadline)
 
 
 # -- dkfe (75)-(76), Theorem 2 ------------------------------------------------------------
@@ -399,15 +521,23 @@ def _dkfe_draw(rng: np.random.Generator) -> DkfeInstance | None:
     probs[-1] = 1.0 - probs[:-1].sum()
     if np.any(probs < 0):
         return None
-    return DkfeInstance(tuple(map(tuple, np.round(A, 6).tolist())),
-                        tuple(np.round(C, 6).tolist()), r, tuple(probs.tolist()),
-                        int(rng.integers(0, 3)))
+    x = DkfeInstance(tuple(map(tuple, np.round(A, 6).tolist())),
+                     tuple(np.round(C, 6).tolist()), r, tuple(probs.tolist()),
+                     int(rng.integers(0, 3)))
+    return x if _dkfe_numbers_or_none(x) is not None else None
+
+
+@functools.lru_cache(maxsize=16)
+def _dkfe_numbers_or_none(x: DkfeInstance) -> dict[str, Any] | None:
+    try:
+        return dkfe_numbers(x)
+    except Exception:  # noqa: BLE001 - e.g. a Riccati equation without a solution
+        return None
 
 
 def _dkfe_judge(x: DkfeInstance) -> dict[str, Any] | None:
-    try:
-        v = dkfe_numbers(x)
-    except Exception:  # noqa: BLE001 - e.g. a Riccati equation without a solution
+    v = _dkfe_numbers_or_none(x)
+    if v is None:
         return None
     bad = []
     if v["c75"] and not v["radius"] < 1:
@@ -417,11 +547,17 @@ def _dkfe_judge(x: DkfeInstance) -> dict[str, Any] | None:
     return {**v, "violated": bad} if bad else None
 
 
-def search_dkfe(seed: Any = 0, budget: float = 10.0) -> Found:
+#: The family of the dkfe search, in words.
+DKFE_FAMILY = "random one-sink instances (n 2..3, d 0..2, (58) holds)"
+
+
+def search_dkfe(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
+                deadline: float = math.inf) -> Found:
     """Search Theorem 2 ((75) => Tr Xi converges) and "(75) less conservative than (76),
     (74)" over random one-sink instances."""
     return random_search("D-cond75", _dkfe_draw, _dkfe_judge, None, seed=seed,
-                         budget=budget, max_instances=300)
+                         instances=max(1, int(instances * SLOW_SEARCH_SHARE)),
+                         family=DKFE_FAMILY, deadline=deadline)
 
 
 # -- scenario files and confirmation by `netsim run` ------------------------------------
@@ -458,25 +594,59 @@ def write_delayed_scenario(x: DelayedInstance, folder: Path, name: str, note: st
     return path
 
 
-def confirm_run(path: Path, family: str, steps: int = 150, trials: int = 2) -> dict[str, Any]:
-    """``netsim run`` on a scenario file: the family's measured verdict and MSE ratio."""
+def confirm_run(scenario: Path | str | dict[str, Any], family: str, steps: int = 400,
+                trials: int = 2) -> dict[str, Any]:
+    """``netsim run`` on a scenario (file or parsed TOML): the family's verdict, what the
+    measured growth alone says, the fitted MSE growth per step and the MSE ratio."""
     from netsim.api import run
 
-    data = run(path, steps=steps, trials=trials, estimators=[family]).to_dict()
+    data = run(scenario, steps=steps, trials=trials, estimators=[family]).to_dict()
     e = data["estimators"][family]
     marks = sorted(e["mse_at"], key=int)
     first, last = e["mse_at"][marks[0]], e["mse_at"][marks[-1]]
     detail = e.get("verdict_detail") or {}
     return {"verdict": e["verdict"], "measured": detail.get("measured"),
-            "mse_first": first, "mse_last": last, "steps": steps}
+            "mse_growth": e.get("growth_rate"), "mse_first": first, "mse_last": last,
+            "steps": steps}
 
 
-def _theorem1(seed: Any, budget: float) -> Any:
-    return search_theorem1(seed=seed, budget=budget)
+def verify_counterexample(x: DelayedInstance, compensated: bool, exact: float,
+                          bound: float | None = None, run: bool = True) -> dict[str, Any]:
+    """Verify a scalar counterexample twice: by exact analysis and by simulation.
+
+    The exact analysis is ``exact`` (the augmented closed loop's spectral radius, from
+    :mod:`netsim.models.augmented`). The simulations are independent of it: the
+    noise-free error recursion written from the papers' equations
+    (:func:`simulate_error_growth`) and, for a stability claim (``bound`` None) with
+    ``run``, the real estimator in ``netsim run`` (400 steps x 2 trials), whose measured
+    growth must say ``diverging`` (or a blow-up).
+
+    Returns
+    -------
+    dict
+        ``exact_rho``, ``simulated_error_growth``, ``netsim_run`` (or None) and
+        ``confirmed`` (both verifications agree that the claim fails).
+    """
+    family = "compensated" if compensated else "uncompensated"
+    sim = simulate_error_growth(x, compensated)
+    threshold = (1.0 if bound is None else bound) + BOUND_SLACK / 2
+    ok = exact > threshold and sim > threshold
+    run_words = None
+    if bound is None and run:
+        text = delayed_scenario_toml(x, "counterexample", "verification run", (family,))
+        run_words = confirm_run(tomllib.loads(text), family)
+        ok = ok and (run_words["measured"] == "diverging"
+                     or str(run_words["verdict"]).startswith("diverged"))
+    return {"exact_rho": exact, "simulated_error_growth": sim, "netsim_run": run_words,
+            "confirmed": bool(ok)}
 
 
-#: The search of each claim: ``SEARCHES[claim_id](seed, budget)``.
-SEARCHES: dict[str, Callable[[Any, float], Any]] = {
+def _theorem1(seed: Any, instances: int, deadline: float) -> Any:
+    return search_theorem1(seed=seed, instances=instances, deadline=deadline)
+
+
+#: The search of each claim: ``SEARCHES[claim_id](seed, instances, deadline)``.
+SEARCHES: dict[str, Callable[[Any, int, float], Any]] = {
     "L-theorem1": _theorem1,
     "L-eq26-bound": search_eq26,
     "T-lemma5-bound": search_lemma5,
@@ -487,14 +657,19 @@ SEARCHES: dict[str, Callable[[Any, float], Any]] = {
 _ORDER = tuple(SEARCHES)
 
 
-def run_search(claim_id: str, seed: int, budget: float) -> Any:
+def run_search(claim_id: str, seed: int, budget: float | None = None,
+               instances: int | None = None) -> Any:
     """Run the search of ``claim_id`` (L-theorem1 with ``seed`` itself, the others with
-    their own stream ``SeedSequence(seed, spawn_key=(index,))``).
+    their own stream ``SeedSequence(seed, spawn_key=(index,))``), over ``instances``
+    random instances (default :data:`DEFAULT_INSTANCES`), cut short after ``budget``
+    seconds if given.
 
     Also runs the claims' other long computations by name, so that they can share the
     worker processes: ``bench:PRESET`` (:func:`netsim.claims.checks.bench_report`) and
     ``fusion:SCALE:TRIALS`` (:func:`netsim.claims.checks.fusion_report`).
     """
+    import time
+
     if claim_id.startswith("bench:"):
         from netsim.claims.checks import bench_report
 
@@ -504,7 +679,9 @@ def run_search(claim_id: str, seed: int, budget: float) -> Any:
 
         _, scale, trials = claim_id.split(":")
         return fusion_report(seed, float(scale), int(trials))
+    count = DEFAULT_INSTANCES if instances is None else int(instances)
+    deadline = math.inf if budget is None else time.monotonic() + float(budget)
     if claim_id == "L-theorem1":
-        return SEARCHES[claim_id](seed, budget)
+        return SEARCHES[claim_id](seed, count, deadline)
     ss = np.random.SeedSequence(seed, spawn_key=(_ORDER.index(claim_id),))
-    return SEARCHES[claim_id](ss, budget)
+    return SEARCHES[claim_id](ss, count, deadline)

@@ -46,8 +46,9 @@ def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
     rep.add_argument("--workers", type=int, default=2,
                      help="local processes of the delay benchmarks (default 2)")
     rep.add_argument("--claim-budget", type=float, default=CLAIM_BUDGET, metavar="SECONDS",
-                     help="seconds of each claim check's counterexample search (default "
-                     f"{CLAIM_BUDGET:g})")
+                     help="cut each claim check's counterexample search short after this "
+                     "many seconds (default: no time limit, the searches run their counted "
+                     "instances; a search cut short is 'undecided')")
     rep.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     rep.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     return rep
@@ -73,7 +74,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         raise CommandError(f"--trials must be an integer in 1..{MAX_TRIALS}, got {args.trials}")
     if args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
-    if not (math.isfinite(args.claim_budget) and args.claim_budget > 0):
+    if args.claim_budget is not None and not (math.isfinite(args.claim_budget)
+                                              and args.claim_budget > 0):
         raise CommandError(f"--claim-budget must be a positive number of seconds, got "
                            f"{args.claim_budget}")
     if args.workers < 1:

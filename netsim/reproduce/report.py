@@ -17,8 +17,9 @@ __all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "r
 
 #: Default Monte Carlo trials (LCSYS2022 Fig. 1 uses 100).
 DEFAULT_TRIALS = 100
-#: Seconds each claim's counterexample search may take.
-CLAIM_BUDGET = 3.0
+#: Seconds after which each claim's counterexample search is cut short (None: never; the
+#: searches are counted in instances, netsim.claims.search).
+CLAIM_BUDGET: float | None = None
 
 
 @dataclass
@@ -33,6 +34,8 @@ class ClaimVerdict:
     reason: str | None = None
     this_run: str | None = None  # bench status (agrees / differs / DISAGREES / ...)
     this_run_ours: str | None = None
+    #: Why the standalone verdict and this run's status differ, when they seem to.
+    contrast: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
@@ -124,16 +127,34 @@ def claim_verdicts(item: Item, bench_rows: Sequence[dict[str, Any]], context: An
             try:
                 cache[cid] = claim.run(context)
             except Exception as exc:  # a broken check must not lose the whole report
-                from netsim.claims import NOT_CHECKABLE, Outcome
+                from netsim.claims import UNDECIDED, Outcome
 
-                cache[cid] = Outcome(NOT_CHECKABLE, f"the check raised {type(exc).__name__}",
-                                     reason=str(exc))
+                cache[cid] = Outcome(UNDECIDED, f"the check raised {type(exc).__name__}",
+                                     reason=f"the check raised {type(exc).__name__}: {exc}")
         o = cache[cid]
         row = rows.get(cid)
-        out.append(ClaimVerdict(cid, claim.where, claim.statement, o.verdict, o.summary,
-                                o.reason, None if row is None else row.get("status"),
-                                None if row is None else row.get("ours")))
+        status = None if row is None else row.get("status")
+        out.append(ClaimVerdict(cid, claim.where, claim.statement, o.label, o.summary,
+                                o.reason, status, None if row is None else row.get("ours"),
+                                _contrast(o.verdict, status)))
     return out, missing
+
+
+def _contrast(verdict: str, status: str | None) -> str | None:
+    """The reason a standalone verdict and this run's bench status differ (None: they do
+    not seem to)."""
+    from netsim.claims import NO_COUNTEREXAMPLE, PROVED, REFUTED
+
+    if status is None:
+        return None
+    agrees = status.lower().startswith("agree")
+    if verdict == REFUTED and agrees:
+        return ("this run's cells agree with the statement, but the standalone check refutes "
+                "it on cases this run does not contain (its counterexample is in the numbers)")
+    if verdict in (PROVED, NO_COUNTEREXAMPLE) and status.lower().startswith("disagree"):
+        return ("this run's cells contradict the statement, while the standalone check "
+                "found no counterexample in its own cases: see this run's numbers")
+    return None
 
 
 def _md_escape(text: str) -> str:
@@ -176,6 +197,8 @@ def _markdown(result: ReproduceResult) -> str:
                 for c in r.claims:
                     why = f" ({c.reason})" if c.reason else ""
                     run = (f"{c.this_run}: {c.this_run_ours}" if c.this_run else "-")
+                    if c.contrast:
+                        run += f" [{c.contrast}]"
                     out.append(f"| {c.id} | {_md_escape(c.where)} | **{c.verdict}** | "
                                f"{_md_escape(run)} | {_md_escape(c.summary + why)} |")
                 out.append("")
@@ -186,7 +209,7 @@ def _markdown(result: ReproduceResult) -> str:
 
 def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reproduce-out",
               trials: int = DEFAULT_TRIALS, seed: int = 0, workers: int = 2,
-              claim_budget: float = CLAIM_BUDGET,
+              claim_budget: float | None = CLAIM_BUDGET,
               progress: Callable[[str], None] | None = None) -> ReproduceResult:
     """Regenerate the figures and tables of ``papers`` (default all) into ``out``.
 
@@ -202,8 +225,9 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
         Seed of the AoI and dkfe runs (the delay benchmarks use their scenario's seed).
     workers : int
         Local processes of the delay benchmarks.
-    claim_budget : float
-        Seconds of each claim check's counterexample search.
+    claim_budget : float, optional
+        Seconds after which each claim check's counterexample search is cut short (its
+        verdict then undecided); None: no time limit.
     progress : callable(str), optional
         Called with each item's id when it is done.
 
@@ -219,7 +243,8 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
     folder = Path(out)
     folder.mkdir(parents=True, exist_ok=True)
     ctx = BuildContext(folder, int(trials), int(seed), int(workers))
-    claim_ctx = Context(seed=int(seed), budget=float(claim_budget), out=None)
+    claim_ctx = Context(seed=int(seed), budget=None if claim_budget is None
+                        else float(claim_budget), out=None)
     checks: dict[str, Any] = {}
     start, cpu0 = time.perf_counter(), _cpu()
     reports = []

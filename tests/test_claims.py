@@ -9,7 +9,7 @@ import tomllib
 import numpy as np
 import pytest
 
-from netsim.claims import CLAIM_IDS, FAILS, HOLDS, REGISTRY, VERDICTS, Context, select
+from netsim.claims import CLAIM_IDS, PROVED, REFUTED, REGISTRY, UNDECIDED, VERDICTS, Context, select
 from netsim.claims.checks import eq14_on, theorem1_on
 from netsim.claims.search import ScalarInstance, search_theorem1
 from netsim.cli import main
@@ -114,33 +114,31 @@ def test_naive_growth_factors_are_the_closed_forms():
         == pytest.approx(golden)
     assert g["naive-uniform"] == pytest.approx(golden, rel=1e-3)
     assert g["naive-tree"] == pytest.approx(2.0, rel=1e-6)
-    assert REGISTRY["A-naive-growth"].run(Context()).verdict == HOLDS
+    assert REGISTRY["A-naive-growth"].run(Context()).verdict == PROVED
 
 
 def test_search_finds_shrunk_counterexamples_satisfying_the_hypotheses():
-    res = search_theorem1(seed=1, budget=4.0)
-    assert res.instance is not None and res.hits >= 1
-    inst = res.instance
-    assert inst.hypotheses() is None and res.tau <= res.tau_star
+    res = search_theorem1(seed=1, instances=40)
+    assert res.instance is not None and res.hits >= 1 and res.complete
+    inst, d = res.instance, res.details
+    assert inst.hypotheses() is None and d["tau"] <= d["tau_star"]
     P = np.array(inst.P)
     g = np.array([1 - k * c * c for k, c in zip(inst.k, inst.c, strict=True)])
     assert np.allclose(P.sum(axis=1), 1) and np.all(np.diag(P) > 0)
     assert rho(np.diag(g) @ P * inst.a) < 1
-    assert scalar_tau_star(inst.a, P, g) == res.tau_star
-    assert rho(scalar_augmented(inst.a, P, g, res.tau)) == pytest.approx(res.exact_rho)
-    assert res.exact_rho > 1
+    assert scalar_tau_star(inst.a, P, g) == d["tau_star"]
+    assert rho(scalar_augmented(inst.a, P, g, d["tau"])) == pytest.approx(d["exact_rho"])
+    assert d["exact_rho"] > 1
 
 
 def test_netsim_claims_finds_and_writes_a_theorem1_counterexample(tmp_path, capsys):
     out = tmp_path / "out"
-    # Seed 1's first instance is already a counterexample, so a loaded machine cannot
-    # run the wall-clock budget out before the first hit (seed 0's first is the 30th).
-    assert main(["claims", "L-theorem1", "L-decay", "A-naive-growth", "--budget", "6",
+    assert main(["claims", "L-theorem1", "L-decay", "A-naive-growth", "--instances", "40",
                  "--seed", "1", "--out", str(out), "--no-progress"]) == 0
     text = capsys.readouterr().out
     lines = {ln.split()[0]: ln for ln in text.splitlines() if ln.split()
              and ln.split()[0] in CLAIM_IDS}
-    assert "FAILS" in lines["L-theorem1"] and "FAILS" in lines["L-decay"]
+    assert "REFUTED" in lines["L-theorem1"] and "REFUTED" in lines["L-decay"]
     assert (out / "claims.md").is_file()
     path = out / "L-theorem1-counterexample.toml"
     sc = tomllib.loads(path.read_text())
@@ -170,7 +168,7 @@ def test_netsim_claims_finds_and_writes_a_theorem1_counterexample(tmp_path, caps
 
 def test_json_equals_text_verdicts(tmp_path, capsys):
     args = ["claims", "D-table1", "D-cond75", "D-eq94", "A-naive-growth", "L-rho",
-            "--budget", "1", "--out", str(tmp_path), "--no-progress"]
+            "--instances", "8", "--out", str(tmp_path), "--no-progress"]
     assert main(args) == 0
     text = capsys.readouterr().out
     assert main(args + ["--json"]) == 0
@@ -180,14 +178,17 @@ def test_json_equals_text_verdicts(tmp_path, capsys):
         line = next(ln for ln in text.splitlines() if ln.startswith(cid + " "))
         assert line.split(None, 1)[1].startswith(v.upper())
         assert v in VERDICTS
-    assert verdicts["L-rho"] == "not checkable" and verdicts["D-table1"] == HOLDS
+    assert verdicts["L-rho"] == UNDECIDED and verdicts["D-table1"] == PROVED
 
 
 def test_bad_input_is_one_line_exit_2(capsys):
     assert main(["claims", "nope"]) == 2
     assert main(["claims", "--budget", "-1"]) == 2
+    assert main(["claims", "--instances", "0"]) == 2
+    assert main(["claims", "--instances", "10000000000"]) == 2  # refused with an estimate
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and all(e.startswith("netsim claims: error:") for e in err)
+    assert len(err) == 4 and all(e.startswith("netsim claims: error:") for e in err)
+    assert "would take about" in err[-1]
 
 
 def test_bench_statements_come_from_the_registry():
@@ -195,7 +196,7 @@ def test_bench_statements_come_from_the_registry():
 
     assert set(CLAIMS) <= set(REGISTRY)
     assert CLAIMS["L-eq26"] is REGISTRY["L-eq26"].bench
-    assert FAILS in VERDICTS
+    assert REFUTED in VERDICTS
 
 
 def test_progress_counts_every_search_then_every_claim():
@@ -207,7 +208,7 @@ def test_progress_counts_every_search_then_every_claim():
     names = search_names(chosen)
     assert names and len(names) == len(set(names))
     order: list[tuple[str, str]] = []
-    run_claims(chosen, seed=1, budget=1.0, workers=1,
+    run_claims(chosen, seed=1, instances=10, workers=1,
                search_progress=lambda n: order.append(("search", n)),
                progress=lambda c: order.append(("claim", c)))
     assert order == [("search", n) for n in names] + [("claim", c.id) for c in chosen]

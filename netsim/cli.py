@@ -78,17 +78,24 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
+    from netsim.cliutil import TableEpilogFormatter
+    from netsim.verdicts import VERDICT_TABLE as RUN_VERDICTS
+
     run = sub.add_parser(
         "run",
         help="Monte Carlo runs of every estimator in a scenario",
         description=(
             "Run every estimator family of SCENARIO over Monte Carlo trials (in the "
             "vectorised engine, or the SimPy event kernel with --engine events) and "
-            "print, per estimator, the network MSE over time, the steady-state "
-            "MSE and a verdict (stable / diverging / undecided / diverged at step k, "
-            "by the statistical rule of netsim.verdicts; on an unstable plant, the float64 "
-            "precision horizon). The same seed gives the same numbers, bit for bit."
+            "print, per estimator, the network MSE over time, a verdict (stable / "
+            "diverging / unbounded / undecided / diverged at step k, by the rule of "
+            "netsim.verdicts: for fixed delays the exact analysis of the joint system of "
+            "plant state and error decides, otherwise the measured growth; on an unstable "
+            "plant, the float64 precision horizon), and the steady-state MSE of a stable "
+            "run or, for any other verdict, its last trusted MSE and growth. The same "
+            "seed gives the same numbers, bit for bit."
         ),
+        epilog=RUN_VERDICTS, formatter_class=TableEpilogFormatter,
     )
     run.add_argument("scenario", help="built-in scenario name (see 'netsim scenarios') or a "
                      "path to a scenario TOML file")
@@ -689,9 +696,29 @@ def _format_run(data: dict[str, Any]) -> str:
             lines.append(
                 f"exact rho of the augmented closed loop for the realised delays: "
                 f"compensated (eq. 9) = {_fmt(a['rho_exact_compensated'])}, "
-                f"uncompensated (eq. 11, valid only for a still state) = "
+                f"uncompensated (eq. 11, the error recursion alone) = "
                 f"{_fmt(a['rho_exact_uncompensated'])}"
             )
+            moving = ((a.get("joint_system") or {}).get("uncompensated") or {})
+            if moving.get("forced_eigenvalues"):
+                lines.append(
+                    "  eq. (11) does not apply here: on a moving state the uncompensated "
+                    "error is also forced by (A^(r+1) - A) x_(k-1-r), which eq. (11) leaves "
+                    "out; the joint system of state and error below gives its growth")
+    joint = [(name, e["verdict_detail"]["analysis"]) for name, e in data["estimators"].items()
+             if (e.get("verdict_detail") or {}).get("analysis")]
+    if joint:
+        lines.append("joint system of plant state and error (exact, fixed delays):")
+        for name, j in joint:
+            forced = _fmt(j["rho_forcing"]) if j["forced_eigenvalues"] else "none"
+            growth = {"geometric": f"geometric, MSE x{_fmt(j['mse_growth_factor'])}/step",
+                      "polynomial": "polynomial (e.g. linear), rho = 1",
+                      "bounded": "bounded"}.get(j["growth"], j["growth"])
+            lines.append(f"  {name}: rho = {_fmt(j['rho'])} = max(error recursion "
+                         f"{_fmt(j['rho_error_recursion'])}, forced plant modes {forced}): "
+                         f"{growth}")
+    elif a.get("joint_system_note"):
+        lines.append(f"joint system of plant state and error: {a['joint_system_note']}")
     lines.append("")
     from netsim.verdicts import BEYOND_HORIZON
 
@@ -706,7 +733,8 @@ def _format_run(data: dict[str, Any]) -> str:
         if e["diverged_trials"]:
             first = min(d["step"] for d in e["diverged_trials"])
             verdict = f"diverged at step {first} ({len(e['diverged_trials'])} trials)"
-        row = f"{name:<16}{verdict:<22}{_fmt(e['steady_state_mse']):>12}"
+        # a steady MSE belongs to stable runs only (netsim.verdicts.has_steady_state)
+        row = f"{name:<16}{verdict:<22}{_fmt(e.get('steady_state_mse')):>12}"
         row += f"{_fmt(e['growth_rate']):>13}  "
         untrusted = set(e.get("mse_at_beyond_horizon") or ())
         row += " ".join(f"{BEYOND_HORIZON if m in untrusted else _fmt(e['mse_at'][m]):>11}"
@@ -717,6 +745,18 @@ def _format_run(data: dict[str, Any]) -> str:
             lines.append(f"{name}: MSE@ {', '.join(e['mse_at_beyond_horizon'])} not shown "
                          f"{BEYOND_HORIZON}: beyond the float64 precision horizon at step "
                          f"{e['precision_horizon']} (rounding of the state, not trusted)")
+    for name, e in data["estimators"].items():
+        if "steady_state_mse" not in e and e.get("last_trusted_step") is not None:
+            detail = e.get("verdict_detail") or {}
+            exact = (detail.get("analysis") or {}) if detail.get("basis") == \
+                "exact analysis" else {}
+            growth = (f"MSE growth x{_fmt(exact['mse_growth_factor'])}/step (exact "
+                      "analysis), " if exact.get("growth") == "geometric" else
+                      "MSE growth polynomial (exact analysis), "
+                      if exact.get("growth") == "polynomial" else "")
+            lines.append(f"{name}: no steady MSE ({e['verdict']}): last trusted MSE "
+                         f"{_fmt(e['last_trusted_mse'])} at step {e['last_trusted_step']}; "
+                         f"{growth}measured x{_fmt(e['growth_rate'])}/step")
     for e in data["estimators"].values():
         lines += (e.get("report") or {}).get("summary_lines", [])
     for name, e in data["estimators"].items():

@@ -18,7 +18,8 @@ from collections.abc import Iterator, Sequence
 from typing import Any, NoReturn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
-           "REPRODUCE_HELP", "OneLineParser", "analyze_with_progress", "gains_if_needed",
+           "REPRODUCE_HELP", "OneLineParser", "TableEpilogFormatter", "analyze_with_progress",
+           "gains_if_needed",
            "note_kernel_fallbacks", "scenario_warnings"]
 
 #: ``netsim reproduce``'s one-line help, shared by the full parser and the cheap listing.
@@ -62,6 +63,16 @@ def note_kernel_fallbacks(command: str, names: Sequence[str], what: str = "them"
     sys.stderr.write(f"netsim {command}: note: {', '.join(names)} "
                      f"{'has' if one else 'have'} no batched form; --engine auto runs "
                      f"{'it' if one and what == 'them' else what} in the event kernel\n")
+
+
+class TableEpilogFormatter(argparse.HelpFormatter):
+    """Help formatter that wraps paragraphs as usual but prints any text with line breaks
+    (a table, such as :data:`netsim.verdicts.VERDICT_TABLE` as an epilog) as it is."""
+
+    def _fill_text(self, text: str, width: int, indent: str) -> str:
+        if "\n" in text:
+            return "".join(indent + line for line in text.splitlines(keepends=True))
+        return super()._fill_text(text, width, indent)
 
 
 class OneLineParser(argparse.ArgumentParser):

@@ -36,6 +36,7 @@ from netsim.models.augmented import (
     tau_star,
 )
 from netsim.models.delays import latency_to_steps
+from netsim.models.jointsystem import JointAnalysis, block_joint_analysis, joint_analysis
 from netsim.models.jsonsafe import json_number as _json_float
 from netsim.models.jsonsafe import json_tree as _json_tree
 from netsim.models.scenario import Scenario
@@ -58,6 +59,7 @@ __all__ = [
     "run_trials",
     "run_monte_carlo",
     "delay_analytics",
+    "joint_system_analyses",
     "TraceWriteError",
     "trace_files",
     "fixed_link_delays",
@@ -326,11 +328,30 @@ def delay_analytics(scenario: Scenario, gains: GainDesign) -> dict[str, Any]:
 
     Returns rho(A-hat) delay-free; Theorem 1's tau* (LCSYS2022); at the delay bound
     tau: the eq. (26) bound rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)) and the
-    delay-tolerant paper's rho(A-hat)^(1/(tau+1)); and, for time-invariant delays,
-    the exact spectral radius of the augmented closed loop of the realised delays,
-    with compensation (LCSYS2022 eq. 9-10) and without (delay-tolerant eq. 11; that
-    matrix is the error recursion only for a plant whose state does not move).
+    delay-tolerant paper's rho(A-hat)^(1/(tau+1)); for time-invariant delays, the exact
+    spectral radius of the augmented closed loop of the realised delays, with
+    compensation (LCSYS2022 eq. 9-10) and without (delay-tolerant eq. 11; that matrix is
+    the error recursion alone, which leaves out the forcing of the error by a moving
+    state); and ``joint_system``: per recursion (``compensated``, ``uncompensated``,
+    ``block``) the analysis of the joint system of plant state and error
+    (:func:`joint_system_analyses`), or ``joint_system_note`` saying why there is none.
     """
+    return _delay_analytics(scenario, gains)[0]
+
+
+#: The recursion kinds of :func:`joint_system_analyses` by declared error recursion.
+_RECURSION_KINDS = {
+    "lcsys2022-eq9": "compensated",
+    "delay-tolerant-eq11": "uncompensated",
+    "lcsys2022-eq15": "block",
+}
+
+#: Largest N n (tau + 1) for the exact augmented radii and the joint-system analysis.
+_EXACT_MAX_SIZE = 4000
+
+
+def _delay_analytics(scenario: Scenario, gains: GainDesign
+                     ) -> tuple[dict[str, Any], dict[str, JointAnalysis]]:
     plant = scenario.plant
     P, A, C, L = scenario.weights, plant.A, plant.C, gains.L
     tau = scenario.delay_bound
@@ -348,7 +369,9 @@ def delay_analytics(scenario: Scenario, gains: GainDesign) -> dict[str, Any]:
             "rho_exact_uncompensated": None,
             "note": f"N = {scenario.n_agents} agents (sparse weights): tau*, the eq. (26) "
                     "bound and the exact augmented spectral radii were not computed",
-        }
+            "joint_system_note": "sparse network: no exact analysis; the measured growth "
+                                 "decides",
+        }, {}
     out: dict[str, Any] = {
         "delay_bound": tau,
         "rho_delay_free": rho0,
@@ -359,7 +382,7 @@ def delay_analytics(scenario: Scenario, gains: GainDesign) -> dict[str, Any]:
         "rho_exact_uncompensated": None,
     }
     delays = fixed_delay_matrix(scenario)
-    if delays is not None and scenario.n_agents * plant.n_states * (tau + 1) <= 4000:
+    if delays is not None and scenario.n_agents * plant.n_states * (tau + 1) <= _EXACT_MAX_SIZE:
         depth = int(delays.max())
         out["realised_delays"] = {
             f"{j}->{i}": int(delays[i, j]) for j, i in scenario.links
@@ -370,7 +393,60 @@ def delay_analytics(scenario: Scenario, gains: GainDesign) -> dict[str, Any]:
         out["rho_exact_uncompensated"] = spectral_radius(
             augmented_closed_loop(P, A, C, L, delays, depth, compensated=False)
         )
-    return out
+    analyses, note = _joint_system(scenario, gains, delays, out["rho_exact_compensated"],
+                                   out["rho_exact_uncompensated"])
+    if analyses:
+        out["joint_system"] = {kind: a.to_dict() for kind, a in analyses.items()}
+    if note:
+        out["joint_system_note"] = note
+    return out, analyses
+
+
+def joint_system_analyses(scenario: Scenario, gains: GainDesign) -> dict[str, JointAnalysis]:
+    """The exact analyses of the joint system of plant state and estimation error
+    (:mod:`netsim.models.jointsystem`) that apply to the scenario, by recursion kind.
+
+    ``compensated`` (LCSYS2022 eq. 9) and ``uncompensated`` (delay-tolerant eq. 11) when
+    the delays are fixed (a time-invariant delay model without losses, outages or
+    buffers), the topology does not vary and the dense analysis fits
+    (N n (tau+1) <= 4000); ``block`` (eqs. 15-16) when, in addition, every delay is
+    within the bound tau. Empty otherwise: there the measured growth decides.
+    """
+    return _delay_analytics(scenario, gains)[1]
+
+
+def _joint_system(scenario: Scenario, gains: GainDesign, delays: np.ndarray | None,
+                  rho_comp: float | None, rho_uncomp: float | None
+                  ) -> tuple[dict[str, JointAnalysis], str]:
+    """The joint-system analyses that apply, and a note on what does not."""
+    if scenario.topology is not None:
+        return {}, ("time-varying topology: no exact analysis of the joint system of state "
+                    "and error; the measured growth decides")
+    if delays is None:
+        return {}, ("delays not fixed (time-varying delays, losses, outages or buffers): no "
+                    "exact analysis of the joint system of state and error; the measured "
+                    "growth decides")
+    plant = scenario.plant
+    tau = scenario.delay_bound
+    if scenario.n_agents * plant.n_states * (tau + 1) > _EXACT_MAX_SIZE:
+        return {}, (f"N n (tau+1) = {scenario.n_agents * plant.n_states * (tau + 1)} > "
+                    f"{_EXACT_MAX_SIZE}: no exact analysis; the measured growth decides")
+    P, A, C, L = scenario.weights, plant.A, plant.C, gains.L
+    common = {"Q": plant.Q, "x0_mean": plant.x0_mean, "x0_cov": plant.x0_cov}
+    out = {
+        "compensated": joint_analysis(P, A, C, L, delays, compensated=True,
+                                      rho_error=rho_comp, **common),
+        "uncompensated": joint_analysis(P, A, C, L, delays, compensated=False,
+                                        rho_error=rho_uncomp, **common),
+    }
+    note = ""
+    edge = (np.asarray(P) != 0) & ~np.eye(scenario.n_agents, dtype=bool)
+    if not np.any(edge) or int(delays[edge].max()) <= tau:
+        out["block"] = block_joint_analysis(P, A, C, L, tau, **common)
+    else:
+        note = (f"block update: a link delay exceeds its bound tau = {tau}, so its error is "
+                "not the eqs. (15)-(16) recursion; the measured growth decides")
+    return out, note
 
 
 @dataclass
@@ -385,7 +461,9 @@ class EstimatorSummary:
         did not diverge (NaN if all diverged).
     steady_state_mse : float
         Mean of ``mse`` over the last ``steady_state_fraction`` of the trusted steps
-        (those before the precision horizon, :mod:`netsim.verdicts`).
+        (those before the precision horizon, :mod:`netsim.verdicts`), for a run judged
+        stable (:func:`netsim.verdicts.has_steady_state`); NaN for any other verdict
+        (a diverging or unbounded MSE has no steady state: see ``last_trusted_mse``).
     growth_rate : float
         exp of the mean over trials of the least-squares slope of log(trial MSE) over
         the second half of the trusted steps: the per-step MSE growth factor (about 1
@@ -393,10 +471,18 @@ class EstimatorSummary:
     diverged : list of (trial, step)
         Trials whose error blew up, with the step it happened.
     verdict : str
-        ``diverged`` (some trial blew up), ``diverging``, ``stable`` or ``undecided``
-        by the rule of :mod:`netsim.verdicts`.
+        ``diverged`` (some trial blew up), ``diverging``, ``unbounded``, ``stable`` or
+        ``undecided`` by the rule of :mod:`netsim.verdicts` (or a family's own word from
+        its report).
     judgement : netsim.verdicts.Verdict or None
         The verdict with its basis, reason, growth estimate and precision horizon.
+    last_trusted_mse : float
+        ``mse`` at the last trusted step (before the precision horizon).
+    last_trusted_step : int or None
+        That step.
+    tail_mse : float
+        Mean of ``mse`` over the last ``steady_state_fraction`` of the trusted steps,
+        whatever the verdict (``steady_state_mse`` once the run is judged stable).
     """
 
     family: str
@@ -414,6 +500,20 @@ class EstimatorSummary:
     #: else None (all of them).
     trials_finished: int | None = None
     judgement: verdicts.Verdict | None = None
+    last_trusted_mse: float = math.nan
+    last_trusted_step: int | None = None
+    tail_mse: float = math.nan
+
+    def settle(self) -> None:
+        """Set ``steady_state_mse`` from the final verdict: the tail mean for a run with
+        a steady state (:func:`netsim.verdicts.has_steady_state`), else NaN."""
+        self.steady_state_mse = (self.tail_mse if verdicts.has_steady_state(self.verdict)
+                                 else math.nan)
+
+    @property
+    def has_steady_state(self) -> bool:
+        """Whether the verdict gives the run a steady MSE."""
+        return verdicts.has_steady_state(self.verdict)
 
     @property
     def precision_horizon(self) -> int | None:
@@ -426,7 +526,11 @@ class EstimatorSummary:
         return {
             "family": self.family,
             "verdict": self.verdict,
-            "steady_state_mse": _json_float(self.steady_state_mse),
+            # a steady MSE belongs to stable runs only (netsim.verdicts.has_steady_state)
+            **({"steady_state_mse": _json_float(self.steady_state_mse)}
+               if self.has_steady_state else {}),
+            "last_trusted_mse": _json_float(self.last_trusted_mse),
+            "last_trusted_step": self.last_trusted_step,
             "growth_rate": _json_float(self.growth_rate),
             "mse_at": {str(m): _json_float(self.mse[m]) for m in marks},
             "diverged_trials": [{"trial": t, "step": s} for t, s in self.diverged],
@@ -496,7 +600,7 @@ class MonteCarloResult:
 
 def _summarise(
     family: str, trials: list[TrialResult], fraction: float, n_steps: int,
-    reported: Sequence[int] | None = None, rho_exact: float | None = None,
+    reported: Sequence[int] | None = None, analysis: JointAnalysis | None = None,
 ) -> EstimatorSummary:
     columns = slice(None) if reported is None else list(reported)
     per_trial = [r.squared_errors[:, columns].mean(axis=1) for r in trials]
@@ -505,7 +609,7 @@ def _summarise(
         r.states is not None and len(r.states) == length for r in trials) else None
     judgement = verdicts.judge(np.array(per_trial) if per_trial else np.zeros((0, length)),
                                states=states, diverged_at=[r.diverged_at for r in trials],
-                               rho_exact=rho_exact)
+                               analysis=analysis)
     horizon = judgement.precision_horizon
     diverged = [(t, r.diverged_at) for t, r in enumerate(trials) if r.diverged_at is not None
                 and (horizon is None or r.diverged_at < horizon)]
@@ -518,7 +622,8 @@ def _summarise(
         mse = np.full(length, np.nan)
     window = verdicts.steady_slice(len(mse), fraction, horizon)
     steady = float(np.mean(mse[window])) if good else math.nan
-    return EstimatorSummary(
+    last = window.stop - 1
+    summary = EstimatorSummary(
         family=family,
         mse=mse,
         steady_state_mse=steady,
@@ -529,18 +634,21 @@ def _summarise(
         messages_delivered=sum(r.messages_delivered for r in trials),
         messages_discarded=sum(r.messages_discarded for r in trials),
         judgement=judgement,
+        last_trusted_mse=float(mse[last]) if good and len(mse) else math.nan,
+        last_trusted_step=last if good and len(mse) else None,
+        tail_mse=steady,
     )
+    summary.settle()
+    return summary
 
 
-def _exact_rho(family: EstimatorFamily, analytics: dict[str, Any] | None) -> float | None:
-    """The exact spectral radius of the family's error recursion, when it is exact: the
-    compensating estimator with time-invariant delays (eq. 9)."""
-    from netsim.estimators.registry import RECURSION_COMPENSATED
-
-    if analytics is None or family.error_recursion != RECURSION_COMPENSATED:
-        return None
-    rho = analytics.get("rho_exact_compensated")
-    return None if rho is None else float(rho)
+def _analysis_of(family: EstimatorFamily, analyses: Mapping[str, JointAnalysis]
+                 ) -> JointAnalysis | None:
+    """The exact joint-system analysis of the family's error, where one applies: a
+    declared error recursion (compensated, uncompensated, block) under fixed delays
+    (:func:`joint_system_analyses`); None otherwise (the measured growth decides)."""
+    kind = _RECURSION_KINDS.get(family.error_recursion or "")
+    return None if kind is None else analyses.get(kind)
 
 
 class TraceWriteError(OSError):
@@ -685,8 +793,9 @@ def run_monte_carlo(
         gains = scenario_gains(scenario)
     result = MonteCarloResult(scenario, gains, steps, trials, seed, engine=engine,
                               engines=engines)
+    analyses: dict[str, JointAnalysis] = {}
     if gains is not None:
-        result.analytics = delay_analytics(scenario, gains)
+        result.analytics, analyses = _delay_analytics(scenario, gains)
     for fam in declared:  # the families' own analytics, once per key
         if fam.analytics is not None:
             result.analytics = result.analytics or {}
@@ -705,18 +814,19 @@ def run_monte_carlo(
             if runs:  # the trials that finished before the trace failed
                 reported = None if fam.reported is None else list(fam.reported(scenario))
                 summary = _summarise(family, runs, scenario.steady_state_fraction, steps,
-                                     reported, _exact_rho(fam, result.analytics))
+                                     reported, _analysis_of(fam, analyses))
                 summary.trials_finished = len(runs)
                 result.estimators[family] = summary
             exc.partial = result
             raise
         reported = None if fam.reported is None else list(fam.reported(scenario))
         summary = _summarise(family, runs, scenario.steady_state_fraction, steps, reported,
-                             _exact_rho(fam, result.analytics))
+                             _analysis_of(fam, analyses))
         if fam.report is not None:
             summary.report = dict(fam.report(FamilyContext(scenario, gains, None, family),
                                              runs))
             summary.verdict = summary.report.get("verdict", summary.verdict)
+            summary.settle()
         result.estimators[family] = summary
         if keep_trials:
             result.runs[family] = runs

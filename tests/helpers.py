@@ -7,7 +7,8 @@ from dataclasses import replace
 import numpy as np
 from netsim.models.scenario import DelaySpec, Scenario, resolve_scenario
 
-__all__ = ["lcsys", "with_delays", "lockstep_compensated", "example", "N_AGENTS", "N_STATES"]
+__all__ = ["lcsys", "with_delays", "lockstep_compensated", "example", "mse_level", "N_AGENTS",
+           "N_STATES"]
 
 N_AGENTS, N_STATES = 4, 6
 
@@ -69,3 +70,15 @@ def example(seed: int = 0):
     W = (np.eye(N) + np.roll(np.eye(N), -1, axis=1)) * rng.uniform(0.2, 1.0, (N, N))
     P = W / W.sum(axis=1, keepdims=True)
     return P, A, C
+
+
+def mse_level(estimator: dict) -> float:
+    """An estimator's MSE level from ``netsim run --json``: its steady MSE when the run
+    is stable, else the mean of its trusted MSE@ values from step K/2 on (a run that is
+    not judged stable has no steady MSE, netsim.verdicts.has_steady_state)."""
+    if "steady_state_mse" in estimator:
+        return float(estimator["steady_state_mse"])
+    trusted = estimator["mse_at_trusted"]
+    last = max(int(k) for k in trusted)
+    values = [v for k, v in trusted.items() if int(k) >= last // 2 and v is not None]
+    return float(np.mean(values))

@@ -293,9 +293,11 @@ def test_valid_tiny_run_prints_json() -> None:
     estimators = data["estimators"]
     assert set(estimators) == {"compensated", "uncompensated", "block", "centralized-kf"}
     for name, result in estimators.items():
-        assert "steady_state_mse" in result and "verdict" in result, name
-        assert isinstance(result["steady_state_mse"], float), name
-        assert result["verdict"] in ("stable", "diverging", "diverged"), name
+        assert "verdict" in result and isinstance(result["last_trusted_mse"], float), name
+        # a steady MSE belongs to stable runs only
+        assert ("steady_state_mse" in result) == (result["verdict"] == "stable"), name
+        assert result["verdict"] in ("stable", "diverging", "unbounded", "undecided",
+                                     "diverged"), name
 
 
 @pytest.mark.parametrize("radius", ["0.0", "-1.0"])
@@ -322,7 +324,10 @@ def test_divergence_threshold_beyond_float_range_is_no_threshold(tmp_path: Path)
     for engine in ("events", "vectorised"):
         result = run_monte_carlo(scenario, steps=20, trials=2, engine=engine,
                                  families=["centralized-kf"])
-        assert result.estimators["centralized-kf"].verdict == "stable"
+        s = result.estimators["centralized-kf"]
+        # no trial blew up; 10 fitted steps x 2 trials may not establish "stable"
+        assert s.diverged == [] and s.verdict in ("stable", "undecided")
+        assert s.judgement.growth.rate < 1  # the transient decays
 
 
 @pytest.mark.parametrize("engine", ["events", "vectorised"])

@@ -49,11 +49,13 @@ def test_json_holds_every_cell(tiny_json):
     assert len(data["cells"]) == len(settings) * 2 * len(FAMILIES)
     for c in data["cells"]:
         m, a = c["measured"], c["analytics"]
-        assert m["verdict"] in ("stable", "diverging", "undecided", "diverged")
-        assert c["verdict"] in ("stable", "diverging", "undecided", "diverged",
+        assert m["verdict"] in ("stable", "diverging", "unbounded", "undecided", "diverged")
+        assert c["verdict"] in ("stable", "diverging", "unbounded", "undecided", "diverged",
                                 "bound violated", "prediction contradicted",
                                 "bound conservative")
-        assert "steady_state_mse" in m and "decay_factor" in m
+        # a steady MSE belongs to stable runs only; every run has its last trusted MSE
+        assert ("steady_state_mse" in m) == (m["verdict"] == "stable")
+        assert "last_trusted_mse" in m and "decay_factor" in m
         if c["family"] != "centralized-kf":
             assert a["bound_eq26"] > 0 and a["bound_tolerant"] > 0 and a["exact"] is not None
     het = next(c for c in data["cells"] if c["setting"] == "heterogeneous" and c["tau"] == 3
@@ -101,6 +103,7 @@ def test_cell_agrees_with_netsim_run(tiny_json):
     cell = next(c for c in data["cells"] if c["setting"] == "heterogeneous" and c["tau"] == 3
                 and c["family"] == "compensated")
     assert cell["measured"]["steady_state_mse"] == mc.steady_state_mse
+    assert cell["measured"]["last_trusted_mse"] == mc.last_trusted_mse
     assert cell["measured"]["verdict"] == mc.verdict
     assert cell["analytics"]["exact"] == pytest.approx(result.analytics["rho_exact_compensated"])
 
@@ -168,7 +171,11 @@ def test_time_varying_cell_reports_the_realised_growth():
     a = out["analytics"]
     assert a["exact_kind"].startswith("realised growth")
     assert 0 < a["exact"] < 2 and a["realised_max_delay"] <= 3
-    assert np.isfinite(out["measured"]["steady_state_mse"])
+    m = out["measured"]
+    assert np.isfinite(m["last_trusted_mse"])
+    assert ("steady_state_mse" in m) == (m["verdict"] == "stable")
+    assert "joint" not in a  # time-varying delays: no exact analysis, measured growth
+    assert m["verdict_basis"] == "measured growth"
 
 
 def test_scenario_sweep_command(tmp_path, capsys):

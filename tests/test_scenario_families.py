@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import mse_level
 from netsim.models.scenario import ScenarioError, builtin_scenarios, resolve_scenario
 
 from netsim.cli import main
@@ -88,11 +89,14 @@ delay = { distribution = "uniform", low = 0, high = 1, unit = "steps", mode = "a
     assert missing <= dropped
     for family in ("dkfe", "sdkfe", "odkfe"):  # 60 steps may not establish "stable"
         assert data["estimators"][family]["verdict"] in ("stable", "undecided")
-    # losing selections costs accuracy against the loss-free run of the same trials
-    clean = run_json(capsys, "dkfe-example2", "--trials", "6", "--steps", "60",
-                     "--estimators", "dkfe")
-    assert (data["estimators"]["dkfe"]["steady_state_mse"]
-            > clean["estimators"]["dkfe"]["steady_state_mse"])
+    # losing selections costs accuracy against the loss-free run of the same trials: the
+    # mean MSE over the last quarter (not a "steady MSE": these runs may be undecided)
+    from netsim.runner import run_monte_carlo
+
+    lossy, clean = (run_monte_carlo(resolve_scenario(str(name)), trials=6, steps=60,
+                                    families=["dkfe"]).estimators["dkfe"]
+                    for name in (path, "dkfe-example2"))
+    assert lossy.tail_mse > clean.tail_mse
 
 
 def test_dkfe_fail_policy_refuses_a_lost_selection(capsys, tmp_path):
@@ -164,8 +168,8 @@ def test_consensus_estimator_runs_on_a_time_varying_topology(capsys):
     assert data["engine"] == "events"
     assert data["estimators"]["centralized-kf"]["verdict"] in ("stable", "undecided")
     # no agent observes the system alone (rho(A) = 1.1): the local filters lose it
-    assert (data["estimators"]["local-kf"]["steady_state_mse"]
-            > 10 * data["estimators"]["centralized-kf"]["steady_state_mse"])
+    assert (mse_level(data["estimators"]["local-kf"])
+            > 10 * mse_level(data["estimators"]["centralized-kf"]))
 
 
 def test_noise_override_changes_only_the_noise():

@@ -106,7 +106,8 @@ def test_exact_rho_below_one_is_never_diverging_at_50_steps():
         result = run_monte_carlo(scenario, steps=50, trials=2, seed=seed, gains=gains,
                                  families=["compensated"])
         s = result.estimators["compensated"]
-        assert s.verdict == STABLE and s.judgement.basis == "exact rho"
+        assert s.verdict == STABLE and s.judgement.basis == "exact analysis"
+        assert s.judgement.analysis.rho_error_recursion == pytest.approx(rho, rel=1e-9)
         # the measurement alone does not call it diverging either
         assert s.judgement.measured != DIVERGING, (seed, s.judgement.reason)
 
@@ -134,7 +135,13 @@ def test_few_steps_give_undecided():
     result = run_monte_carlo(resolve_scenario("lcsys2022-homogeneous"), steps=10, trials=2,
                              families=["centralized-kf", "uncompensated"])
     for s in result.estimators.values():
-        assert s.verdict == UNDECIDED, (s.family, s.judgement.reason)
+        assert s.judgement.measured == UNDECIDED, (s.family, s.judgement.reason)
+    # the measurement alone decides the Kalman filter: undecided
+    assert result.estimators["centralized-kf"].verdict == UNDECIDED
+    # the uncompensated estimator's error is forced by the growing state (rho(A) > 1): the
+    # exact analysis of the joint system says diverging from the first step
+    s = result.estimators["uncompensated"]
+    assert s.verdict == DIVERGING and s.judgement.basis == "exact analysis"
 
 
 def test_unstable_plant_reports_the_precision_horizon_not_a_divergence(capsys):

@@ -455,16 +455,21 @@ class TraceAnalysis:
             )
         if self.decay is not None:
             d = self.decay
+            # a steady MSE only where the second half does not grow: else the mean MSE of
+            # the last quarter is just that
+            grows = not math.isnan(d.tail_factor) and d.tail_factor > 1.0 + 1e-3
+            level = (f"last-quarter mean MSE {d.steady_mse:.3e} (not steady: the second half "
+                     "grows)" if grows else f"steady-state MSE {d.steady_mse:.3e}")
             if d.transient:
                 lines.append(
                     f"  error decay: steps {d.start}..{d.end}, ||e|| factor {d.factor:.4f}/step "
                     f"(log-MSE slope {d.slope:.5f}; floor subtracted "
-                    f"{_fmt(d.excess_factor)}/step); steady-state MSE {d.steady_mse:.3e}; "
+                    f"{_fmt(d.excess_factor)}/step); {level}; "
                     f"second-half trend {_fmt(d.tail_factor)}/step"
                 )
             else:
                 lines.append(
-                    f"  error decay: no transient; steady-state MSE {d.steady_mse:.3e}; "
+                    f"  error decay: no transient; {level}; "
                     f"second-half trend {_fmt(d.tail_factor)}/step"
                 )
         if self.verdicts:

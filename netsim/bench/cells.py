@@ -26,7 +26,8 @@ from netsim.estimators.registry import (
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import child_sequence
 
-__all__ = ["BOUND_SLACK", "CURVE_POINTS", "ROUNDOFF_WARNING", "delay_tolerance_cell", "find_cell"]
+__all__ = ["BOUND_SLACK", "CURVE_POINTS", "EXACT_COMPENSATED", "EXACT_UNCOMPENSATED",
+           "ROUNDOFF_WARNING", "delay_tolerance_cell", "find_cell"]
 
 
 #: An exact value above a bound by more than this counts as a violation.
@@ -52,16 +53,18 @@ def _curve(mse: np.ndarray) -> dict[str, list]:
 
 
 def _measure(results: list, steps: int, fraction: float,
-             rho_exact: float | None = None) -> dict[str, Any]:
+             analysis: Any = None) -> dict[str, Any]:
     """Monte Carlo summary with ``netsim run``'s definitions (the verdict rule of
-    :mod:`netsim.verdicts`), plus the decay fit."""
+    :mod:`netsim.verdicts`, decided by the joint-system ``analysis`` where one applies),
+    plus the decay fit. ``steady_state_mse`` only for a stable run; every run has
+    ``last_trusted_mse`` (at ``last_trusted_step``)."""
     from netsim.traces.analysis import decay_fit
-    from netsim.verdicts import judge, steady_slice
+    from netsim.verdicts import has_steady_state, judge, steady_slice
 
     per_trial = [r.squared_errors.mean(axis=1) for r in results]
     judgement = judge(np.array(per_trial) if per_trial else np.zeros((0, steps + 1)),
                       states=[r.states for r in results] if results else None,
-                      diverged_at=[r.diverged_at for r in results], rho_exact=rho_exact)
+                      diverged_at=[r.diverged_at for r in results], analysis=analysis)
     horizon = judgement.precision_horizon
     diverged = [(t, int(r.diverged_at)) for t, r in enumerate(results)
                 if r.diverged_at is not None and (horizon is None or r.diverged_at < horizon)]
@@ -74,7 +77,9 @@ def _measure(results: list, steps: int, fraction: float,
     else:
         mse = np.full(steps + 1, np.nan)
     trusted = mse if horizon is None else mse[:horizon]
-    steady = float(np.mean(mse[steady_slice(len(mse), fraction, horizon)])) if good else math.nan
+    window = steady_slice(len(mse), fraction, horizon)
+    steady = float(np.mean(mse[window])) if good else math.nan
+    last = window.stop - 1
     fit = decay_fit(trusted) if good and len(trusted) >= 4 else None
     with np.errstate(invalid="ignore"):
         state_max = max((float(np.nanmax(np.abs(r.states))) for r in results), default=0.0)
@@ -87,7 +92,10 @@ def _measure(results: list, steps: int, fraction: float,
         "measured_growth_verdict": judgement.measured,
         "growth": judgement.growth.to_dict(),
         "precision_horizon": horizon,
-        "steady_state_mse": steady,
+        # a steady MSE belongs to stable runs only (netsim.verdicts.has_steady_state)
+        **({"steady_state_mse": steady} if has_steady_state(judgement.verdict) else {}),
+        "last_trusted_mse": float(mse[last]) if good else math.nan,
+        "last_trusted_step": last if good else None,
         "growth_rate": judgement.growth.rate,
         "decay_factor": fit.factor if fit is not None and fit.transient else math.nan,
         "excess_decay_factor": (fit.excess_factor if fit is not None and fit.transient
@@ -109,11 +117,19 @@ def _measure(results: list, steps: int, fraction: float,
     }
 
 
+#: What a cell's ``exact`` value is, per kind (``analytics.exact_kind``).
+EXACT_COMPENSATED = "augmented rho (LCSYS2022 eq. 9)"
+EXACT_UNCOMPENSATED = ("augmented rho of eq. (11), the error recursion alone (ignores the "
+                       "moving state's forcing (A^(r+1) - A) x)")
+
+
 def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
-               first: Any) -> dict[str, Any]:
+               first: Any) -> tuple[dict[str, Any], Any]:
     """Exact rho (fixed delays) or realised growth (time-varying), bounds, prediction,
     for the families that declare an augmented error recursion (the registry's
-    ``error_recursion``); the others get no bound and no prediction."""
+    ``error_recursion``); the others get no bound and no prediction. For fixed delays
+    also ``joint``: the analysis of the joint system of plant state and error
+    (:mod:`netsim.models.jointsystem`), returned as well (it decides the verdict)."""
     from netsim.models.augmented import (
         augmented_spectral_radius,
         delay_bound_lcsys,
@@ -125,7 +141,7 @@ def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
     recursion = family.error_recursion
     if recursion is None or gains is None:
         out.update(bound_name=None, bound=None, predicted_stable=None)
-        return out
+        return out, None
     compensated = recursion == RECURSION_COMPENSATED
     plant = variant.plant
     P, A, C, L = variant.weights, plant.A, plant.C, gains.L
@@ -138,36 +154,38 @@ def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
     else:
         out.update(bound_name="LCSYS2022 eq. (26)", bound=eq26)
     out["predicted_stable"] = bool(out["bound"] < 1.0)
-    delays = fixed_delay_matrix(variant)
+    delays = fixed_delay_matrix(variant) if variant.topology is None else None
+    analysis = None
+    noise = {"Q": plant.Q, "x0_mean": plant.x0_mean, "x0_cov": plant.x0_cov}
     if recursion == RECURSION_BLOCK:
         out.update(exact_kind="block rate (eq. 26 expression, exact for eqs. 15-16)",
                    exact=eq26)
+        edge = (np.asarray(P) != 0) & ~np.eye(variant.n_agents, dtype=bool)
+        if delays is not None and (not np.any(edge) or int(delays[edge].max()) <= tau):
+            from netsim.models.jointsystem import block_joint_analysis
+
+            analysis = block_joint_analysis(P, A, C, L, tau, **noise)
     elif delays is not None:
+        from netsim.models.jointsystem import joint_analysis
+
         out["realised_delays"] = {f"{j}->{i}": int(delays[i, j]) for j, i in variant.links}
         with np.errstate(over="ignore", invalid="ignore"):
             rho = float(augmented_spectral_radius(P, A, C, L, delays, None,
                                                   compensated=compensated))
-        out.update(exact_kind="augmented rho (LCSYS2022 eq. 9)" if compensated
-                   else "augmented rho (delay-tolerant eq. 11, still state only)", exact=rho)
+        out.update(exact_kind=EXACT_COMPENSATED if compensated else EXACT_UNCOMPENSATED,
+                   exact=rho)
+        analysis = joint_analysis(P, A, C, L, delays, compensated=compensated,
+                                  rho_error=rho, **noise)
     elif first is not None and first.effective_delays is not None:
         out.update(_realised_growth(P, A, C, L, first.effective_delays, compensated))
+    if analysis is not None:
+        from netsim.verdicts import analysis_verdict
+
+        out["joint"] = {**analysis.to_dict(), "verdict": analysis_verdict(analysis)}
     exact = out["exact"]
     out["exact_violates_bound"] = bool(exact is not None and math.isfinite(exact)
                                        and exact > out["bound"] + BOUND_SLACK)
-    return out
-
-
-def _exact_rho(analytics: dict[str, Any]) -> float | None:
-    """The exact spectral radius of a cell's error recursion, when it is exact: the
-    compensating estimator's augmented rho for fixed delays (eq. 9); None otherwise
-    (uncompensated eq. 11 holds only for a still state; the block rate only when every
-    message arrives within its block; a realised growth factor along one trial is not
-    exact for the others)."""
-    kind = analytics.get("exact_kind") or ""
-    if kind.startswith("augmented rho (LCSYS2022 eq. 9)"):
-        exact = analytics.get("exact")
-        return None if exact is None else float(exact)
-    return None
+    return out, analysis
 
 
 def _realised_growth(P: np.ndarray, A: np.ndarray, C: Sequence[np.ndarray],
@@ -221,15 +239,15 @@ def _verdict(family: Any, measured: dict[str, Any], analytics: dict[str, Any]) -
 
     ``bound violated``: the exact value exceeds the bound (the only meaning, as in
     ``netsim analyze``); ``prediction contradicted``: the bound predicts stability and
-    the run is diverging or diverged; ``bound conservative``: the run is stable although
-    the bound does not predict it; else the measured verdict (``stable``, ``diverging``,
-    ``undecided``, ``diverged``)."""
+    the run is diverging, unbounded or diverged; ``bound conservative``: the run is
+    stable although the bound does not predict it; else the run's verdict (``stable``,
+    ``diverging``, ``unbounded``, ``undecided``, ``diverged``)."""
     verdict = measured["verdict"]
     if analytics.get("predicted_stable") is None:
         return verdict
     if analytics.get("exact_violates_bound"):
         return "bound violated"
-    if analytics["predicted_stable"] and verdict in ("diverging", "diverged"):
+    if analytics["predicted_stable"] and verdict in ("diverging", "unbounded", "diverged"):
         return "prediction contradicted"
     if verdict == "stable" and not analytics["predicted_stable"]:
         return "bound conservative"
@@ -241,12 +259,15 @@ def _notes(family: EstimatorFamily, measured: dict[str, Any], analytics: dict[st
     notes = []
     exact = analytics.get("exact")
     stable = measured["verdict"] == "stable"
+    joint = analytics.get("joint") or {}
     if exact is not None and math.isfinite(exact):
         if exact < 1 and not stable:
             notes.append(f"the exact value {exact:.4f} < 1 predicts decay, the run is "
                          f"{measured['verdict']}")
             if family.error_recursion == RECURSION_UNCOMPENSATED:
-                notes.append("eq. (11) leaves out the (A^(r+1) - A) x term of a moving state")
+                notes.append("eq. (11) leaves out the (A^(r+1) - A) x term of a moving state"
+                             + (f"; the joint system of state and error: {joint['verdict']}, "
+                                f"{joint['reason']}" if joint else ""))
         elif exact >= 1 and stable:
             notes.append(f"the exact value {exact:.4f} >= 1, yet the run stays bounded over "
                          "its steps")
@@ -288,8 +309,9 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
     results = run_trials(variant, family, gains if family.needs_gains else None,
                          seeds, steps, engine=engine,
                          record_delays=[0] if keep else False, record_estimates=False)
-    analytics = _analytics(variant, gains, family, tau, results[0] if results else None)
-    measured = _measure(results, steps, variant.steady_state_fraction, _exact_rho(analytics))
+    analytics, analysis = _analytics(variant, gains, family, tau,
+                                     results[0] if results else None)
+    measured = _measure(results, steps, variant.steady_state_fraction, analysis)
     return {
         "measured": measured,
         "analytics": analytics,

@@ -303,8 +303,11 @@ def _cmd_sweep(args: Any) -> int:
         if "error" in res:
             lines.append(f"  {p}: ERROR {res['error']}")
             continue
-        verdicts = ", ".join(f"{k} {v['verdict']} (MSE {_f(v['steady_state_mse'])})"
-                             for k, v in res["estimators"].items())
+        # a steady MSE for stable runs only; the others show their last trusted MSE
+        verdicts = ", ".join(
+            f"{k} {v['verdict']} (MSE {_f(v['steady_state_mse'])})" if "steady_state_mse" in v
+            else f"{k} {v['verdict']} (last MSE {_f(v.get('last_trusted_mse'))})"
+            for k, v in res["estimators"].items())
         lines.append(f"  {p}: {verdicts}")
     sys.stdout.write("\n".join(lines) + "\n")
     return 0

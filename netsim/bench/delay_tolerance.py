@@ -20,6 +20,7 @@ from netsim.estimators.registry import (
 )
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import SEED_LAYOUT
+from netsim.verdicts import VERDICT_RULES
 
 __all__ = ["SCAN_TAU_MIN", "run_delay_tolerance"]
 
@@ -47,11 +48,13 @@ def _shared(family: EstimatorFamily, setting: str, tau: int) -> tuple[str, int]:
 def _cells(taus: Sequence[int], settings: Sequence[str], families: Sequence[EstimatorFamily],
            trials: int, steps: int, seed: int, fingerprint: str, engines: dict[str, str]
            ) -> list[dict[str, Any]]:
-    """Distinct computations, longest first (big tau, time-varying)."""
+    """Distinct computations, longest first (big tau, time-varying). Each cell's key
+    holds the verdict rule's version (:data:`netsim.verdicts.VERDICT_RULES`), so a
+    results file written under another rule is computed afresh, not reused."""
     out = []
     seen = set()
     common = {"kind": "mc", "scenario": fingerprint, "trials": trials, "steps": steps,
-              "seed": seed}
+              "seed": seed, "rules": VERDICT_RULES}
     for setting in settings:
         for tau in taus:
             for family in families:
@@ -122,7 +125,7 @@ def run_delay_tolerance(
 
     scan_result = lookup(scan)["result"] if has_consensus else None
     common = {"kind": "mc", "scenario": fingerprint, "trials": trials, "steps": steps,
-              "seed": seed}
+              "seed": seed, "rules": VERDICT_RULES}
     table = []
     for setting in delays:
         for tau in taus:
@@ -222,7 +225,8 @@ def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
                 exact = scan.get("exact_tolerance_uncompensated_eq11")
                 if censored.get("uncompensated_eq11"):
                     exact = f">={exact}"
-                exact_why = "eq. (11), homogeneous (still state only)"
+                exact_why = ("eq. (11) alone, homogeneous (ignores the moving state's "
+                             "forcing (A^(r+1) - A) x)")
             else:
                 predicted = scan.get("tau_star")
                 why = "LCSYS2022 Theorem 1 tau*"

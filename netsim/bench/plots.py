@@ -15,7 +15,8 @@ __all__ = ["plot_report"]
 
 
 def plot_report(data: dict[str, Any], path: str | Path) -> Path:
-    """PNG: steady-state MSE vs tau per estimator (one panel per delay setting) and the
+    """PNG: steady-state MSE vs tau per estimator (one panel per delay setting; a run
+    that is not stable has no steady MSE: its last trusted MSE is marked x) and the
     focus estimator's MSE over time for each tau."""
     from matplotlib import colormaps
     from matplotlib.figure import Figure
@@ -38,8 +39,10 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
                 c = _cell(data, setting, tau, family)
                 if c is None:
                     continue
-                v = c["measured"]["steady_state_mse"]
-                pts.append((tau, v, c["measured"]["verdict"]))
+                m = c["measured"]
+                # a steady MSE for stable runs only; the others: their last trusted MSE
+                v = m.get("steady_state_mse", m.get("last_trusted_mse"))
+                pts.append((tau, v, m["verdict"]))
                 if isinstance(v, float) and math.isfinite(v) and v > 0:
                     finite_top.append(v)
             traits = data.get("family_traits", {}).get(family, {})
@@ -51,8 +54,10 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
                     ax.axhline(vals[0], color=colours.get(family, "0.6"), ls="--", lw=1,
                                label=label)
                 continue
-            xs = [t for t, v, _ in pts if isinstance(v, float) and v > 0]
-            ys = [v for _, v, _ in pts if isinstance(v, float) and v > 0]
+            xs = [t for t, v, verdict in pts
+                  if verdict == "stable" and isinstance(v, float) and v > 0]
+            ys = [v for _, v, verdict in pts
+                  if verdict == "stable" and isinstance(v, float) and v > 0]
             ax.plot(xs, ys, "o-", color=colours.get(family), label=family)
             bad = [(t, v) for t, v, verdict in pts if verdict != "stable"]
             for t, v in bad:
@@ -63,7 +68,7 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
         ax.set_yscale("log")
         ax.set_xlabel("delay bound tau (steps)")
         ax.set_ylabel("steady-state MSE")
-        ax.set_title(f"{setting}: MSE vs tau (x: not stable)", fontsize=10)
+        ax.set_title(f"{setting}: steady MSE vs tau (x: not stable, last MSE)", fontsize=10)
         ax.grid(True, which="both", alpha=0.3)
         ax.legend(fontsize=8)
         ax2 = axes[1][col]

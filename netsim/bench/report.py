@@ -43,7 +43,8 @@ def format_report(data: dict[str, Any]) -> str:
                  f"reused, {r['executor']} executor ({r['workers']} workers), "
                  f"{r['elapsed_s']:.1f} s")
     header = (f"{'tau':>4}  {'estimator':<15}{'measured':<11}{'steady MSE':>11}"
-              f"{'MSE grow':>10}{'decay':>8}{'exact':>9}  {'bound':>7} {'pred':<5} verdict")
+              f"{'MSE grow':>10}{'decay':>8}{'exact':>9}{'joint':>11}  {'bound':>7} "
+              f"{'pred':<5} verdict")
     for setting, desc in data["settings"].items():
         lines += ["", f"delays: {setting} -- {desc}", header, "-" * len(header)]
         for tau in data["taus"]:
@@ -58,11 +59,15 @@ def format_report(data: dict[str, Any]) -> str:
                 pred = {True: "yes", False: "no", None: ""}[a.get("predicted_stable")]
                 centralised = data.get("family_traits", {}).get(family, {}).get("centralised")
                 name = "kf (reference)" if centralised else family
+                # a steady MSE for stable runs only; else the last trusted one, marked *
+                mse = (_f(m["steady_state_mse"]) if "steady_state_mse" in m else
+                       _f(m.get("last_trusted_mse")) + "*")
+                joint = (a.get("joint") or {}).get("verdict", "-")
                 lines.append(
-                    f"{tau:>4}  {name:<15}{measured:<11}{_f(m['steady_state_mse']):>11}"
+                    f"{tau:>4}  {name:<15}{measured:<11}{mse:>11}"
                     f"{_f(m['growth_rate']):>10}{_f(m['decay_factor'], 3):>8}"
-                    f"{_f(a.get('exact')):>9}  {_f(a.get('bound')):>7} {pred:<5} "
-                    f"{c['verdict']}")
+                    f"{_f(a.get('exact')):>9}{joint:>11}  {_f(a.get('bound')):>7} "
+                    f"{pred:<5} {c['verdict']}")
         realised = []
         for tau in data["taus"]:
             c = _cell(data, setting, tau, "compensated") or _cell(data, setting, tau,
@@ -73,16 +78,21 @@ def format_report(data: dict[str, Any]) -> str:
                     f"{k}:{v}" for k, v in c["analytics"]["realised_delays"].items()))
         if realised:
             lines.append("realised link delays: " + "; ".join(realised))
-    lines += ["", "columns: measured = stable / diverging / undecided / div@k (a trial blew "
-              "up at step k), by the rule of netsim.verdicts; "
-              "MSE grow = fitted MSE factor per step over the second half; decay = fitted "
-              "per-step factor of the error norm over the transient; exact = augmented rho "
-              "of the realised fixed delays (compensated eq. 9; uncompensated eq. 11, still "
-              "state only; block: its rate), or the realised growth factor along trial 0's "
-              "delays (time-varying); bound = LCSYS2022 eq. (26) (compensated, block) or "
+    lines += ["", "columns: measured = stable / diverging / unbounded / undecided / div@k (a "
+              "trial blew up at step k), by the rule of netsim.verdicts (for fixed delays "
+              "decided by the joint system of state and error); steady MSE = mean MSE over "
+              "the last quarter, for stable runs only (other runs: the last trusted MSE, "
+              "marked *); MSE grow = fitted MSE factor per step over the second half; "
+              "decay = fitted per-step factor of the error norm over the transient; exact = "
+              "augmented rho of the realised fixed delays (compensated eq. 9; uncompensated: "
+              "eq. (11), the error recursion alone, which ignores the forcing of the error "
+              "by a moving state, (A^(r+1) - A) x; block: its rate), or the realised growth "
+              "factor along trial 0's delays (time-varying); joint = the verdict of the "
+              "joint linear system of plant state and error (fixed delays; - where it does "
+              "not apply); bound = LCSYS2022 eq. (26) (compensated, block) or "
               "rho(A-hat)^(1/(tau+1)) (uncompensated); pred = the bound predicts stability; "
               "verdict: bound violated = exact > bound, prediction contradicted = predicted "
-              "stable but measured diverging/diverged."]
+              "stable but diverging/unbounded/diverged."]
     lines += ["", "largest tolerated delay (measured on this grid: every tau up to it stable) "
               "vs predicted"]
     head = (f"{'estimator':<15}{'delays':<20}{'measured':>9}{'predicted':>10}  "

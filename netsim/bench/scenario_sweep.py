@@ -57,9 +57,13 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
         a = data["analytics"]
         out["analytics"] = {k: a.get(k) for k in (
             "rho_delay_free", "tau_star", "bound_lcsys_eq26", "bound_delay_tolerant",
-            "rho_exact_compensated", "rho_exact_uncompensated")}
+            "rho_exact_compensated", "rho_exact_uncompensated", "joint_system")}
     out["estimators"] = {
-        name: {"verdict": e["verdict"], "steady_state_mse": e["steady_state_mse"],
+        # a steady MSE for stable runs only (netsim.verdicts.has_steady_state)
+        name: {"verdict": e["verdict"],
+               **({"steady_state_mse": e["steady_state_mse"]} if "steady_state_mse" in e
+                  else {}),
+               "last_trusted_mse": e["last_trusted_mse"],
                "growth_rate": e["growth_rate"], "diverged_trials": len(e["diverged_trials"]),
                "messages_sent": e["messages"]["sent"],
                "messages_delivered": e["messages"]["delivered"]}
@@ -92,7 +96,10 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list], trials: int, ste
     cells = grid(**{k: v for k, v in axes.items() if v})
     context = {"data": data, "source": source, "families": [f.key for f in declared],
                "trials": trials, "steps": steps, "fingerprint": scenario_fingerprint(base)}
+    from netsim.verdicts import VERDICT_RULES
+
     cells = [{**c, "_scenario": context["fingerprint"], "_trials": trials, "_steps": steps,
+              "_rules": VERDICT_RULES,
               "_engine": engine} for c in cells]
     return run_sweep(scenario_sweep_cell, cells, root_seed=seed, sweep="scenario-sweep",
                      context=context, **options)

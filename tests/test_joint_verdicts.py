@@ -425,3 +425,23 @@ def test_verdict_table_defines_every_word_and_is_run_help():
     run = next(a for a in build_parser("run")._actions
                if a.__class__.__name__ == "_SubParsersAction").choices["run"]
     assert VERDICT_TABLE in run.format_help()  # the table keeps its layout
+
+
+def test_bench_cell_names_the_eq11_radius_and_gives_the_joint_verdict():
+    from netsim.bench import delay_tolerance_cell
+    from netsim.bench.fmt import describe_cell
+
+    scenario = resolve_scenario("lcsys2022-heterogeneous")
+    gains = scenario_gains(scenario)
+    cell = delay_tolerance_cell(
+        {"kind": "mc", "setting": "heterogeneous", "tau": 3, "family": "uncompensated",
+         "trials": 2, "steps": 40, "seed": 1}, None, {"scenario": scenario, "gains": gains})
+    a, m = cell["analytics"], cell["measured"]
+    assert "error recursion alone" in a["exact_kind"] and a["exact"] < 1
+    assert a["joint"]["verdict"] == DIVERGING and a["joint"]["rho"] == pytest.approx(1.04)
+    assert m["verdict"] == DIVERGING and m["verdict_basis"] == "exact analysis"
+    assert "steady_state_mse" not in m and m["last_trusted_step"] == 40
+    assert cell["verdict"] == "prediction contradicted"  # the paper's bound predicts decay
+    text = describe_cell({**cell, "setting": "heterogeneous", "tau": 3})
+    assert "eq. (11) error-recursion rho (moving-state forcing ignored)" in text
+    assert "joint system of state and error: diverging" in text and "steady MSE" not in text

@@ -16,6 +16,7 @@ from typing import Any
 
 import numpy as np
 
+from netsim.bench.fmt import exact_name
 from netsim.bench.variants import delay_variant
 from netsim.estimators.registry import (
     RECURSION_BLOCK,
@@ -260,16 +261,17 @@ def _notes(family: EstimatorFamily, measured: dict[str, Any], analytics: dict[st
     exact = analytics.get("exact")
     stable = measured["verdict"] == "stable"
     joint = analytics.get("joint") or {}
+    name = exact_name(analytics)
     if exact is not None and math.isfinite(exact):
         if exact < 1 and not stable:
-            notes.append(f"the exact value {exact:.4f} < 1 predicts decay, the run is "
+            notes.append(f"the {name} {exact:.4f} < 1 predicts decay, the run is "
                          f"{measured['verdict']}")
             if family.error_recursion == RECURSION_UNCOMPENSATED:
-                notes.append("eq. (11) leaves out the (A^(r+1) - A) x term of a moving state"
-                             + (f"; the joint system of state and error: {joint['verdict']}, "
-                                f"{joint['reason']}" if joint else ""))
+                notes.append(f"the joint system of state and error: {joint['verdict']}: "
+                             f"{joint['reason']}" if joint else
+                             "eq. (11) leaves out the (A^(r+1) - A) x term of a moving state")
         elif exact >= 1 and stable:
-            notes.append(f"the exact value {exact:.4f} >= 1, yet the run stays bounded over "
+            notes.append(f"the {name} {exact:.4f} >= 1, yet the run stays bounded over "
                          "its steps")
     if analytics.get("exact_violates_bound"):
         notes.append(f"exact {exact:.6f} > bound {analytics['bound']:.6f}")

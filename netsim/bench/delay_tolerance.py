@@ -186,7 +186,7 @@ def _contradictions(data: dict[str, Any]) -> list[str]:
             a = c["analytics"]
             out.append(f"{c['family']}, {c['setting']}, tau {c['tau']}: prediction "
                        f"contradicted: {a['bound_name']} = {fmt_value(a['bound'])} < 1 predicts "
-                       f"stability, measured {describe_cell(c)}")
+                       f"stability; the run: {describe_cell(c)}")
     return out
 
 

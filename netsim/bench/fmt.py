@@ -31,7 +31,7 @@ def describe_cell(c: dict[str, Any]) -> str:
         parts.append(f"last trusted MSE {fmt_value(m['last_trusted_mse'])}"
                      + (f" at step {m['last_trusted_step']}"
                         if m.get("last_trusted_step") is not None else ""))
-    parts.append(f"MSE growth {fmt_value(m['growth_rate'])}/step")
+    parts.append(f"measured MSE growth {fmt_value(m['growth_rate'])}/step")
     if exact is not None:
         parts.append(f"{exact_name(a)} {fmt_value(exact)}")
     joint = a.get("joint")

@@ -42,7 +42,7 @@ def format_report(data: dict[str, Any]) -> str:
                  f"{data['seed']}; {r['cells_computed']} cells computed, {r['cells_reused']} "
                  f"reused, {r['executor']} executor ({r['workers']} workers), "
                  f"{r['elapsed_s']:.1f} s")
-    header = (f"{'tau':>4}  {'estimator':<15}{'measured':<11}{'steady MSE':>11}"
+    header = (f"{'tau':>4}  {'estimator':<15}{'run':<11}{'steady MSE':>11}"
               f"{'MSE grow':>10}{'decay':>8}{'exact':>9}{'joint':>11}  {'bound':>7} "
               f"{'pred':<5} verdict")
     for setting, desc in data["settings"].items():
@@ -78,9 +78,10 @@ def format_report(data: dict[str, Any]) -> str:
                     f"{k}:{v}" for k, v in c["analytics"]["realised_delays"].items()))
         if realised:
             lines.append("realised link delays: " + "; ".join(realised))
-    lines += ["", "columns: measured = stable / diverging / unbounded / undecided / div@k (a "
+    lines += ["", "columns: run = stable / diverging / unbounded / undecided / div@k (a "
               "trial blew up at step k), by the rule of netsim.verdicts (for fixed delays "
-              "decided by the joint system of state and error); steady MSE = mean MSE over "
+              "decided by the joint system of state and error, else by the measured "
+              "growth); steady MSE = mean MSE over "
               "the last quarter, for stable runs only (other runs: the last trusted MSE, "
               "marked *); MSE grow = fitted MSE factor per step over the second half; "
               "decay = fitted per-step factor of the error norm over the transient; exact = "

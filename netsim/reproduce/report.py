@@ -13,6 +13,7 @@ from typing import Any
 from netsim.reproduce.items import PAPER_TITLES, PAPERS, BuildContext, Item, items_for
 
 __all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "reproduce",
+           "item_claim_ids",
            "DEFAULT_TRIALS", "CLAIM_BUDGET"]
 
 #: Default Monte Carlo trials (LCSYS2022 Fig. 1 uses 100).
@@ -100,6 +101,32 @@ def _label_pattern(label: str) -> re.Pattern[str]:
     return re.compile(r"(?<![\w.])" + re.escape(label) + r"(?![\w])")
 
 
+def item_claim_ids(item: Item) -> list[str]:
+    """The registry claims an item bears on: its own ids, then every other claim of the
+    same paper whose ``where`` names the item's label."""
+    from netsim.claims import REGISTRY
+
+    ids = list(item.claims)
+    pat = _label_pattern(item.label)
+    for cid, claim in REGISTRY.items():
+        if claim.paper == item.paper and pat.search(claim.where) and cid not in ids:
+            ids.append(cid)
+    return ids
+
+
+def _run_claim_searches(items: Sequence[Item], context: Any, workers: int) -> None:
+    """Run the counterexample searches the items' claims read, in ``workers`` processes,
+    into ``context``'s cache (the checks then read them, as ``netsim claims`` does)."""
+    from netsim.claims import REGISTRY
+    from netsim.claims.report import run_searches
+
+    names = [n for it in items for cid in item_claim_ids(it) if cid in REGISTRY
+             for n in REGISTRY[cid].searches if not n.startswith(("bench:", "fusion:"))]
+    if names:
+        context.cache.update(run_searches(list(dict.fromkeys(names)), context.seed,
+                                          context.budget, max(1, workers)))
+
+
 def claim_verdicts(item: Item, bench_rows: Sequence[dict[str, Any]], context: Any,
                    cache: dict[str, Any]) -> tuple[list[ClaimVerdict], list[str]]:
     """The registry claims an item bears on, each with its standalone verdict.
@@ -108,13 +135,9 @@ def claim_verdicts(item: Item, bench_rows: Sequence[dict[str, Any]], context: An
     claim of the same paper whose ``where`` names the item's label (``Fig. 6``). Checks
     run once per id (``cache``). ``bench_rows``: the bench's rows for this run's data.
     """
-    from netsim.claims import REGISTRY, get_claim
+    from netsim.claims import get_claim
 
-    ids = list(item.claims)
-    pat = _label_pattern(item.label)
-    for cid, claim in REGISTRY.items():
-        if claim.paper == item.paper and pat.search(claim.where) and cid not in ids:
-            ids.append(cid)
+    ids = item_claim_ids(item)
     rows = {r.get("id"): r for r in bench_rows}
     out, missing = [], []
     for cid in ids:
@@ -247,6 +270,7 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
                         else float(claim_budget), out=None)
     checks: dict[str, Any] = {}
     start, cpu0 = time.perf_counter(), _cpu()
+    _run_claim_searches(chosen, claim_ctx, int(workers))
     reports = []
     for item in chosen:
         t0 = time.perf_counter()

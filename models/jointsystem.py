@@ -73,6 +73,9 @@ __all__ = [
     "GROWTH_KINDS",
     "MODULUS_TOLERANCE",
     "POLYNOMIAL",
+    "RECURSION_BLOCK",
+    "RECURSION_COMPENSATED",
+    "RECURSION_UNCOMPENSATED",
     "JointAnalysis",
     "PlantMode",
     "block_joint_analysis",
@@ -81,6 +84,14 @@ __all__ = [
     "joint_matrix",
     "plant_modes",
 ]
+
+#: The error recursions analysed here, by the identifiers estimator families declare
+#: (the same strings as ``netsim.estimators.registry.RECURSION_*``): LCSYS2022 eq. (9)
+#: (compensating estimator), the delay-tolerant paper's eq. (11) (uncompensated) and
+#: LCSYS2022 eqs. (15)-(16) (block update).
+RECURSION_COMPENSATED = "lcsys2022-eq9"
+RECURSION_UNCOMPENSATED = "delay-tolerant-eq11"
+RECURSION_BLOCK = "lcsys2022-eq15"
 
 GEOMETRIC = "geometric"
 POLYNOMIAL = "polynomial"
@@ -163,8 +174,8 @@ class JointAnalysis:
     Attributes
     ----------
     recursion : str
-        ``compensated`` (LCSYS2022 eq. 9), ``uncompensated`` (delay-tolerant eq. 11) or
-        ``block`` (LCSYS2022 eqs. 15-16).
+        :data:`RECURSION_COMPENSATED` (LCSYS2022 eq. 9), :data:`RECURSION_UNCOMPENSATED`
+        (delay-tolerant eq. 11) or :data:`RECURSION_BLOCK` (LCSYS2022 eqs. 15-16).
     rho_error_recursion : float
         Spectral radius of the error recursion alone (A-hat-bar), per step.
     modes : tuple of PlantMode
@@ -496,7 +507,7 @@ def joint_analysis(P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike], L: Sequen
                 terms.append((-float(P_arr[i, j]), e))
         blocks.append((G, _merge(terms)))
     modes = plant_modes(A_arr, blocks, Q, _prior_moment(n, x0_mean, x0_cov))
-    kind = "compensated" if compensated else "uncompensated"
+    kind = RECURSION_COMPENSATED if compensated else RECURSION_UNCOMPENSATED
     lagged = bool(np.any((d > 0) & (P_arr != 0) & ~np.eye(len(P_arr), dtype=bool)))
     return _conclude(kind, float(rho_error), modes, 1, _forcing_words(kind, lagged))
 
@@ -542,7 +553,8 @@ def block_joint_analysis(P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike],
     modes = plant_modes(A_block, blocks, Q_block, _prior_moment(n, x0_mean, x0_cov))
     per_step = tuple(PlantMode(_root(m.eigenvalue, period), m.multiplicity, m.defective,
                                m.forcing, m.forced, m.noise, m.prior) for m in modes)
-    return _conclude("block", rho_step, per_step, period, _forcing_words("block", False))
+    return _conclude(RECURSION_BLOCK, rho_step, per_step, period,
+                     _forcing_words(RECURSION_BLOCK, False))
 
 
 def _root(z: complex, period: int) -> complex:
@@ -560,10 +572,10 @@ def _merge(terms: list[tuple[float, int]]) -> list[tuple[float, int]]:
 
 
 def _forcing_words(kind: str, lagged: bool) -> str:
-    if kind == "uncompensated" and lagged:
+    if kind == RECURSION_UNCOMPENSATED and lagged:
         return ("error forced by the moving state through (A^(r+1) - A) x_(k-1-r) on the "
                 "links with delay r >= 1 (eq. (11) leaves this term out)")
-    if kind == "block":
+    if kind == RECURSION_BLOCK:
         return "error forced by the state through (1 - sum_j p_ij) A^(tau+1) x"
     return "error forced by the state through (1 - sum_j p_ij) A x_(k-1)"
 
@@ -584,9 +596,9 @@ def _conclude(kind: str, rho_err: float, modes: Sequence[PlantMode], period: int
     entering = [m for m in modes if m.enters and m.modulus > 0]
     rho_f = max((m.modulus for m in entering), default=0.0)
     rho = max(rho_err, rho_f) if math.isfinite(rho_err) else math.inf
-    recursion = {"compensated": "the error recursion (LCSYS2022 eq. (9))",
-                 "uncompensated": "eq. (11), the error recursion alone,",
-                 "block": "the block recursion (LCSYS2022 eqs. (15)-(16))"}[kind]
+    recursion = {RECURSION_COMPENSATED: "the error recursion (LCSYS2022 eq. (9))",
+                 RECURSION_UNCOMPENSATED: "eq. (11), the error recursion alone,",
+                 RECURSION_BLOCK: "the block recursion (LCSYS2022 eqs. (15)-(16))"}[kind]
     per = " per step" if period == 1 else f" per step (blocks of {period} steps)"
     top = max(entering, key=lambda m: m.modulus) if entering else None
     plant_rho = max((m.modulus for m in modes), default=0.0)
@@ -640,10 +652,11 @@ def _conclude(kind: str, rho_err: float, modes: Sequence[PlantMode], period: int
                   f"the error decay ({plant_growth(top)} < 1): the MSE is bounded; its "
                   f"transient decays as {_fmt(factor)} per step")
     else:
-        cancel = {"compensated": "A^(r+1) compensation cancels the state's motion",
-                  "uncompensated": "no plant mode that grows or persists enters the error",
-                  "block": "A^(tau+1) compensation cancels the state's motion"}[kind]
-        if kind == "uncompensated" and not any(m.forced for m in modes):
+        cancel = {RECURSION_COMPENSATED: "A^(r+1) compensation cancels the state's motion",
+                  RECURSION_UNCOMPENSATED: ("no plant mode that grows or persists enters "
+                                            "the error"),
+                  RECURSION_BLOCK: "A^(tau+1) compensation cancels the state's motion"}[kind]
+        if kind == RECURSION_UNCOMPENSATED and not any(m.forced for m in modes):
             cancel = "no link delay leaves a state term in the error"
         reason = (f"{recursion} has rho {_fmt(rho_err)} < 1{per} and {cancel}: the MSE is "
                   f"bounded; its transient decays as {_fmt(factor)} per step")

@@ -699,8 +699,11 @@ def _format_run(data: dict[str, Any]) -> str:
                 f"uncompensated (eq. 11, the error recursion alone) = "
                 f"{_fmt(a['rho_exact_uncompensated'])}"
             )
-            moving = ((a.get("joint_system") or {}).get("uncompensated") or {})
-            if moving.get("forced_eigenvalues"):
+            from netsim.models.jointsystem import RECURSION_UNCOMPENSATED
+
+            moving = [j for j in (a.get("joint_system") or {}).values()
+                      if j.get("recursion") == RECURSION_UNCOMPENSATED]
+            if moving and moving[0].get("forced_eigenvalues"):
                 lines.append(
                     "  eq. (11) does not apply here: on a moving state the uncompensated "
                     "error is also forced by (A^(r+1) - A) x_(k-1-r), which eq. (11) leaves "

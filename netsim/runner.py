@@ -36,7 +36,14 @@ from netsim.models.augmented import (
     tau_star,
 )
 from netsim.models.delays import latency_to_steps
-from netsim.models.jointsystem import JointAnalysis, block_joint_analysis, joint_analysis
+from netsim.models.jointsystem import (
+    RECURSION_BLOCK,
+    RECURSION_COMPENSATED,
+    RECURSION_UNCOMPENSATED,
+    JointAnalysis,
+    block_joint_analysis,
+    joint_analysis,
+)
 from netsim.models.jsonsafe import json_number as _json_float
 from netsim.models.jsonsafe import json_tree as _json_tree
 from netsim.models.scenario import Scenario
@@ -332,19 +339,13 @@ def delay_analytics(scenario: Scenario, gains: GainDesign) -> dict[str, Any]:
     spectral radius of the augmented closed loop of the realised delays, with
     compensation (LCSYS2022 eq. 9-10) and without (delay-tolerant eq. 11; that matrix is
     the error recursion alone, which leaves out the forcing of the error by a moving
-    state); and ``joint_system``: per recursion (``compensated``, ``uncompensated``,
-    ``block``) the analysis of the joint system of plant state and error
-    (:func:`joint_system_analyses`), or ``joint_system_note`` saying why there is none.
+    state); and ``joint_system``: per declared error recursion (the registry's
+    ``RECURSION_*`` identifiers of eq. 9, eq. 11 and eqs. 15-16) the analysis of the joint
+    system of plant state and error (:func:`joint_system_analyses`), or
+    ``joint_system_note`` saying why there is none.
     """
     return _delay_analytics(scenario, gains)[0]
 
-
-#: The recursion kinds of :func:`joint_system_analyses` by declared error recursion.
-_RECURSION_KINDS = {
-    "lcsys2022-eq9": "compensated",
-    "delay-tolerant-eq11": "uncompensated",
-    "lcsys2022-eq15": "block",
-}
 
 #: Largest N n (tau + 1) for the exact augmented radii and the joint-system analysis.
 _EXACT_MAX_SIZE = 4000
@@ -404,13 +405,15 @@ def _delay_analytics(scenario: Scenario, gains: GainDesign
 
 def joint_system_analyses(scenario: Scenario, gains: GainDesign) -> dict[str, JointAnalysis]:
     """The exact analyses of the joint system of plant state and estimation error
-    (:mod:`netsim.models.jointsystem`) that apply to the scenario, by recursion kind.
+    (:mod:`netsim.models.jointsystem`) that apply to the scenario, by the error recursion
+    a family declares (``EstimatorFamily.error_recursion``).
 
-    ``compensated`` (LCSYS2022 eq. 9) and ``uncompensated`` (delay-tolerant eq. 11) when
+    LCSYS2022 eq. (9) (compensating) and the delay-tolerant eq. (11) (uncompensated) when
     the delays are fixed (a time-invariant delay model without losses, outages or
     buffers), the topology does not vary and the dense analysis fits
     (N n (tau+1) <= 4000); ``block`` (eqs. 15-16) when, in addition, every delay is
-    within the bound tau. Empty otherwise: there the measured growth decides.
+    within the bound tau (the block update, eqs. 15-16). Empty otherwise: there the
+    measured growth decides.
     """
     return _delay_analytics(scenario, gains)[1]
 
@@ -434,15 +437,15 @@ def _joint_system(scenario: Scenario, gains: GainDesign, delays: np.ndarray | No
     P, A, C, L = scenario.weights, plant.A, plant.C, gains.L
     common = {"Q": plant.Q, "x0_mean": plant.x0_mean, "x0_cov": plant.x0_cov}
     out = {
-        "compensated": joint_analysis(P, A, C, L, delays, compensated=True,
-                                      rho_error=rho_comp, **common),
-        "uncompensated": joint_analysis(P, A, C, L, delays, compensated=False,
-                                        rho_error=rho_uncomp, **common),
+        RECURSION_COMPENSATED: joint_analysis(P, A, C, L, delays, compensated=True,
+                                              rho_error=rho_comp, **common),
+        RECURSION_UNCOMPENSATED: joint_analysis(P, A, C, L, delays, compensated=False,
+                                                rho_error=rho_uncomp, **common),
     }
     note = ""
     edge = (np.asarray(P) != 0) & ~np.eye(scenario.n_agents, dtype=bool)
     if not np.any(edge) or int(delays[edge].max()) <= tau:
-        out["block"] = block_joint_analysis(P, A, C, L, tau, **common)
+        out[RECURSION_BLOCK] = block_joint_analysis(P, A, C, L, tau, **common)
     else:
         note = (f"block update: a link delay exceeds its bound tau = {tau}, so its error is "
                 "not the eqs. (15)-(16) recursion; the measured growth decides")
@@ -647,8 +650,7 @@ def _analysis_of(family: EstimatorFamily, analyses: Mapping[str, JointAnalysis]
     """The exact joint-system analysis of the family's error, where one applies: a
     declared error recursion (compensated, uncompensated, block) under fixed delays
     (:func:`joint_system_analyses`); None otherwise (the measured growth decides)."""
-    kind = _RECURSION_KINDS.get(family.error_recursion or "")
-    return None if kind is None else analyses.get(kind)
+    return analyses.get(family.error_recursion or "")
 
 
 class TraceWriteError(OSError):

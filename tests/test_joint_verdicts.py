@@ -445,3 +445,11 @@ def test_bench_cell_names_the_eq11_radius_and_gives_the_joint_verdict():
     text = describe_cell({**cell, "setting": "heterogeneous", "tau": 3})
     assert "eq. (11) error-recursion rho (moving-state forcing ignored)" in text
     assert "joint system of state and error: diverging" in text and "steady MSE" not in text
+
+
+def test_recursion_identifiers_are_the_registrys():
+    from netsim.estimators import registry
+    from netsim.models import jointsystem
+
+    for name in ("RECURSION_COMPENSATED", "RECURSION_UNCOMPENSATED", "RECURSION_BLOCK"):
+        assert getattr(jointsystem, name) == getattr(registry, name)

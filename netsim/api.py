@@ -11,7 +11,8 @@ Example
 >>> run = netsim.run(scenario, steps=50, trials=2, estimators=["compensated"])
 >>> run["compensated"].squared_errors.shape        # (trials, K+1, N)
 (2, 51, 4)
->>> run.summary["compensated"].verdict in ("stable", "diverging", "undecided", "diverged")
+>>> run.summary["compensated"].verdict in ("stable", "diverging", "unbounded", "undecided",
+...                                           "diverged")
 True
 """
 
@@ -165,7 +166,8 @@ class FamilyRun:
     diverged_at : list of int or None
         Per trial, the step it diverged at.
     summary : netsim.runner.EstimatorSummary
-        Network MSE, steady state, growth and verdict.
+        Network MSE, verdict, growth, and the steady-state MSE (stable runs only; NaN
+        otherwise: see its last trusted MSE).
     """
 
     family: str

@@ -715,7 +715,7 @@ def _format_run(data: dict[str, Any]) -> str:
         for name, j in joint:
             forced = _fmt(j["rho_forcing"]) if j["forced_eigenvalues"] else "none"
             growth = {"geometric": f"geometric, MSE x{_fmt(j['mse_growth_factor'])}/step",
-                      "polynomial": "polynomial (e.g. linear), rho = 1",
+                      "polynomial": "polynomial (e.g. linear), MSE unbounded",
                       "bounded": "bounded"}.get(j["growth"], j["growth"])
             lines.append(f"  {name}: rho = {_fmt(j['rho'])} = max(error recursion "
                          f"{_fmt(j['rho_error_recursion'])}, forced plant modes {forced}): "

@@ -220,7 +220,9 @@ def _realised_growth(P: np.ndarray, A: np.ndarray, C: Sequence[np.ndarray],
     with np.errstate(over="ignore", invalid="ignore"):
         rate = closed_loop_sequence_growth(P, A, C, L, half, depth, compensated)
     return {
-        "exact_kind": "realised growth factor (trial 0, second half)",
+        "exact_kind": ("realised growth factor (trial 0, second half)" if compensated else
+                       "realised growth factor of the eq. (11) error recursion alone, "
+                       "moving-state forcing ignored (trial 0, second half)"),
         "exact": _exp(rate),
         "realised_steps": len(half),
         "realised_max_delay": depth,

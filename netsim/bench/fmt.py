@@ -46,6 +46,8 @@ def describe_cell(c: dict[str, Any]) -> str:
 def exact_name(a: dict[str, Any]) -> str:
     """Short words for what a cell's ``exact`` value is (``analytics.exact_kind``)."""
     kind = a.get("exact_kind") or ""
+    if kind.startswith("realised") and "eq. (11)" in kind:
+        return "realised growth of the eq. (11) error recursion (moving-state forcing ignored)"
     if "eq. (11)" in kind or "eq. 11" in kind:
         return "eq. (11) error-recursion rho (moving-state forcing ignored)"
     if kind.startswith("augmented rho"):

@@ -650,7 +650,7 @@ def _conclude(kind: str, rho_err: float, modes: Sequence[PlantMode], period: int
     elif entering:
         reason = (f"{recursion} has rho {_fmt(rho_err)} < 1 and the plant modes that force "
                   f"the error decay ({plant_growth(top)} < 1): the MSE is bounded; its "
-                  f"transient decays as {_fmt(factor)} per step")
+                  f"MSE transient decays as {_fmt(factor)} = rho^2 per step")
     else:
         cancel = {RECURSION_COMPENSATED: "A^(r+1) compensation cancels the state's motion",
                   RECURSION_UNCOMPENSATED: ("no plant mode that grows or persists enters "
@@ -659,6 +659,6 @@ def _conclude(kind: str, rho_err: float, modes: Sequence[PlantMode], period: int
         if kind == RECURSION_UNCOMPENSATED and not any(m.forced for m in modes):
             cancel = "no link delay leaves a state term in the error"
         reason = (f"{recursion} has rho {_fmt(rho_err)} < 1{per} and {cancel}: the MSE is "
-                  f"bounded; its transient decays as {_fmt(factor)} per step")
+                  f"bounded; its MSE transient decays as {_fmt(factor)} = rho^2 per step")
     return JointAnalysis(kind, rho_err, tuple(modes), rho_f, rho, BOUNDED, factor, reason,
                          period)

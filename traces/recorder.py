@@ -156,12 +156,16 @@ def trace_path(base: str | os.PathLike[str], family: str | None = None,
 
 def check_trace_target(path: str | os.PathLike[str], *, force: bool = False) -> None:
     """Refuse a file a trace must not be written to (ValueError naming it): a
-    directory or special file (device, pipe, socket), a file in a directory that does
-    not exist or is not writable, or an existing trace unless ``force``."""
+    directory, a symbolic link or special file (device, pipe, socket), a file in a
+    directory that does not exist or is not writable, or an existing trace unless
+    ``force``."""
     path = Path(path)
     if str(path).endswith(os.sep) or path.is_dir():
         raise ValueError(f"{path}: is a directory; give a file name, e.g. {path}/run.mcap")
-    if path.exists() or path.is_symlink():
+    if path.is_symlink():
+        raise ValueError(f"{path}: is a symbolic link; netsim does not write through links "
+                         "(name the target file itself)")
+    if path.exists():
         mode = path.stat().st_mode if path.exists() else 0
         if path.exists() and not stat.S_ISREG(mode):
             kind = ("a character device" if stat.S_ISCHR(mode) else

@@ -66,6 +66,7 @@ def add_bench_parser(subparsers: Any) -> Any:
     dt.add_argument("--json", action="store_true", help="print one JSON object on stdout")
     dt.add_argument("--plot", metavar="FILE.png", help="write MSE vs tau per estimator and "
                     "delay setting, and the MSE over time, to a PNG")
+    dt.add_argument("--force", action="store_true", help="overwrite an existing --plot file")
     _executor_options(dt)
     dt.add_argument("--resume", metavar="FILE.jsonl", help="results file: finished cells are "
                     "appended as they finish; cells already in it are not recomputed")
@@ -200,6 +201,8 @@ def _cmd_delay_tolerance(args: Any) -> int:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     if args.plot and not args.plot.lower().endswith(".png"):
         raise CommandError(f"--plot {args.plot}: the output must be a .png file")
+    _check_outputs(args.scenario, [("--plot", args.plot, True), ("--resume", args.resume, False)],
+                   getattr(args, "force", False))
     try:
         scenario = resolve_scenario(preset.scenario if preset else args.scenario)
         scenario = scenario.densified("netsim bench")
@@ -245,8 +248,12 @@ def _cmd_delay_tolerance(args: Any) -> int:
     except OSError as exc:
         raise CommandError(f"cannot write results: {exc}") from None
     if args.plot:
+        from netsim.outfiles import atomic_output
+
         try:
-            data["plot"] = str(plot_report(data, args.plot))
+            with atomic_output(args.plot) as tmp:
+                plot_report(data, tmp)
+            data["plot"] = str(args.plot)
         except OSError as exc:
             raise CommandError(f"cannot write {args.plot}: {exc.strerror or exc}") from None
     if args.json:
@@ -257,6 +264,26 @@ def _cmd_delay_tolerance(args: Any) -> int:
         if args.plot:
             sys.stdout.write(f"plot: {data['plot']}\n")
     return 0
+
+
+def _check_outputs(scenario: str, outputs: list[tuple[str, str | None, bool]],
+                   force: bool = False) -> None:
+    """Check the command's output files by :mod:`netsim.outfiles`' rule: ``outputs`` is
+    (option, path or None, overwrites); the scenario file is an input."""
+    import os
+
+    from netsim.cliutil import CommandError
+    from netsim.outfiles import OutputFileError, check_output
+
+    named = [(o, p, w) for o, p, w in outputs if p]
+    inputs = [scenario] if os.path.isfile(scenario) else []
+    try:
+        for option, path, overwrites in named:
+            check_output(path, option, force=force or not overwrites, inputs=inputs,
+                         others=[p for o, p, _ in named if o != option],
+                         overwrites=overwrites)
+    except OutputFileError as exc:
+        raise CommandError(str(exc)) from None
 
 
 def _cmd_sweep(args: Any) -> int:
@@ -277,6 +304,9 @@ def _cmd_sweep(args: Any) -> int:
     if axes["agents"] and min(axes["agents"]) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
     families = _names(args.estimators, "--estimators", None) or list(FAMILIES)
+    # the results file is resumed and the CSV regenerated from it: neither needs --force,
+    # but neither may be a link, an input or the other output
+    _check_outputs(args.scenario, [("--out", args.out, False), ("--csv", args.csv, False)])
     try:
         result = run_scenario_sweep(
             args.scenario, axes=axes, trials=args.trials, steps=args.steps,

@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import os
 import sys
 from collections.abc import Sequence
 from contextlib import nullcontext
@@ -239,6 +240,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     )
     plot.add_argument("traces", nargs="+", metavar="TRACE", help="MCAP files written by netsim")
     plot.add_argument("-o", "--output", required=True, metavar="FILE.png", help="PNG to write")
+    plot.add_argument("--force", action="store_true", help="overwrite an existing PNG")
     plot.add_argument("--json", action="store_true",
                       help="print {\"output\": FILE.png, ...} as JSON on stdout")
 
@@ -477,7 +479,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     trials = args.trials or scenario.trials
     trace_options = _trace_options(args)
     if args.trace is not None:
-        _check_traces(args.trace, families, trials, args.force)
+        _check_traces(args.trace, families, trials, args.force,
+                      [args.scenario] if os.path.isfile(args.scenario) else [])
     total = trials * len(families)
     bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",
                disable=True if args.no_progress else None, file=sys.stderr, leave=False)
@@ -569,15 +572,22 @@ def _on_trace(args: argparse.Namespace, written: list[str]) -> Any:
     return finished
 
 
-def _check_traces(trace: str, families: Sequence[str], trials: int, force: bool) -> None:
-    """Refuse --trace paths that are special files, directories, in a missing or
-    read-only directory, or existing files without --force (naming the file)."""
+def _check_traces(trace: str, families: Sequence[str], trials: int, force: bool,
+                  inputs: Sequence[str] = ()) -> None:
+    """Refuse --trace paths that are special files, directories, symbolic links, in a
+    missing or read-only directory, existing files without --force, or one of the
+    command's inputs (the scenario file), naming the file (:mod:`netsim.outfiles`)."""
+    from netsim.outfiles import same_file
     from netsim.runner import trace_files
     from netsim.traces.recorder import check_trace_target
 
     try:
         check_trace_target(trace, force=True)  # the base: no special file, a real folder
         for path in trace_files(trace, families, trials):
+            for source in inputs:
+                if same_file(path, source):
+                    raise ValueError(f"{path}: is also an input of this command ({source}); "
+                                     "choose another trace file")
             check_trace_target(path, force=force)
     except (ValueError, OSError) as exc:
         raise CommandError(f"--trace {exc}") from None
@@ -1010,13 +1020,19 @@ def _cmd_replay(args: argparse.Namespace) -> int:
 
 
 def _cmd_plot(args: argparse.Namespace) -> int:
+    from netsim.outfiles import OutputFileError, atomic_output, check_output
     from netsim.traces.plot import plot_traces
 
     if not args.output.lower().endswith(".png"):
         raise CommandError(f"-o {args.output}: the output must be a .png file")
-    traces = [_read(path) for path in args.traces]
     try:
-        path = plot_traces(traces, args.output)
+        path = check_output(args.output, "-o", force=args.force, inputs=args.traces)
+    except OutputFileError as exc:
+        raise CommandError(str(exc)) from None
+    traces = [_read(p) for p in args.traces]
+    try:
+        with atomic_output(path) as tmp:
+            plot_traces(traces, tmp)
     except OSError as exc:
         raise CommandError(f"cannot write {args.output}: {exc.strerror}") from None
     data = {"output": str(path), "traces": list(args.traces)}
@@ -1039,9 +1055,17 @@ def _cmd_layout(args: argparse.Namespace) -> int:
         raise CommandError(f"-o {args.output}: the layout must be a .json file")
     if args.figure is not None and not args.figure.lower().endswith(".png"):
         raise CommandError(f"--figure {args.figure}: the figure must be a .png file")
+    from netsim.outfiles import OutputFileError, atomic_output, check_output
+
     out = layout_path_for(args.trace) if args.output is None else Path(args.output)
-    if out.exists() and not args.force:
-        raise CommandError(f"{out}: exists; pass --force to overwrite it")
+    try:
+        check_output(out, "-o", force=args.force, inputs=[args.trace],
+                     others=[args.figure] if args.figure else [])
+        if args.figure is not None:
+            check_output(args.figure, "--figure", force=args.force, inputs=[args.trace],
+                         others=[out])
+    except OutputFileError as exc:
+        raise CommandError(str(exc)) from None
     try:
         source = layout_source(args.trace)
         layout = foxglove_layout(source)
@@ -1056,7 +1080,8 @@ def _cmd_layout(args: argparse.Namespace) -> int:
             raise CommandError(f"--tabs {args.tabs}: this layout's tabs are "
                                f"{', '.join(tabs)}")
     try:
-        out.write_text(json.dumps(layout, indent=2) + "\n")
+        with atomic_output(out) as tmp:
+            tmp.write_text(json.dumps(layout, indent=2) + "\n")
     except OSError as exc:
         raise CommandError(f"cannot write {out}: {exc.strerror or exc}") from None
     data: dict[str, Any] = {"trace": args.trace, "layout": str(out), "tabs": tabs,
@@ -1064,8 +1089,9 @@ def _cmd_layout(args: argparse.Namespace) -> int:
                             "paths": len(layout_paths(layout)), "figure": None}
     if args.figure is not None:
         try:
-            data["figure"] = str(render_layout(_read(args.trace), layout, args.figure,
-                                               tabs=chosen))
+            with atomic_output(args.figure) as tmp:
+                render_layout(_read(args.trace), layout, tmp, tabs=chosen)
+            data["figure"] = str(args.figure)
         except OSError as exc:
             raise CommandError(f"cannot write {args.figure}: {exc.strerror or exc}") from None
     text = (f"wrote {out}: {data['panels']} plot panels ({', '.join(tabs)}), "

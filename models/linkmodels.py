@@ -464,10 +464,10 @@ def load_latency_csv(path: str | Path, *, scale: float = 1.0, unit: Unit = "time
     """
     path = Path(path)
     scale = _finite(scale, "scale", 0.0, strict=True)
+    from netsim.models.inputfiles import MAX_TABLE_BYTES, read_input_bytes
+
     try:
-        text = path.read_text(encoding="utf-8")
-    except OSError as exc:
-        raise ValueError(f"cannot read latency file {path}: {exc.strerror or exc}") from None
+        text = read_input_bytes(path, "latency file", MAX_TABLE_BYTES).decode("utf-8")
     except UnicodeDecodeError:
         raise ValueError(f"latency file {path} is not UTF-8 text") from None
     values: list[float] = []

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import difflib
 import math
+import os
 import tomllib
 import warnings
 from collections.abc import Sequence
@@ -1389,11 +1390,23 @@ def read_scenario_data(path: str | Path) -> dict[str, Any]:
     """The parsed TOML document of a scenario file (ScenarioError naming the file if it
     cannot be read or parsed). A UTF-8 byte-order mark at the start is skipped, with a
     warning (TOML has none; some editors write one)."""
+    from netsim.models.inputfiles import (
+        MAX_SCENARIO_BYTES,
+        InputFileError,
+        check_toml_depth,
+        read_input_bytes,
+    )
+
     path = Path(path)
+    cap = MAX_SCENARIO_BYTES
+    env = os.environ.get("NETSIM_MAX_SCENARIO_BYTES")
+    if env and env.strip().isdigit():
+        cap = int(env)
     try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise ScenarioError("", f"cannot read scenario file {path}: {exc.strerror}") from None
+        raw = read_input_bytes(path, "scenario file", cap)
+    except InputFileError as exc:
+        raise ScenarioError("", str(exc) + (" (NETSIM_MAX_SCENARIO_BYTES sets the cap)"
+                                            if "MiB" in str(exc) else "")) from None
     bom = raw.startswith(b"\xef\xbb\xbf")
     try:
         text = raw[3 if bom else 0:].decode("utf-8")
@@ -1406,6 +1419,10 @@ def read_scenario_data(path: str | Path) -> dict[str, Any]:
     if bom:
         _warn("", f"scenario file {path} starts with a UTF-8 BOM (byte-order mark); "
               "ignored it")
+    try:
+        check_toml_depth(text, f"scenario file {path}")
+    except InputFileError as exc:
+        raise ScenarioError("", str(exc)) from None
     try:
         return tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

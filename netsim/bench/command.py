@@ -286,6 +286,40 @@ def _check_outputs(scenario: str, outputs: list[tuple[str, str | None, bool]],
         raise CommandError(str(exc)) from None
 
 
+#: Bytes per agent, trial, state and step of delay history a sweep cell holds at most
+#: (estimates, their ring buffer and the engine's temporaries; generous), and per agent
+#: for the network (weights, links, schedule).
+SWEEP_BYTES_PER_AGENT_STATE = 64
+SWEEP_BYTES_PER_AGENT = 4096
+#: Seconds per agent-trial-step of a sweep cell (generous; for refusing absurd sizes).
+SWEEP_SECONDS_PER_AGENT_STEP = 2e-6
+
+
+def _check_sweep_sizes(scenario: str, agents: int, tau: int, trials: int, steps: int) -> None:
+    """Refuse --sizes whose largest cell this machine cannot hold or finish within the time
+    limit, estimated from the counts alone (the network is not built)."""
+    from netsim.budget import ResourceError, check_memory, format_seconds, time_limit
+    from netsim.cliutil import CommandError
+    from netsim.models.scenario import ScenarioError, resolve_scenario
+
+    try:
+        base = resolve_scenario(scenario)
+    except ScenarioError as exc:
+        raise CommandError(f"scenario {scenario}: {exc}") from None
+    depth = max(tau, base.delay_bound) + 2
+    n = base.plant.n_states
+    check_memory(agents * (trials * n * depth * SWEEP_BYTES_PER_AGENT_STATE
+                           + SWEEP_BYTES_PER_AGENT), "--sizes",
+                 f"a sweep cell of {agents} agents ({trials} trials, n = {n})", agents)
+    seconds = agents * trials * steps * SWEEP_SECONDS_PER_AGENT_STEP
+    if seconds > time_limit():
+        raise ResourceError(
+            f"--sizes = {agents}: a sweep cell of {agents} agents x {trials} trials x {steps} "
+            f"steps would take about {format_seconds(seconds)}, more than the limit of "
+            f"{format_seconds(time_limit())} (NETSIM_TIME_LIMIT); lower --sizes",
+            "--sizes", seconds, time_limit())
+
+
 def _cmd_sweep(args: Any) -> int:
     from netsim.cliutil import EXIT_INTERRUPTED, CommandError
     from netsim.models.scenario import ScenarioError
@@ -307,6 +341,9 @@ def _cmd_sweep(args: Any) -> int:
     # the results file is resumed and the CSV regenerated from it: neither needs --force,
     # but neither may be a link, an input or the other output
     _check_outputs(args.scenario, [("--out", args.out, False), ("--csv", args.csv, False)])
+    if axes["agents"]:
+        _check_sweep_sizes(args.scenario, max(axes["agents"]), max(axes["tau"] or [0]),
+                           args.trials, args.steps)
     try:
         result = run_scenario_sweep(
             args.scenario, axes=axes, trials=args.trials, steps=args.steps,

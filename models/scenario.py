@@ -89,6 +89,7 @@ from netsim.models.topology import GraphSequence, LinkSchedule, TopologyError, a
 
 __all__ = [
     "ScenarioError",
+    "MAX_DELAY_STEPS",
     "ScenarioWarning",
     "DelaySpec",
     "GainSpec",
@@ -473,6 +474,9 @@ class Scenario:
         """Return a copy with delay bound ``tau`` (model ``none`` becomes homogeneous)."""
         if int(tau) != tau or tau < 0:
             raise ScenarioError("delays.tau", f"must be a non-negative integer, got {tau}")
+        if tau > MAX_DELAY_STEPS:
+            raise ScenarioError("delays.tau", f"must be <= {MAX_DELAY_STEPS} (the largest "
+                                f"netsim represents), got {tau}")
         model = self.delays.model
         if model in ("fixed", "latency"):
             raise ScenarioError(
@@ -599,11 +603,21 @@ def _number(value: Any, key: str) -> float:
     return float(value)
 
 
-def _int(value: Any, key: str, minimum: int | None = None) -> int:
+#: The largest delay (steps) or delay bound netsim represents: the engines hold delays
+#: and send steps in int64 arithmetic (s + 1 + d), so bounds stay far below 2^63; a delay
+#: longer than a run never arrives anyway (netsim.budget.delay_horizon).
+MAX_DELAY_STEPS = 2 ** 31 - 1
+
+
+def _int(value: Any, key: str, minimum: int | None = None,
+         maximum: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, int):
         raise ScenarioError(key, f"expected an integer, got {value!r}")
     if minimum is not None and value < minimum:
         raise ScenarioError(key, f"must be >= {minimum}, got {value}")
+    if maximum is not None and value > maximum:
+        raise ScenarioError(key, f"must be <= {maximum} (the largest netsim represents), "
+                            f"got {value}")
     return int(value)
 
 
@@ -868,7 +882,8 @@ def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelayS
         raise ScenarioError(
             "delays.model", f"unknown model {model!r}; expected one of {', '.join(DELAY_MODELS)}"
         )
-    tau = _int(table.get("tau", DEFAULTS["delays.tau"]), "delays.tau")
+    tau = _int(table.get("tau", DEFAULTS["delays.tau"]), "delays.tau",
+               maximum=MAX_DELAY_STEPS)
     if tau < 0:
         raise ScenarioError("delays.tau", f"delay bound must be >= 0, got {tau}")
     if model == "none" and tau != 0:
@@ -894,6 +909,9 @@ def _parse_delays(table: dict[str, Any], links: list[tuple[int, int]]) -> DelayS
         delay = _number(entry["delay"], f"{key}.delay")
         if delay < 0:
             raise ScenarioError(f"{key}.delay", f"delay must be >= 0, got {delay:g}")
+        if delay > MAX_DELAY_STEPS:
+            raise ScenarioError(f"{key}.delay", f"must be <= {MAX_DELAY_STEPS} (the largest "
+                                f"netsim represents), got {delay:g}")
         if model == "fixed" and delay != int(delay):
             raise ScenarioError(f"{key}.delay", f"fixed delays are integer steps, got {delay}")
         if link in per_link:

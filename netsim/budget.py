@@ -594,7 +594,10 @@ def analysis_cost(n: int, n_agents: int, taus: Sequence[int]) -> tuple[float, fl
     memory = 0.0
     seconds = 0.0
     stop = 10 * time_limit()  # past this the sum only confirms a refusal
-    for tau in sorted(taus, reverse=True):  # the largest first: the memory peak
+    # the largest first: the memory peak (a range is walked lazily, never listed)
+    ordered = (reversed(taus) if isinstance(taus, range) and taus.step > 0
+               else sorted(taus, reverse=True))
+    for tau in ordered:
         if seconds > stop:
             break
         dim = Nn * (int(tau) + 1)

@@ -80,6 +80,32 @@ def test_eq26_judge_against_hand_matrix_and_closed_form_bound():
     assert simulate_error_growth(x, True) == pytest.approx(hand, rel=1e-3)
 
 
+def test_every_bound_judge_catches_a_planted_counterexample_at_tau_star():
+    """A counterexample placed exactly at tau = tau* (the edge a judge could skip): the
+    eq. (26) and Theorem 1 judges must report it there, by hand-built matrices and the
+    closed-form tau* (|a|^(tau+1) rho(G P) < 1)."""
+    from netsim.claims.search import _theorem1_judge
+
+    a, P, c, k = 1.144, [[0.34, 0.66], [0.56, 0.44]], (1.0, 1.0), (-0.52, 1.86)
+    Pm, g, rho_hat = scalar_parts(a, P, c, k)
+    star = max(t for t in range(21) if abs(a) ** (t + 1) * rho(np.diag(g) @ Pm) < 1)
+    assert star == 3 and rho_hat < 1
+    x = delayed(a, P, c, k, [[0, star], [star, 0]])
+    hand = rho(augmented_by_hand(*x.matrices(), compensated=True))
+    bound = (abs(a) ** (star + 1) * rho(np.diag(g) @ Pm)) ** (1 / (star + 1))
+    assert hand > bound + 0.05 and hand > 1.05
+    got = _eq26_judge(x)
+    assert got is not None and got["tau"] == star == got["tau_star"]
+    assert got["exact_rho"] == pytest.approx(hand, rel=1e-10)
+    assert got["bound"] == pytest.approx(bound, rel=1e-10)
+    # Theorem 1: the smallest violating tau (here 2) is reported, and tau* itself counts
+    inst = x.inst
+    smallest = min(t for t in range(1, star + 1) if rho(augmented_by_hand(
+        *delayed(a, P, c, k, [[0, t], [t, 0]]).matrices())) >= 1.01)
+    t1 = _theorem1_judge(inst)
+    assert t1 is not None and t1["tau"] == smallest and t1["tau_star"] == star
+
+
 def test_eq26_search_hits_satisfy_the_hypotheses_by_hand():
     found = search_eq26(np.random.SeedSequence(5), instances=40)
     assert found.hits >= 1 and found.instance is not None

@@ -18,15 +18,30 @@ Three ways in for a user's estimator:
 - from an installed package: the entry-point group ``netsim.estimators`` (the entry
   point's name is the family name, its value ``module:attribute`` as above).
 
-A name that does not import, or an object that is not an estimator, is one
-:class:`FamilyError` naming the scenario key and what is missing.
+Names. A family from an entry point runs, and its results are reported, under the
+entry point's name, the name the user asked for (a class's own ``name`` attribute is
+ignored there); one named as ``module:attribute`` runs under its class's ``name``
+attribute if it declares one (so ``--estimators`` and the results can use the short
+name), else under the reference itself. Resolving a name again in the same process
+(a second ``netsim.run``, a re-run notebook cell) returns the family resolved first.
+
+What the resolved object is gets checked before anything calls it
+(:func:`family_from_object`): a builtin or standard-library function, a module, a
+constant, a class without the contract's methods or whose constructor cannot take
+``cls(setup)``, or a factory that cannot be called as ``factory(context)`` is refused.
+A name that does not import (the module raising anything, ``sys.exit()`` included),
+an object that is not an estimator family, or a user's factory or constructor that
+fails on the host's arguments is one :class:`FamilyError` (a ``ValueError``) naming
+the scenario key and the object, on one line.
 """
 
 from __future__ import annotations
 
 import importlib
+import inspect
 import os
 import sys
+import types
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -42,6 +57,7 @@ __all__ = [
     "RECURSION_BLOCK",
     "ENTRY_POINT_GROUP",
     "FamilyError",
+    "PROTOCOL",
     "FamilyContext",
     "ObserverTap",
     "AgentSetup",
@@ -87,7 +103,31 @@ class FamilyError(ValueError):
 
     def __init__(self, key: str, message: str) -> None:
         self.key = key
-        super().__init__(f"{key}: {message}")
+        self.detail = _one_line(message)
+        super().__init__(f"{key}: {self.detail}")
+
+    def __reduce__(self) -> tuple[Any, tuple[str, str]]:
+        # raised in a worker process, it must unpickle with both arguments
+        return (type(self), (self.key, self.detail))
+
+
+#: What an estimator family may be, as the one-line errors say it.
+PROTOCOL = ("expected a class with message_arrived() and step(), built once per agent as "
+            "cls(setup); a factory (FamilyContext) -> list of AgentPlan; or an "
+            "EstimatorFamily")
+
+
+def _one_line(text: str) -> str:
+    """``text`` with its line breaks (an exception's multi-line message) made spaces."""
+    return " ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+def _failure(error: BaseException) -> str:
+    """One line saying how a user's code failed (``SystemExit`` included)."""
+    if isinstance(error, SystemExit):
+        return f"it called sys.exit({error.code!r})"
+    text = _one_line(str(error))
+    return f"{type(error).__name__}: {text}" if text else type(error).__name__
 
 
 @dataclass(frozen=True)
@@ -369,12 +409,43 @@ class EstimatorFamily:
             return self.batched
         return resolve_reference(self.batched, f"family {self.name!r} batched form")
 
+    @property
+    def label(self) -> str:
+        """How errors name it: its name, and the reference it was resolved by."""
+        if self.reference and self.reference != self.name:
+            return f"{self.name!r} ({self.reference})"
+        return repr(self.name)
+
     def agents(self, context: FamilyContext, key: str = "run.estimators"
                ) -> list[AgentPlan]:
-        """Build one trial's agents and check each against the contract."""
-        plans = list(self.build(replace(context, family=self.name)))
+        """Build one trial's agents and check each against the contract.
+
+        Raises
+        ------
+        FamilyError
+            Naming ``key`` and the family: an agent that breaks the contract, or (for
+            a family not shipped with netsim) a factory or constructor that failed on
+            the host's arguments, ``SystemExit`` included.
+        """
+        context = replace(context, family=self.name)
+        if self.source == "builtin":  # netsim's own: a failure is a bug, keep its traceback
+            built = self.build(context)
+        else:
+            try:
+                built = self.build(context)
+            except _AgentBuildError as error:  # the constructor's own error is the cause
+                raise FamilyError(key, f"family {self.label}, {error}") from error.__cause__
+            except (Exception, SystemExit) as error:
+                raise FamilyError(key, f"family {self.label}: its factory "
+                                  f"{_name_of(self.build)}(context) failed: "
+                                  f"{_failure(error)}") from error
+        if isinstance(built, str | bytes) or not isinstance(built, Iterable):
+            raise FamilyError(key, f"family {self.label}: its factory "
+                              f"{_name_of(self.build)}(context) returned "
+                              f"{_describe(built)}, not a list of AgentPlan")
+        plans = list(built)
         if not plans:
-            raise FamilyError(key, f"family {self.name!r} built no agents")
+            raise FamilyError(key, f"family {self.label} built no agents")
         for index, plan in enumerate(plans):
             if not isinstance(plan, AgentPlan):
                 plan = AgentPlan(plan, (index,), ())
@@ -382,7 +453,7 @@ class EstimatorFamily:
             try:
                 check_estimator(plan.estimator, key)
             except ContractError as error:
-                raise FamilyError(key, f"family {self.name!r}, agent {index}: "
+                raise FamilyError(key, f"family {self.label}, agent {index}: "
                                   f"{str(error).split(': ', 1)[1]}") from None
         return plans
 
@@ -481,9 +552,9 @@ def resolve_reference(reference: str, key: str,
     except ImportError as error:
         raise FamilyError(key, f"cannot import module {module_name!r} for {reference!r}: "
                           f"{error}") from None
-    except Exception as error:  # the user's module failed while importing
+    except (Exception, SystemExit) as error:  # the user's module failed while importing
         raise FamilyError(key, f"importing {module_name!r} for {reference!r} failed: "
-                          f"{type(error).__name__}: {error}") from None
+                          f"{_failure(error)}") from error
     obj: Any = module
     for part in attribute.split("."):
         try:
@@ -491,39 +562,141 @@ def resolve_reference(reference: str, key: str,
         except AttributeError:
             raise FamilyError(key, f"module {module_name!r} has no attribute {attribute!r}"
                               ) from None
+        except (Exception, SystemExit) as error:  # a module __getattr__ of its own
+            raise FamilyError(key, f"reading {attribute!r} of module {module_name!r} "
+                              f"failed: {_failure(error)}") from error
     return obj
+
+
+class _AgentBuildError(Exception):
+    """A per-agent class's constructor failed (reworded by :meth:`EstimatorFamily.agents`)."""
+
+
+def _describe(obj: Any) -> str:
+    """What ``obj`` is, for a one-line error ("a builtin function (posix.system)")."""
+    if obj is None:
+        return "None"
+    if isinstance(obj, types.ModuleType):
+        return f"a module ({obj.__name__})"
+    if isinstance(obj, _BUILTIN_CALLABLES):
+        return f"a builtin function ({_where(obj)})"
+    if isinstance(obj, type):
+        return f"a class ({_where(obj)})"
+    if inspect.isfunction(obj) or inspect.ismethod(obj):
+        return f"a function ({_where(obj)})"
+    if not _missing_methods_of_class(type(obj)):
+        return f"an instance of {type(obj).__qualname__} (name the class: netsim builds " \
+            "one per agent)"
+    return f"a {type(obj).__qualname__} object"
+
+
+def _where(obj: Any) -> str:
+    """``module.qualname`` of a function or class."""
+    return f"{getattr(obj, '__module__', None) or '?'}.{_name_of(obj)}"
+
+
+def _missing_methods_of_class(cls: type) -> list[str]:
+    """The contract's methods (``message_arrived``, ``step``) that ``cls`` lacks."""
+    return [m for m in ("message_arrived", "step") if not callable(getattr(cls, m, None))]
+
+
+#: Callables implemented in C (``os.system``, ``print``, ``str.join``): none is a family.
+_BUILTIN_CALLABLES = (types.BuiltinFunctionType, types.BuiltinMethodType,
+                      types.WrapperDescriptorType, types.MethodWrapperType,
+                      types.MethodDescriptorType, types.ClassMethodDescriptorType)
+
+
+def _from_standard_library(obj: Any) -> bool:
+    """Whether ``obj`` (a function) is defined in Python's standard library."""
+    module = getattr(obj, "__module__", None)
+    return isinstance(module, str) and module.split(".")[0] in sys.stdlib_module_names
+
+
+def _cannot_call_with_one(obj: Any) -> str | None:
+    """Why ``obj(x)`` with one positional argument is refused by its signature (None:
+    it is accepted, or there is no signature to read)."""
+    try:
+        signature = inspect.signature(obj)
+    except (TypeError, ValueError):  # no signature to read: trust it
+        return None
+    try:
+        signature.bind(None)
+    except TypeError as error:
+        return f"takes {signature}, not one argument ({error})"
+    return None
 
 
 def _per_agent_factory(cls: Any, name: str) -> Callable[[FamilyContext], list[AgentPlan]]:
     def build(context: FamilyContext) -> list[AgentPlan]:
-        return [AgentPlan(cls(context.agent_setup(i)), (i,), tuple(context.out_neighbours(i)))
-                for i in range(context.scenario.n_agents)]
+        plans = []
+        for i in range(context.scenario.n_agents):
+            setup = context.agent_setup(i)
+            try:
+                estimator = cls(setup)
+            except (Exception, SystemExit) as error:
+                raise _AgentBuildError(f"agent {i}: {cls.__qualname__}(setup) failed: "
+                                       f"{_failure(error)}") from error
+            plans.append(AgentPlan(estimator, (i,), tuple(context.out_neighbours(i))))
+        return plans
 
     build.__qualname__ = f"per-agent {name}"
     return build
 
 
-def family_from_object(obj: Any, name: str, key: str, source: str = "scenario"
-                       ) -> EstimatorFamily:
-    """Make a family of an imported object.
+def family_from_object(obj: Any, name: str, key: str, source: str = "scenario", *,
+                       own_name: bool = True) -> EstimatorFamily:
+    """Make a family of an imported object, after checking what the object is.
 
     ``obj`` may be an :class:`EstimatorFamily` (renamed to ``name`` if it has none), a
     class (each agent i gets ``cls(setup)`` with its :class:`AgentSetup`: weights, plant
-    model, gain, neighbours and own random stream; the class's optional attributes ``needs_gains``,
-    ``timestamps``, ``description``, ``paper`` and ``batched`` declare the rest), or a
-    factory function ``(FamilyContext) -> list of AgentPlan``.
+    model, gain, neighbours and own random stream; the class's optional attributes
+    ``name``, ``needs_gains``, ``timestamps``, ``description``, ``paper`` and ``batched``
+    declare the rest), or a factory function ``(FamilyContext) -> list of AgentPlan``.
+
+    Parameters
+    ----------
+    obj : object
+        What the name resolved to.
+    name : str
+        The name it was asked for by (the family's name unless a class declares its own).
+    key : str
+        The scenario key or option that named it (``run.estimators[1]``,
+        ``--estimators[0]``), for the error.
+    source : str
+        The family's ``source``.
+    own_name : bool
+        Whether a class's ``name`` attribute names the family (False for entry points:
+        they run under the entry point's name).
+
+    Raises
+    ------
+    FamilyError
+        ``obj`` is none of these: a module, a constant, a builtin or standard-library
+        function, a class without ``message_arrived()`` and ``step()`` or whose
+        constructor cannot be called as ``cls(setup)``, an abstract class or protocol,
+        or a callable that cannot be called as ``factory(context)``.
     """
     if isinstance(obj, EstimatorFamily):
         return obj if obj.name else replace(obj, name=name)
     if isinstance(obj, type):
-        for method in ("message_arrived", "step"):
-            if not callable(getattr(obj, method, None)):
-                raise FamilyError(key, f"{name!r}: class {obj.__qualname__} is not an "
-                                  f"estimator: no method {method}() (the contract: "
-                                  "message_arrived(sender, sent_step, payload) -> bool, "
-                                  "step(k, y) -> estimate)")
+        where = f"class {obj.__qualname__}"
+        for method in _missing_methods_of_class(obj)[:1]:
+            raise FamilyError(key, f"{name!r}: {where} is not an "
+                              f"estimator: no method {method}() (the contract: "
+                              "message_arrived(sender, sent_step, payload) -> bool, "
+                              "step(k, y) -> estimate)")
+        if getattr(obj, "_is_protocol", False) or inspect.isabstract(obj):
+            raise FamilyError(key, f"{name!r}: {where} is abstract (a protocol or an "
+                              "abstract base class), not an estimator one can build; name "
+                              "a class implementing it")
+        why = _cannot_call_with_one(obj)
+        if why is not None:
+            raise FamilyError(key, f"{name!r}: {where} cannot be built as "
+                              f"{obj.__qualname__}(setup), one AgentSetup per agent: its "
+                              f"constructor {why}")
         short = getattr(obj, "name", None)
-        if isinstance(short, str) and short and ":" not in short and "," not in short:
+        if (own_name and isinstance(short, str) and short and ":" not in short
+                and "," not in short and short == short.strip()):
             name = short
         return EstimatorFamily(
             name=name,
@@ -536,12 +709,23 @@ def family_from_object(obj: Any, name: str, key: str, source: str = "scenario"
             batched=getattr(obj, "batched", None),
             source=source,
         )
+    if isinstance(obj, _BUILTIN_CALLABLES):
+        raise FamilyError(key, f"{name!r} is {_describe(obj)}, not an estimator family "
+                          f"({PROTOCOL})")
+    if callable(obj) and (inspect.isfunction(obj) or inspect.ismethod(obj)) \
+            and _from_standard_library(obj):
+        raise FamilyError(key, f"{name!r} is a function of the standard library "
+                          f"({_where(obj)}), not an estimator family ({PROTOCOL})")
     if callable(obj):
+        why = _cannot_call_with_one(obj)
+        if why is not None:
+            raise FamilyError(key, f"{name!r} is {_describe(obj)} that cannot be called as "
+                              f"a factory, factory(context): it {why} ({PROTOCOL})")
         return EstimatorFamily(name=name, build=obj, description=_name_of(obj),
                                source=source,
                                needs_gains=bool(getattr(obj, "needs_gains", False)))
-    raise FamilyError(key, f"{name!r} is a {type(obj).__name__}, not an estimator class, "
-                      "factory or EstimatorFamily")
+    raise FamilyError(key, f"{name!r} is {_describe(obj)}, not an estimator family "
+                      f"({PROTOCOL})")
 
 
 def get_family(name: str, key: str = "run.estimators",
@@ -551,7 +735,10 @@ def get_family(name: str, key: str = "run.estimators",
     A family imported as ``module:attribute`` is registered under that reference and
     under its own name (a class's ``name`` attribute, else the reference), so results
     and traces can use the short name; ``base`` is a folder searched for the module
-    (the scenario's, see :func:`resolve_reference`).
+    (the scenario's, see :func:`resolve_reference`). A family from an entry point is
+    registered under the entry point's name, whatever its class calls itself, and its
+    results are reported under that name. Either is resolved once per process: asking
+    again returns the same family.
 
     Raises
     ------
@@ -579,11 +766,11 @@ def get_family(name: str, key: str = "run.estimators",
     if name in points:
         try:
             obj = points[name].load()
-        except Exception as error:
+        except (Exception, SystemExit) as error:
             raise FamilyError(key, f"entry point {name!r} ({points[name].value}) failed to "
-                              f"load: {type(error).__name__}: {error}") from None
-        return register(replace(family_from_object(obj, name, key, source="entry-point"),
-                                reference=name))
+                              f"load: {_failure(error)}") from error
+        family = family_from_object(obj, name, key, source="entry-point", own_name=False)
+        return register(replace(family, name=name, reference=name, source="entry-point"))
     known = ", ".join(family_names())
     raise FamilyError(key, f"unknown estimator {name!r}; expected one of {known}, or "
                       "module:attribute of your own estimator")
@@ -592,12 +779,15 @@ def get_family(name: str, key: str = "run.estimators",
 def resolve_families(names: Iterable[str], key: str = "run.estimators",
                      base: str | os.PathLike[str] | None = None) -> list[EstimatorFamily]:
     """Resolve several names (:func:`get_family`), refusing duplicates."""
-    out, seen = [], set()
+    out: list[EstimatorFamily] = []
+    seen: dict[str, str] = {}
     for index, name in enumerate(names):
         family = get_family(name, f"{key}[{index}]", base)
         if family.name in seen:
-            raise FamilyError(f"{key}[{index}]", f"estimator {name!r} is listed twice")
-        seen.add(family.name)
+            first = seen[family.name]
+            also = "" if first == name else f" (as {first!r}, both run as {family.name!r})"
+            raise FamilyError(f"{key}[{index}]", f"estimator {name!r} is listed twice{also}")
+        seen[family.name] = name
         out.append(family)
     return out
 

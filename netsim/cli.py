@@ -466,7 +466,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     gains = gains_if_needed(scenario, declared, args.scenario)
 
     try:
-        check_agents(scenario, declared, gains)
+        check_agents(scenario, declared, gains,
+                     "run.estimators" if args.estimators is None else "--estimators")
     except ValueError as exc:
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
     try:

@@ -150,13 +150,14 @@ def build_agents(scenario: Scenario, family: str | EstimatorFamily, gains: GainD
 
 
 def check_agents(scenario: Scenario, families: Sequence[str | EstimatorFamily],
-                 gains: GainDesign | None) -> None:
+                 gains: GainDesign | None, key: str = "run.estimators") -> None:
     """Build trial 0's agents of every family not shipped with netsim, so that one that
-    breaks the contract is refused before anything runs (FamilyError, a ValueError)."""
+    breaks the contract is refused before anything runs (FamilyError, a ValueError,
+    naming ``key``: the scenario key or option that listed the families)."""
     for family in families:
         declared = family_of(family, scenario)
         if declared.source != "builtin":
-            declared.agents(FamilyContext(scenario, gains, child_sequence(0, "check")))
+            declared.agents(FamilyContext(scenario, gains, child_sequence(0, "check")), key)
 
 
 def run_trial(

@@ -16,7 +16,6 @@ import sys
 from pathlib import Path
 
 import pytest
-
 from netsim.models.inputfiles import InputFileError, check_toml_depth, read_input_bytes
 
 LIMIT = 4 * 1024 ** 3

@@ -9,10 +9,10 @@ import subprocess
 import sys
 
 import numpy as np
+from netsim.models.scenario import MAX_DELAY_STEPS
 
 from netsim.api import run
 from netsim.cli import main
-from netsim.models.scenario import MAX_DELAY_STEPS
 
 LIMIT = 4 * 1024 ** 3
 

@@ -7,9 +7,10 @@ import json
 import os
 from collections import namedtuple
 
+from netsim.models.scenario import resolve_scenario
+
 from netsim import budget
 from netsim.cli import main
-from netsim.models.scenario import resolve_scenario
 
 Usage = namedtuple("Usage", "total used free")
 

@@ -792,8 +792,17 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
         P = uniform_weights(graph)
     else:
         P = lazy_metropolis_weights(graph)
+        _warn_symmetrised(graph.number_of_edges() - sum(1 for i, j in graph.edges if i == j),
+                          int(np.count_nonzero(P) - P.shape[0]))
     _check_weights(P, "network.edges" if topology == "edges" else "network")
     return P
+
+
+def _warn_symmetrised(directed: int, used: int) -> None:
+    """Lazy Metropolis weights are symmetric: say so when that adds links."""
+    if used > directed:
+        _warn("network.weights", f"lazy-metropolis weights are symmetric: the graph's "
+              f"{directed} directed links are used in both directions ({used} links)")
 
 
 def _check_weight_scheme(weights_spec: Any) -> None:
@@ -860,6 +869,8 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
         P = sparse_uniform_weights(agents, src, dst)
     else:
         P = sparse_lazy_metropolis_weights(agents, src, dst)
+        _warn_symmetrised(int(np.count_nonzero(np.asarray(src) != np.asarray(dst))),
+                          int(P.count_nonzero() - agents))
     _check_weights(P, "network.edges" if topology == "edges" else "network")
     return P
 

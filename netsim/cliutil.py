@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import sys
 import warnings
 from collections.abc import Iterator, Sequence
@@ -91,21 +92,27 @@ class OneLineParser(argparse.ArgumentParser):
 def scenario_warnings(command: str) -> Iterator[None]:
     """Print each distinct :class:`netsim.models.scenario.ScenarioWarning` raised inside
     as one line ``netsim <command>: warning: <key>: <message>`` on stderr (a scenario
-    loaded several times, as a sweep's variants are, warns once); other warnings go to
-    Python's usual display."""
+    loaded several times, as a sweep's variants are, warns once). numpy's and scipy's
+    RuntimeWarnings (overflow, invalid value: arithmetic on a diverging run, which the
+    verdict reports as "diverged at step k") are not printed: an error or a result is
+    one line, not a line and numpy's noise. Other warnings go to Python's usual display."""
     seen: set[str] = set()
     shown = warnings.showwarning
 
-    def show(message: Any, category: type[Warning], *args: Any, **kwargs: Any) -> None:
+    def show(message: Any, category: type[Warning], filename: str = "", *args: Any,
+             **kwargs: Any) -> None:
         from netsim.models.scenario import ScenarioWarning
 
+        if issubclass(category, RuntimeWarning) and any(
+                f"{os.sep}{lib}{os.sep}" in str(filename) for lib in ("numpy", "scipy")):
+            return
         if issubclass(category, ScenarioWarning):
             text = str(message)
             if text not in seen:
                 seen.add(text)
                 sys.stderr.write(f"netsim {command}: warning: {text}\n")
             return
-        shown(message, category, *args, **kwargs)
+        shown(message, category, filename, *args, **kwargs)
 
     with warnings.catch_warnings():
         warnings.simplefilter("always", UserWarning)

@@ -35,3 +35,20 @@ def test_no_word_when_nothing_changes():
         warnings.simplefilter("always")
         parse_scenario(data)
     assert not [w for w in caught if "lazy-metropolis" in str(w.message)]
+
+
+def test_numpy_noise_is_not_printed_beside_the_result():
+    """A run whose state overflows float64 (rho(A) = 1.04 over 20,000 steps) makes numpy
+    warn; the command prints its result and verdict, not numpy's RuntimeWarnings (in a
+    subprocess: pytest would capture the warnings itself)."""
+    import subprocess
+    import sys
+
+    proc = subprocess.run([sys.executable, "-m", "netsim.cli", "run",
+                           "lcsys2022-heterogeneous", "--steps", "20000", "--trials", "3",
+                           "--engine", "events",
+                           "--no-progress"], capture_output=True, text=True, timeout=300,
+                          stdin=subprocess.DEVNULL)
+    assert proc.returncode == 0, proc.stderr
+    assert "compensated" in proc.stdout
+    assert "RuntimeWarning" not in proc.stderr and "overflow" not in proc.stderr

@@ -55,6 +55,7 @@ from netsim.models.jsonsafe import json_default, json_tree
 from netsim.models.seeding import child_sequence
 
 __all__ = [
+    "csv_columns",
     "DEFAULT_WORKERS",
     "EXECUTORS",
     "SweepInterrupted",
@@ -216,12 +217,24 @@ def _csv_row(row: Mapping[str, Any]) -> dict[str, Any]:
     return {"key": row["key"], **flatten(row["params"]), **flatten(row["result"])}
 
 
+def csv_columns(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """The CSV columns of ``rows``: ``key``, then every parameter, then every result
+    column, each group sorted, so that the table's layout depends on the rows' contents
+    only (not on which cells were computed now and which were read back from a resumed
+    results file, nor on their order)."""
+    params: set[str] = set()
+    results: set[str] = set()
+    for r in rows:
+        params.update(flatten(r["params"]))
+        results.update(flatten(r["result"]))
+    return ["key", *sorted(params), *sorted(results - params - {"key"})]
+
+
 def write_csv(rows: Sequence[Mapping[str, Any]], path: str | os.PathLike[str]) -> None:
-    """Write rows (``key``, ``params``, ``result``) as one CSV table, flattened."""
+    """Write rows (``key``, ``params``, ``result``) as one CSV table, flattened, with the
+    columns of :func:`csv_columns`."""
     flat = [_csv_row(r) for r in rows]
-    columns: list[str] = []
-    for r in flat:
-        columns += [c for c in r if c not in columns]
+    columns = csv_columns(rows)
     tmp = Path(str(path) + ".tmp")
     with open(tmp, "w", newline="", encoding="utf-8") as f:
         writer = csv.DictWriter(f, fieldnames=columns, restval="")

@@ -52,3 +52,23 @@ def test_numpy_noise_is_not_printed_beside_the_result():
     assert proc.returncode == 0, proc.stderr
     assert "compensated" in proc.stdout
     assert "RuntimeWarning" not in proc.stderr and "overflow" not in proc.stderr
+
+
+def test_a_resumed_sweep_writes_the_same_csv_as_an_uninterrupted_one(tmp_path, capsys):
+    """Kill simulated by cutting the results file after its first row: the resumed sweep
+    computes the rest and its CSV is byte for byte the uninterrupted sweep's."""
+    from netsim.cli import main
+
+    args = ["bench", "sweep", "lcsys2022-heterogeneous", "--taus", "0,2", "--trials", "2",
+            "--steps", "20", "--workers", "1", "--no-progress"]
+    whole = tmp_path / "whole"
+    whole.mkdir()
+    assert main([*args, "--out", str(whole / "r.jsonl"), "--csv", str(whole / "r.csv")]) == 0
+    part = tmp_path / "part"
+    part.mkdir()
+    rows = (whole / "r.jsonl").read_text().splitlines(keepends=True)
+    assert len(rows) == 2
+    (part / "r.jsonl").write_text(rows[0])  # the first cell finished, the second did not
+    assert main([*args, "--out", str(part / "r.jsonl"), "--csv", str(part / "r.csv")]) == 0
+    capsys.readouterr()
+    assert (part / "r.csv").read_bytes() == (whole / "r.csv").read_bytes()

@@ -44,7 +44,7 @@ def test_serial_and_local_pool_give_identical_results(tmp_path):
     # the JSON-lines file holds every cell; the CSV is one table in cell order
     assert set(read_results(tmp_path / "pool.jsonl")) == set(by_key)
     lines = (tmp_path / "pool.csv").read_text().splitlines()
-    assert lines[0].split(",")[:4] == ["key", "scale", "n", "sleep"]
+    assert lines[0].split(",")[:4] == ["key", "n", "scale", "sleep"]  # params sorted
     assert len(lines) == len(CELLS) + 1
     assert [line.split(",")[0] for line in lines[1:]] == [r["key"] for r in pool.rows]
     # different root seed, different numbers

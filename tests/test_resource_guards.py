@@ -2,8 +2,9 @@
 
 Each command runs as a subprocess under a 4 GB address-space limit (``ulimit -v``)
 with a timeout: a request that cannot fit must be refused (exit 2, one line on stderr
-naming the parameter, the estimate and the limit, no traceback) within seconds; one
-whose delays reach past the last step is capped, runs quickly and says what it capped.
+naming the parameter, the estimate and the limit, no traceback); one whose delays reach
+past the last step is capped, runs and says what it capped. A hang fails a case by the
+timeout; no case asserts how fast the machine is (it must pass on a loaded machine).
 """
 
 from __future__ import annotations
@@ -23,8 +24,7 @@ import pytest
 from netsim import budget
 
 LIMIT_BYTES = 4_000_000 * 1024  # ulimit -v 4000000
-TIMEOUT = 60  # generous for a loaded machine; each case also asserts its own wall time
-FAST = 10.0
+TIMEOUT = 120  # a hang fails the case; nothing asserts how fast a machine is
 
 # Run `netsim ARGS` on lcsys2022-homogeneous with its plant replaced by an n-state one
 # (a TOML file with a 2000 x 2000 A takes longer to parse than the guard to answer).
@@ -89,7 +89,6 @@ def _refused(proc: subprocess.CompletedProcess, seconds: float, *needles: str) -
     assert "this machine can give" in line or "NETSIM_TIME_LIMIT" in line, line
     for needle in needles:
         assert needle in line, line
-    assert seconds < FAST, seconds
     return line
 
 
@@ -98,7 +97,6 @@ def _capped_run(proc: subprocess.CompletedProcess, seconds: float) -> None:
     assert "Traceback" not in proc.stderr
     assert "never arrives" in proc.stderr and "A^r only up to r =" in proc.stderr
     assert "estimator" in proc.stdout and "block" in proc.stdout
-    assert seconds < FAST, seconds
 
 
 def _scenario(tmp_path: Path, steps: int = 60, extra: str = "") -> str:
@@ -125,7 +123,7 @@ def test_scenario_delays_beyond_steps_are_capped(tmp_path, delays):
     proc, seconds = _netsim("run", _scenario(tmp_path, extra=delays), "--no-progress")
     if proc.returncode == 2:  # the loader may refuse a float tau: one line naming it
         assert proc.stderr.count("\n") == 1 and "delays.tau" in proc.stderr, proc.stderr
-        assert "Traceback" not in proc.stderr and seconds < FAST
+        assert "Traceback" not in proc.stderr
         return
     _capped_run(proc, seconds)
 
@@ -185,19 +183,49 @@ def test_analyze_scenario_delays_refused(tmp_path):
 # -- long computations: Ctrl-C ------------------------------------------------------------
 
 
+def _busy(pid: int) -> bool:
+    """The process (or a worker of it) has spent a CPU second: it is past its imports
+    and computing (/proc, Linux)."""
+    ticks = os.sysconf("SC_CLK_TCK")
+    pids = [pid]
+    try:
+        children = Path(f"/proc/{pid}/task/{pid}/children").read_text().split()
+        pids += [int(c) for c in children]
+    except OSError:
+        pass
+    total = 0
+    for p in pids:
+        try:
+            fields = Path(f"/proc/{p}/stat").read_text().rsplit(")", 1)[1].split()
+            total += int(fields[11]) + int(fields[12])  # utime + stime
+        except (OSError, IndexError, ValueError):
+            pass
+    return total >= ticks
+
+
 def test_analyze_long_range_is_interruptible():
-    start = time.monotonic()
+    """Ctrl-C during a long analysis ends it with exit 130 and one line. The process runs
+    in its own session, and whatever happens the test kills that whole group, workers
+    included, so a failure never leaves processes running."""
     proc = subprocess.Popen([sys.executable, "-m", "netsim.cli", "analyze",
-                             "lcsys2022-homogeneous", "--tau-max", "100"],
+                             "lcsys2022-homogeneous", "--tau-max", "300"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            preexec_fn=_limit)
-    time.sleep(4)
-    assert proc.poll() is None, "--tau-max 100 should still be running"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=TIMEOUT)
-    assert proc.returncode == 130, err
-    assert err.strip().splitlines() == ["netsim analyze: interrupted"], err
-    assert time.monotonic() - start < 4 + FAST
+                            preexec_fn=_limit, start_new_session=True)
+    try:
+        deadline = time.monotonic() + TIMEOUT
+        while not _busy(proc.pid) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.1)
+        assert proc.poll() is None, "--tau-max 300 should still be running"
+        proc.send_signal(signal.SIGINT)
+        _, err = proc.communicate(timeout=TIMEOUT)
+        assert proc.returncode == 130, err
+        assert err.strip().splitlines() == ["netsim analyze: interrupted"], err
+    finally:  # the session's group: the command and its worker processes
+        try:
+            os.killpg(proc.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        proc.wait(timeout=TIMEOUT)
 
 
 # -- in-process: the cap does not change results, the estimates -------------------------

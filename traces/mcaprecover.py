@@ -6,6 +6,10 @@ the records from the start (a file whose writer was killed has no summary). Each
 is checked (record structure, decompression, uncompressed size and CRC) and yielded as
 a :class:`ChunkRead` holding either its messages or the reason it was lost; a damaged
 chunk never stops the walk, so the messages of every intact chunk after it are read.
+Chunks are inflated by :func:`netsim.traces.reader.inflate_chunk`: never past their
+declared uncompressed size (a chunk inflating to more or less is lost, like one failing
+its CRC), and a compressed chunk declaring more than the memory budget stops the walk
+with :class:`netsim.traces.reader.ChunkTooLarge` (naming the file and the size).
 The scan resynchronises on the next plausible chunk record after bytes whose record
 structure is destroyed, and stops at a record cut off by the end of the file.
 
@@ -25,7 +29,6 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
-import zstandard
 from netsim.traces.bulkmcap import (
     MAGIC,
     OP_CHANNEL,
@@ -37,7 +40,7 @@ from netsim.traces.bulkmcap import (
     OP_METADATA,
     OP_SCHEMA,
 )
-from netsim.traces.reader import _next_chunk
+from netsim.traces.reader import Budget, ChunkTooLarge, _next_chunk, chunk_budget, inflate_chunk
 
 __all__ = ["RawMessage", "ChunkRead", "Recovered", "iter_chunks", "recover",
            "chunk_messages"]
@@ -103,9 +106,31 @@ def _string_map(data: Any, at: int) -> tuple[dict[str, str], int]:
     return out, end
 
 
-def chunk_messages(content: bytes | memoryview) -> tuple[list[RawMessage], list[tuple[int, bytes]]]:
-    """Parse the Chunk record content ``content`` (after opcode and length): return its
-    messages and its other records; raise ValueError if damaged (CRC, size, zstd)."""
+def chunk_messages(content: bytes | memoryview, *, budget: Budget | None = None,
+                   where: str = "", offset: int | None = None
+                   ) -> tuple[list[RawMessage], list[tuple[int, bytes]]]:
+    """Parse the Chunk record content ``content`` (after opcode and length).
+
+    Parameters
+    ----------
+    content : bytes or memoryview
+        The chunk record's content.
+    budget, where, offset
+        As for :func:`netsim.traces.reader.inflate_chunk` (the memory budget, and the
+        file and chunk offset a refusal names).
+
+    Returns
+    -------
+    (list of RawMessage, list of (int, bytes))
+        Its messages and its other records (opcode, content).
+
+    Raises
+    ------
+    ChunkTooLarge
+        Compressed and declaring more than the budget (nothing decompressed).
+    ValueError
+        Damaged: record structure, decompression, uncompressed size or CRC.
+    """
     if len(content) < _CHUNK_FIXED + 8:
         raise ValueError("chunk record too short")
     start, end, usize, crc, clen = struct.unpack_from("<QQQII", content, 0)
@@ -116,18 +141,8 @@ def chunk_messages(content: bytes | memoryview) -> tuple[list[RawMessage], list[
     at += 8
     if at + rlen != len(content):
         raise ValueError("chunk records length does not match the record")
-    raw = content[at:at + rlen]
-    if compression == "zstd":
-        try:
-            records = zstandard.ZstdDecompressor().decompress(raw, max_output_size=usize)
-        except zstandard.ZstdError as exc:
-            raise ValueError(f"zstd: {exc}") from None
-    elif compression == "":
-        records = bytes(raw)
-    else:
-        raise ValueError(f"unsupported compression {compression!r}")
-    if len(records) != usize:
-        raise ValueError(f"uncompressed size {len(records)}, chunk says {usize}")
+    records = inflate_chunk(compression, content[at:at + rlen], usize, budget=budget,
+                            where=where, offset=offset)
     if crc and zlib.crc32(records) != crc:
         raise ValueError(f"chunk CRC mismatch (expected {crc:#010x}, "
                          f"computed {zlib.crc32(records):#010x})")
@@ -151,11 +166,13 @@ def chunk_messages(content: bytes | memoryview) -> tuple[list[RawMessage], list[
     return messages, others
 
 
-def _read_chunk(data: Any, ordinal: int, offset: int, length: int, size: int) -> ChunkRead:
+def _read_chunk(data: Any, ordinal: int, offset: int, length: int, size: int,
+                budget: Budget, where: str) -> ChunkRead:
     times: tuple[int | None, int | None] = (None, None)
     if offset + 9 + 16 <= size:
         times = struct.unpack_from("<QQ", data, offset + 9)
     read = ChunkRead(ordinal, offset, length, times[0], times[1], None)
+    refused: ChunkTooLarge | None = None
     try:
         if offset + length > size or length < 9:
             raise ValueError("chunk extends past the end of the file")
@@ -163,10 +180,15 @@ def _read_chunk(data: Any, ordinal: int, offset: int, length: int, size: int) ->
         if opcode != OP_CHUNK or 9 + content_length != length:
             raise ValueError("no chunk record at the indexed offset")
         read.messages, read.records = chunk_messages(
-            memoryview(data)[offset + 9:offset + length])
+            memoryview(data)[offset + 9:offset + length], budget=budget, where=where,
+            offset=offset)
+    except ChunkTooLarge as exc:  # raised below, without the frames holding the mmap
+        refused = exc.with_traceback(None)
     except (ValueError, struct.error, UnicodeDecodeError) as exc:
         read.messages = None
         read.error = str(exc)
+    if refused is not None:
+        raise refused
     return read
 
 
@@ -199,7 +221,8 @@ def _summary_chunks(data: Any, size: int) -> list[tuple[int, int]] | None:
     return sorted(out)
 
 
-def _scan(data: Any, size: int, top: list[tuple[int, bytes]]) -> Iterator[ChunkRead | bool]:
+def _scan(data: Any, size: int, top: list[tuple[int, bytes]], budget: Budget,
+          where: str) -> Iterator[ChunkRead | bool]:
     """Chunks by scanning; top-level records go to ``top``; yields True at the end if
     the file was cut off (no footer reached)."""
     pos, ordinal = len(MAGIC), 0
@@ -224,7 +247,7 @@ def _scan(data: Any, size: int, top: list[tuple[int, bytes]]) -> Iterator[ChunkR
             pos = resume
             continue
         if opcode == OP_CHUNK:
-            yield _read_chunk(data, ordinal, pos, 9 + length, size)
+            yield _read_chunk(data, ordinal, pos, 9 + length, size, budget, where)
             ordinal += 1
         elif opcode in (OP_SCHEMA, OP_CHANNEL, OP_METADATA):
             top.append((opcode, bytes(data[pos + 9:end])))
@@ -246,6 +269,11 @@ def iter_chunks(path: str | os.PathLike[str], *, use_summary: bool = True,
     top_level : list, optional
         Receives the (opcode, content) of top-level Schema, Channel and Metadata
         records met while scanning (not filled when the summary is used).
+
+    Raises
+    ------
+    ChunkTooLarge
+        A compressed chunk declares more uncompressed bytes than the memory budget.
     """
     for item in _iter(path, use_summary, [] if top_level is None else top_level):
         if isinstance(item, ChunkRead):
@@ -259,16 +287,17 @@ def _iter(path: Any, use_summary: bool, top: list[tuple[int, bytes]]
         if size < len(MAGIC) or f.read(len(MAGIC)) != MAGIC:
             raise ValueError(f"{path}: not an MCAP file (no magic)")
         data = mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ)
+        budget, where = chunk_budget(), os.fspath(path)
         try:
             chunks = _summary_chunks(data, size) if use_summary else None
             if chunks is not None:
                 yield "summary"
                 for ordinal, (offset, length) in enumerate(chunks):
-                    yield _read_chunk(data, ordinal, offset, length, size)
+                    yield _read_chunk(data, ordinal, offset, length, size, budget, where)
                 # top-level records still come from the data section
                 _top_level(data, size, top, chunks)
             else:
-                yield from _scan(data, size, top)
+                yield from _scan(data, size, top, budget, where)
         finally:
             data.close()
 
@@ -298,6 +327,11 @@ def recover(path: str | os.PathLike[str]) -> Recovered:
         messages of the intact chunks in file order, the lost chunks (offset, time
         range, reason), the chunk count, whether the file was cut off, and whether the
         summary was used.
+
+    Raises
+    ------
+    ChunkTooLarge
+        A compressed chunk declares more uncompressed bytes than the memory budget.
     """
     top: list[tuple[int, bytes]] = []
     messages: list[RawMessage] = []

@@ -5,14 +5,22 @@ metadata and attachment indexes, chunk index; the summary CRC is checked) and th
 chunk of the chunk index one by one, checking its CRC, and decodes the protobuf messages
 with ``mcap_protobuf.decoder.DecoderFactory`` from the schemas stored in the file.
 
-Damage is recovered chunk by chunk: a chunk that fails its CRC or does not decompress
-is skipped and reported in ``Trace.lost_chunks`` (:class:`LostChunk`: where, which
+Damage is recovered chunk by chunk: a chunk that fails its CRC, does not decompress,
+or decompresses to more or fewer bytes than its declared ``uncompressed_size`` is
+skipped and reported in ``Trace.lost_chunks`` (:class:`LostChunk`: where, which
 steps, how many messages its message index lists, why), and every intact chunk around
 it is read. A file whose writer never finished (no footer, summary or index: the
 process was killed), or whose summary is unusable, is scanned record by record: the
 scan skips a damaged chunk the same way, resynchronises on the next chunk after bytes
 whose record structure is destroyed, and stops at the first record that extends past
 the end of the file (``truncated=True``).
+
+Decompression is bounded (:func:`inflate_chunk`, the one place chunks are inflated;
+:func:`stream_records` is the bounded stand-in for the ``mcap`` library's stream reader):
+a compressed chunk is inflated only up to its declared size, checked first against the
+memory budget (:func:`netsim.budget.memory_limit`); a chunk declaring more than the
+budget is refused (:class:`ChunkTooLarge`, naming the file, the chunk and the size), so
+a decompression bomb costs neither memory nor time.
 
 Anything else raises :class:`TraceError` with a one-line message naming the file:
 not an MCAP file, an MCAP file not written by netsim (no ``scenario`` metadata or no
@@ -27,11 +35,13 @@ import mmap
 import os
 import struct
 import zlib
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, NamedTuple
 
 import numpy as np
+import zstandard
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
@@ -46,7 +56,7 @@ from mcap.records import (
     Metadata,
     Schema,
 )
-from mcap.stream_reader import breakup_chunk
+from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
 from netsim.traces.schemas import DROP_REASONS_METADATA, LINK_EVENTS, parse_topic
@@ -58,8 +68,9 @@ from netsim.traces.schemas import sensor_topic as _sensor_topic
 from netsim.traces.schemas import update_topic as _update_topic
 from netsim.traces.schemas3 import PACKAGE as _PACKAGE3
 
-__all__ = ["NOT_USED", "TraceError", "TraceRecord", "LinkEvent", "LostChunk", "Trace",
-           "read_trace", "read_status"]
+__all__ = ["NOT_USED", "TraceError", "ChunkTooLarge", "TraceRecord", "LinkEvent",
+           "LostChunk", "Trace", "read_trace", "read_status", "inflate_chunk",
+           "chunk_budget", "stream_records", "Budget"]
 
 #: Entry of :meth:`Trace.effective_delays` where agent i did not use j's estimate
 #: (equal to ``netsim.kernel.NOT_USED``).
@@ -73,6 +84,25 @@ _OPCODES = frozenset(int(op) for op in Opcode)
 
 class TraceError(ValueError):
     """A file that cannot be read as a netsim trace (the message names file and cause)."""
+
+
+class ChunkTooLarge(TraceError):
+    """A compressed chunk declares more uncompressed bytes than the memory budget.
+
+    The file is refused, not read (a decompression bomb, or a chunk header too damaged
+    to trust): the message names the file, the chunk's offset, the declared size and
+    the budget.
+
+    Attributes
+    ----------
+    declared, limit : int
+        The chunk's declared uncompressed size and the budget (bytes).
+    """
+
+    def __init__(self, message: str, declared: int, limit: int) -> None:
+        super().__init__(message)
+        self.declared = declared
+        self.limit = limit
 
 
 class TraceRecord(NamedTuple):
@@ -553,8 +583,14 @@ def read_status(path: str | os.PathLike[str]) -> dict[str, str] | None:
     for a file that is unreadable, unfinished or has none)."""
     try:
         with open(path, "rb") as f:
-            for record in make_reader(f).iter_metadata():
-                if record.name == "run_status":
+            reader = make_reader(f)
+            if reader.get_summary() is not None:
+                records: Any = reader.iter_metadata()
+            else:  # no index: the top-level records, chunks skipped (never inflated)
+                f.seek(0)
+                records = StreamReader(f, emit_chunks=True).records
+            for record in records:
+                if isinstance(record, Metadata) and record.name == "run_status":
                     return dict(record.metadata)
     except Exception:  # noqa: BLE001 - any failure: no status to report
         return None
@@ -782,6 +818,7 @@ def _read_finished(f: Any, where: str, size: int) -> Trace:
         raise TraceError(f"{where}: corrupted MCAP file ({_describe(exc)})") from None
     # Decoding is done here (DecoderFactory from the stored FileDescriptorSet) so a
     # decoding failure names its topic; messages in log_time order, file order on ties.
+    budget = chunk_budget()
     for ordinal, index in enumerate(sorted(summary.chunk_indexes,
                                            key=lambda c: c.chunk_start_offset)):
         try:
@@ -790,7 +827,9 @@ def _read_finished(f: Any, where: str, size: int) -> Trace:
             if opcode != Opcode.CHUNK or 9 + length != index.chunk_length:
                 raise ValueError("the chunk index points at no chunk record")
             chunk = Chunk.read(ReadDataStream(f))
-            records = list(breakup_chunk(chunk, validate_crc=True))
+            records = _chunk_records_of(chunk, budget, where, index.chunk_start_offset)
+        except ChunkTooLarge:
+            raise
         except Exception as exc:  # noqa: BLE001 - CRC, decompression, parse errors
             lost.append(LostChunk(ordinal, index.chunk_start_offset, index.chunk_length,
                                   index.message_start_time, index.message_end_time,
@@ -870,6 +909,207 @@ def _take(collect: _Collector, record: Any) -> None:
         collect.library = record.library
 
 
+# -- bounded decompression -----------------------------------------------------------
+
+#: A memory budget: (bytes, where the limit comes from), or a callable returning it.
+Budget = tuple[int, str] | Callable[[], tuple[int, str]]
+
+
+def chunk_budget() -> Callable[[], tuple[int, str]]:
+    """The memory budget of one file's chunks: a callable asking
+    :func:`netsim.budget.memory_limit` once, at its first call (the first compressed
+    chunk), and returning that answer from then on."""
+    known: list[tuple[int, str]] = []
+
+    def budget() -> tuple[int, str]:
+        if not known:
+            from netsim.budget import memory_limit
+
+            known.append(memory_limit())
+        return known[0]
+
+    return budget
+
+
+def inflate_chunk(compression: str, data: bytes | memoryview, uncompressed_size: int, *,
+                  budget: Budget | None = None, where: str = "",
+                  offset: int | None = None) -> bytes:
+    """Decompress a chunk's records to exactly its declared uncompressed size.
+
+    The one place chunks are inflated. A compressed chunk's declared size is checked
+    against the memory budget first, then the data is decompressed as a stream that
+    produces at most ``uncompressed_size + 1`` bytes, whatever the compressed data
+    (or its frame header) says: a decompression bomb costs neither memory nor time.
+
+    Parameters
+    ----------
+    compression : str
+        The chunk's compression: ``""`` (none), ``"zstd"`` or ``"lz4"`` (LZ4 frames).
+    data : bytes or memoryview
+        The chunk's records as stored (compressed).
+    uncompressed_size : int
+        The chunk's declared ``uncompressed_size``.
+    budget : (int, str) or callable, optional
+        The budget (bytes, where the limit comes from) the declared size of a
+        compressed chunk may not exceed, or a callable returning it (see
+        :func:`chunk_budget`); default :func:`netsim.budget.memory_limit`.
+    where : str, optional
+        The file, named by the refusal.
+    offset : int, optional
+        The chunk's offset in the file, named by the refusal.
+
+    Returns
+    -------
+    bytes
+        The records, exactly ``uncompressed_size`` bytes.
+
+    Raises
+    ------
+    ChunkTooLarge
+        The chunk is compressed and declares more than the budget (nothing was
+        decompressed).
+    ValueError
+        The chunk is damaged: unknown compression, data that does not decompress, or
+        that decompresses to more or fewer bytes than declared.
+    """
+    if compression == "":
+        if len(data) != uncompressed_size:
+            raise ValueError(f"uncompressed chunk holds {len(data)} bytes, "
+                             f"it declares {uncompressed_size}")
+        return bytes(data)
+    if compression not in ("zstd", "lz4"):
+        raise ValueError(f"unsupported chunk compression {compression!r}")
+    limit, source = (budget() if callable(budget) else budget) if budget is not None \
+        else _memory_limit()
+    if uncompressed_size > limit:
+        from netsim.budget import format_bytes
+
+        head = f"{where}: " if where else ""
+        at = f" at byte {offset}" if offset is not None else ""
+        raise ChunkTooLarge(
+            f"{head}{compression} chunk{at} declares {uncompressed_size} bytes "
+            f"({format_bytes(uncompressed_size)}) uncompressed; this machine can give "
+            f"{format_bytes(limit)} ({source}); refused without decompressing it",
+            uncompressed_size, limit)
+    wanted = uncompressed_size + 1  # one byte more shows data inflating past the size
+    if compression == "zstd":
+        records = _inflate_zstd(data, wanted)
+    else:
+        records = _inflate_lz4(data, wanted)
+    if len(records) > uncompressed_size:
+        raise ValueError(f"{compression} data inflates past the declared uncompressed "
+                         f"size ({uncompressed_size} bytes)")
+    if len(records) < uncompressed_size:
+        raise ValueError(f"{compression} data inflates to {len(records)} bytes, the chunk "
+                         f"declares {uncompressed_size}")
+    return records
+
+
+def _memory_limit() -> tuple[int, str]:
+    from netsim.budget import memory_limit
+
+    return memory_limit()
+
+
+def _inflate_zstd(data: bytes | memoryview, wanted: int) -> bytes:
+    """At most ``wanted`` bytes of the zstd frames in ``data`` (the frames' own content
+    sizes are not trusted: the output buffer is ``wanted`` bytes)."""
+    parts: list[bytes] = []
+    got = 0
+    try:
+        reader = zstandard.ZstdDecompressor().stream_reader(data, read_across_frames=True)
+        while got < wanted:
+            piece = reader.read(wanted - got)
+            if not piece:
+                break
+            parts.append(piece)
+            got += len(piece)
+    except zstandard.ZstdError as exc:
+        raise ValueError(f"zstd: {exc}") from None
+    return b"".join(parts)
+
+
+def _inflate_lz4(data: bytes | memoryview, wanted: int) -> bytes:
+    """At most ``wanted`` bytes of the LZ4 frames in ``data``."""
+    try:
+        import lz4.frame
+    except ImportError:
+        raise ValueError("lz4 chunk, but the lz4 package is not installed") from None
+    parts: list[bytes] = []
+    got = 0
+    rest: bytes | memoryview = data
+    try:
+        while got < wanted and len(rest):
+            inflater = lz4.frame.LZ4FrameDecompressor()
+            piece = inflater.decompress(rest, max_length=wanted - got)
+            parts.append(piece)
+            got += len(piece)
+            if got >= wanted:
+                break
+            if not inflater.eof:
+                raise ValueError("lz4 data is cut off (frame not finished)")
+            rest = inflater.unused_data or b""
+    except RuntimeError as exc:  # lz4's decompression errors
+        raise ValueError(f"lz4: {exc}") from None
+    return b"".join(parts)
+
+
+def _chunk_records_of(chunk: Chunk, budget: Budget | None, where: str,
+                      offset: int | None, validate_crc: bool = True) -> list[Any]:
+    """The records of a chunk (inflated by :func:`inflate_chunk`, CRC checked and split
+    by the mcap library as before); raises if damaged, :class:`ChunkTooLarge` if
+    refused."""
+    records = inflate_chunk(chunk.compression, chunk.data, chunk.uncompressed_size,
+                            budget=budget, where=where, offset=offset)
+    inflated = replace(chunk, compression="", data=records)
+    try:
+        return list(breakup_chunk(inflated, validate_crc=validate_crc))
+    except CRCValidationError as exc:
+        exc.record = chunk
+        raise
+
+
+def stream_records(stream: Any, *, where: str = "", validate_crcs: bool = False,
+                   budget: Budget | None = None) -> Iterator[Any]:
+    """The records of an MCAP stream in file order, chunks inflated by
+    :func:`inflate_chunk`.
+
+    A drop-in for the ``mcap`` library's ``StreamReader(stream).records``, whose chunk
+    decompression is unbounded: the same records, but a chunk is never inflated past
+    its declared size and its declared size is checked against the memory budget.
+
+    Parameters
+    ----------
+    stream : file object
+        The MCAP file, positioned at its magic.
+    where : str, optional
+        The file, named by a refusal.
+    validate_crcs : bool
+        Check each chunk's CRC (as ``StreamReader(..., validate_crcs=True)``).
+    budget : (int, str) or callable, optional
+        As for :func:`inflate_chunk` (default: :func:`chunk_budget`).
+
+    Yields
+    ------
+    mcap record
+        Top-level records and the records inside the chunks.
+
+    Raises
+    ------
+    ChunkTooLarge
+        A compressed chunk declares more than the budget.
+    ValueError
+        A chunk is damaged (inflates to more or fewer bytes than declared, does not
+        decompress, or fails its CRC); the mcap library's errors for damaged records.
+    """
+    budget = chunk_budget() if budget is None else budget
+    for record in StreamReader(stream, emit_chunks=True, validate_crcs=validate_crcs).records:
+        if isinstance(record, Chunk):
+            yield from _chunk_records_of(record, budget, where, None, validate_crcs)
+        else:
+            yield record
+
+
 # -- chunk-by-chunk recovery ---------------------------------------------------------
 
 _CHUNK_FIXED = 8 + 8 + 8 + 4 + 4  # start, end, uncompressed size, crc, compression length
@@ -910,11 +1150,13 @@ def _next_chunk(data: Any, position: int, size: int) -> int | None:
         position += 1
 
 
-def _chunk_records(data: Any, position: int, length: int) -> list[Any]:
-    """The records of the chunk at ``position`` (CRC checked; raises if damaged)."""
+def _chunk_records(data: Any, position: int, length: int, budget: Budget,
+                   where: str) -> list[Any]:
+    """The records of the chunk at ``position`` (bounded inflation, CRC checked; raises
+    if damaged, :class:`ChunkTooLarge` if refused)."""
     content = bytes(data[position + 9:position + 9 + length])
     chunk = Chunk.read(ReadDataStream(io.BytesIO(content)))
-    return list(breakup_chunk(chunk, validate_crc=True))
+    return _chunk_records_of(chunk, budget, where, position)
 
 
 def _chunk_times(data: Any, position: int, size: int) -> tuple[int | None, int | None]:
@@ -936,6 +1178,7 @@ def _scan(f: Any, where: str, size: int, finished: bool = False,
     truncated = False
     saw_footer = False
     counting: LostChunk | None = None  # the lost chunk whose message indexes follow
+    budget = chunk_budget()
     position = 8
     try:
         while position < size:
@@ -962,7 +1205,9 @@ def _scan(f: Any, where: str, size: int, finished: bool = False,
             if opcode == Opcode.CHUNK:
                 start, stop_time = _chunk_times(data, position, size)
                 try:
-                    records = _chunk_records(data, position, length)
+                    records = _chunk_records(data, position, length, budget, where)
+                except ChunkTooLarge:
+                    raise
                 except Exception as exc:  # noqa: BLE001 - CRC, decompression, parse
                     counting = LostChunk(chunks, position, 9 + length, start, stop_time, None,
                                          _describe(exc))

@@ -5,12 +5,50 @@ scenario's ``[gains]`` request and the solver stack, so it is stored under a
 fingerprint of exactly those: the bytes of P (dense; or a sparse P's CSR shape,
 indptr, indices and values, never densified), A and every C_i (float64), the request
 (method, tau1, refine_from, the given K_i), and the versions of netsim, numpy, scipy,
-cvxpy and clarabel. An entry is one ``.npz`` file holding the design (layout 2: the K_i
+cvxpy and clarabel. An entry is one ``.npz`` file holding the design (layout 3: the K_i
 stacked, shape (N, n, n), the L_i side by side, shape (n, sum m_i), so two arrays at any
-N; and the scalar fields) and the fingerprint it was made for; an entry that does not load, does
-not carry its own fingerprint or has arrays of the wrong shapes is ignored and
-rewritten, never trusted. Writes go to a temporary file renamed into place, so a
-killed writer leaves no half entry.
+N; the scalar fields), the fingerprint it was made for and a SHA-256 digest of its
+contents (:func:`entry_digest`). Writes go to a temporary file renamed into place, so
+a killed writer leaves no half entry.
+
+Every entry is verified when it is read (:func:`read_entry`, :func:`verify_design`),
+in this order:
+
+1. it can be read, carries this layout and the fingerprint of its file name;
+2. ``K`` and ``L`` are float64 arrays of the scenario's shapes, all finite;
+3. the stored digest equals the SHA-256 of the stored arrays' bytes (with their
+   shapes), the scalar fields and the fingerprint;
+4. its ``design_tau`` is the request's ``tau1`` and its ``method`` one the request's
+   method produces; ``K_i C_i^T = L_i`` (relative tolerance :data:`KL_RTOL`; one
+   small product per agent, vectorised);
+5. the certificate is recomputed when ``N n <=`` :data:`VERIFY_RHO_MAX_STATES`: the
+   delay-free spectral radius ``rho((I - K D_C-bar)(P kron A))`` of LCSYS2022 eq. (12)
+   with the stored gains, by the design's own computation (dense eigenvalues of
+   :func:`netsim.models.augmented.delay_free_closed_loop` for the LMI, CCL, refined
+   and given designs; :func:`netsim.models.augmented.delay_free_spectral_radius`,
+   dense or structured as its ``status`` says, for the local design), must equal the
+   stored ``rho`` to the relative tolerance :data:`RHO_RTOL`; likewise ``rho_design``
+   (``A^(design_tau+1)`` in place of ``A``) when ``design_tau > 0``; and a design that
+   claims to be certified must have ``rho < 1``, ``rho_design < 1`` and
+   ``rho_design`` below its certified rate. For ``N n`` above
+   :data:`netsim.models.augmented.DENSE_SIZE_THRESHOLD`, a design whose own
+   computation is dense is screened by the structured (ARPACK) radius at
+   :data:`SCREEN_RTOL` and recomputed densely only if the screen disagrees.
+
+The certificate checks (``rho < 1``, the rate) use the stored values once they match
+the recomputed ones, so a design certified at ``rho = 1 - 1e-15`` is not rejected
+for rounding. Above :data:`VERIFY_RHO_MAX_STATES` (the local design's range, and every
+sparse network) no spectral radius is recomputed -- that is an ARPACK eigenproblem of
+``N n`` rows (measured 0.2 s at 6,000, 3 s at 60,000, minutes at 600,000) -- and an
+entry is verified by steps 1-4 only (about 0.1 s at N = 100,000, n = 6): the
+digest catches any change to a stored file, the ``K``/``L`` check gains replaced
+without their partner, but an entry *written* with wrong gains, a consistent
+``K``/``L`` pair and a matching digest would pass.
+
+An entry that fails is ignored (the gains are designed afresh), reported as one
+:class:`GainCacheWarning` (``netsim <command>: warning: gain cache: ...`` on stderr),
+removed and rewritten with the fresh design. A missing entry is designed and written
+silently.
 
 Location: ``$NETSIM_CACHE_DIR`` if set, else ``$XDG_CACHE_HOME/netsim/gains`` (default
 ``~/.cache/netsim/gains``); ``NETSIM_CACHE_DIR=off`` (or ``--no-cache``) disables it.
@@ -22,9 +60,11 @@ import contextlib
 import hashlib
 import io
 import json
+import math
 import os
 import tempfile
-from collections.abc import Callable, Iterator
+import warnings
+from collections.abc import Callable, Iterator, Sequence
 from importlib import metadata
 from pathlib import Path
 from typing import Any
@@ -33,13 +73,64 @@ import numpy as np
 import scipy.sparse as sp
 
 from netsim.estimators.gains import GainDesign
+from netsim.models.scenario import ScenarioWarning
 
-__all__ = ["cache_dir", "fingerprint", "cached_design", "load", "store", "disabled"]
+__all__ = [
+    "KL_RTOL",
+    "LAYOUT",
+    "RHO_RTOL",
+    "SCREEN_RTOL",
+    "VERIFY_RHO_MAX_STATES",
+    "EntryError",
+    "GainCacheWarning",
+    "cache_dir",
+    "cached_design",
+    "disabled",
+    "entry_digest",
+    "fingerprint",
+    "load",
+    "read_entry",
+    "store",
+    "verify_design",
+]
 
-#: Bumped when the stored layout changes (old entries are then foreign and rewritten).
-LAYOUT = 2
+#: Bumped when the stored layout changes (it enters the fingerprint, so entries of
+#: another layout are never looked up and are left alone). 3: with a digest.
+LAYOUT = 3
 _SCALARS = ("rho", "certified_rate", "certified", "method", "solver", "status", "message",
             "design_tau", "rho_design", "iterations")
+
+#: Largest ``N n`` at which a cached entry's spectral radius is recomputed on load
+#: (about 40 ms for a dense 300-row eigenproblem, 30 ms for the structured radius at
+#: 1,500 rows on a 2-core machine); above it entries are verified by digest only.
+VERIFY_RHO_MAX_STATES: int = 1500
+#: Relative tolerance between the stored and the recomputed ``rho`` (the same
+#: computation on the same gains: equal up to rounding).
+RHO_RTOL: float = 1e-9
+#: Relative tolerance of the structured screen of a dense-computed ``rho``.
+SCREEN_RTOL: float = 1e-6
+#: Relative tolerance of ``K_i C_i^T = L_i`` (against ``|K_i| |C_i| + |L_i|``).
+KL_RTOL: float = 1e-8
+
+#: The ``method`` of :func:`netsim.estimators.gains.design_local`.
+_LOCAL = "local-scaled-projection"
+#: The stored ``method`` a request's method can produce (prefixes of
+#: :attr:`netsim.estimators.gains.GainDesign.method`); a request method not listed
+#: (``auto``, or one added later) is not checked.
+_PRODUCES = {"lmi": ("block-diagonal-lmi",), "ccl": ("ccl-",), "local": (_LOCAL,),
+             "given": ("given",), "refined": ("refined",)}
+
+
+class GainCacheWarning(ScenarioWarning):
+    """A cache entry was ignored (and rewritten); the ``netsim`` command prints it as
+    one ``netsim <command>: warning: gain cache: ...`` line on stderr."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__("gain cache", message)
+
+
+class EntryError(ValueError):
+    """A cache entry that must not be used; the message says why (one line)."""
 
 
 _OFF = [False]
@@ -82,7 +173,20 @@ def _version(name: str) -> str:
 
 
 def fingerprint(scenario: Any, request: dict[str, Any]) -> str:
-    """SHA-256 of what the design depends on (see the module docstring)."""
+    """SHA-256 of what the design depends on (see the module docstring).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        Its ``weights`` (P), ``plant.A``, ``plant.C`` and ``gains.K`` enter.
+    request : dict
+        The resolved ``[gains]`` request (:func:`netsim.estimators.gains.design_request`).
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
     digest = hashlib.sha256()
     digest.update(f"netsim-gains-{LAYOUT}".encode())
     for name in ("netsim", "numpy", "scipy", "cvxpy", "clarabel"):
@@ -115,46 +219,355 @@ def fingerprint(scenario: Any, request: dict[str, Any]) -> str:
     return digest.hexdigest()
 
 
-def load(path: Path, key: str, scenario: Any) -> GainDesign | None:
-    """The design stored at ``path`` for fingerprint ``key``, or None if it is missing,
-    unreadable, made for another fingerprint or of the wrong shapes."""
+def _canonical(scalars: dict[str, Any]) -> str:
+    return json.dumps(scalars, sort_keys=True, default=float)
+
+
+def entry_digest(key: str, K_all: np.ndarray, L_all: np.ndarray,
+                 scalars: dict[str, Any]) -> str:
+    """SHA-256 of an entry's contents: its fingerprint, the stored arrays' shapes and
+    bytes, and its scalar fields (canonical JSON).
+
+    Parameters
+    ----------
+    key : str
+        The fingerprint the entry is made for.
+    K_all : numpy.ndarray, shape (N, n, n), float64
+        The K_i stacked, as stored.
+    L_all : numpy.ndarray, shape (n, sum m_i), float64
+        The L_i side by side, as stored.
+    scalars : dict
+        The GainDesign's scalar fields (``rho``, ``certified``, ...), as stored.
+
+    Returns
+    -------
+    str
+        64 hex digits.
+    """
+    digest = hashlib.sha256(f"netsim-gain-entry-{LAYOUT};{key};".encode())
+    for name, array in (("K", K_all), ("L", L_all)):
+        a = np.ascontiguousarray(array)
+        digest.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
+        digest.update(a.tobytes())
+    digest.update(_canonical(scalars).encode())
+    return digest.hexdigest()
+
+
+def _one_line(text: Any, limit: int = 160) -> str:
+    line = " ".join(str(text).split())
+    return line if len(line) <= limit else line[:limit - 3] + "..."
+
+
+def _read(path: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+    """The meta dictionary and the raw K and L arrays of the file at ``path``."""
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"][()]))
-            if meta.get("fingerprint") != key or meta.get("layout") != LAYOUT:
-                return None
-            n = scenario.plant.n_states
-            sizes = [C.shape[0] for C in scenario.plant.C]
-            K_all = np.array(data["K"], dtype=np.float64)
-            L_all = np.array(data["L"], dtype=np.float64)
-            if K_all.shape != (len(sizes), n, n) or L_all.shape != (n, sum(sizes)):
-                return None
-            K = tuple(K_all)
-            L = tuple(np.split(L_all, np.cumsum(sizes)[:-1], axis=1)) if sizes else ()
-    except (OSError, ValueError, KeyError, TypeError, EOFError, json.JSONDecodeError):
-        return None
-    shapes_ok = all(k.shape == (n, n) for k in K) and all(
-        gain.shape == (n, C.shape[0]) for gain, C in zip(L, scenario.plant.C, strict=True))
-    if not shapes_ok:
-        return None
+            K_all = np.array(data["K"])
+            L_all = np.array(data["L"])
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # any failure to read is a damaged entry
+        raise EntryError(f"cannot be read ({type(exc).__name__}: {_one_line(exc)})") from None
+    if not isinstance(meta, dict):
+        raise EntryError("cannot be read (its metadata is not a table)")
+    return meta, K_all, L_all
+
+
+def _closed_loop_rho(kind: str, P: Any, A: np.ndarray, C: Sequence[np.ndarray],
+                     L: Sequence[np.ndarray]) -> float:
+    """``rho((I - K D_C-bar)(P kron A))`` computed as ``kind`` says: ``"closed-loop"``
+    (dense eigenvalues of the assembled matrix, as the LMI, CCL, refined and given
+    designs do), ``"dense"`` or ``"structured"`` (as the local design does)."""
+    from netsim.models.augmented import (
+        delay_free_closed_loop,
+        delay_free_spectral_radius,
+        spectral_radius,
+    )
+
+    with np.errstate(over="ignore", invalid="ignore"):
+        if kind == "closed-loop":
+            return float(spectral_radius(delay_free_closed_loop(P, A, C, L)))
+        return float(delay_free_spectral_radius(P, A, C, L, method=kind))
+
+
+def _close(a: float, b: float, rtol: float) -> bool:
+    if not (math.isfinite(a) and math.isfinite(b)):
+        return a == b
+    return abs(a - b) <= rtol * max(abs(a), abs(b), 1e-300)
+
+
+def _check_rho(what: str, stored: Any, P: Any, A: np.ndarray, C: Sequence[np.ndarray],
+               L: Sequence[np.ndarray], own: str, Nn: int) -> float:
+    """Recompute one spectral radius (by the design's ``own`` computation, screened by
+    the structured one where ``own`` is a dense eigenproblem above
+    :data:`netsim.models.augmented.DENSE_SIZE_THRESHOLD` rows) and compare it with the
+    stored value; return the stored value once it matches."""
+    from netsim.models.augmented import DENSE_SIZE_THRESHOLD
+
+    if not isinstance(stored, (int, float)) or isinstance(stored, bool):
+        raise EntryError(f"stored {what} is not a number ({stored!r})")
+    stored = float(stored)
+
+    def mismatch(value: float) -> EntryError:
+        return EntryError(f"stored {what} = {stored:.6g} but the stored gains give "
+                          f"{what} = {value:.6g}")
+
+    if Nn > DENSE_SIZE_THRESHOLD and own != "structured":
+        screen = _closed_loop_rho("structured", P, A, C, L)
+        if _close(screen, stored, SCREEN_RTOL):
+            return stored
+        if sp.issparse(P):  # no dense computation to confirm with
+            raise mismatch(screen)
+    value = _closed_loop_rho(own, P, A, C, L)
+    if not _close(value, stored, RHO_RTOL):
+        raise mismatch(value)
+    return stored
+
+
+def verify_design(design: GainDesign, scenario: Any,
+                  arrays: tuple[np.ndarray, np.ndarray] | None = None) -> None:
+    """Check a stored design against the scenario it claims to be for.
+
+    ``K_i C_i^T = L_i``; and, when ``N n <=`` :data:`VERIFY_RHO_MAX_STATES`, the
+    recomputed certificate (steps 4 and 5 of the module docstring). The shapes and the
+    finiteness of the arrays are :func:`read_entry`'s checks.
+
+    Parameters
+    ----------
+    design : GainDesign
+        The design read from the cache.
+    scenario : Scenario
+        The scenario it is looked up for (P, A, C_i).
+    arrays : tuple of numpy.ndarray, optional
+        ``design.K`` stacked, shape (N, n, n), and ``design.L`` side by side, shape
+        (n, sum m_i), as stored (built from ``design`` if not given).
+
+    Raises
+    ------
+    EntryError
+        If the design does not hold; the message says which check failed.
+    """
+    P, A, C = scenario.weights, np.asarray(scenario.plant.A, dtype=float), scenario.plant.C
+    n = A.shape[0]
+    N = len(C)
+    K_all, L_all = _arrays(design) if arrays is None else arrays
+    _check_kl(K_all, L_all, C)
+    if N * n > VERIFY_RHO_MAX_STATES:
+        return
+    if design.method == _LOCAL:
+        own = "dense" if design.status == "dense-eigvals" else "structured"
+    else:
+        own = "structured" if sp.issparse(P) else "closed-loop"
+    rho = _check_rho("rho", design.rho, P, A, C, design.L, own, N * n)
+    tau = design.design_tau
+    if not isinstance(tau, int) or isinstance(tau, bool) or tau < 0:
+        raise EntryError(f"stored design_tau is not a non-negative integer ({tau!r})")
+    if tau == 0:
+        rho_design = rho
+        if not _close(float(design.rho_design), rho, RHO_RTOL):  # type: ignore[arg-type]
+            raise EntryError(f"stored rho_design = {design.rho_design!r} differs from "
+                             f"rho = {rho:.6g} for design_tau = 0")
+    else:
+        with np.errstate(over="ignore", invalid="ignore"):
+            A_design = np.linalg.matrix_power(A, tau + 1)
+        rho_design = _check_rho("rho_design", design.rho_design, P, A_design, C, design.L,
+                                own, N * n)
+    if design.certified is not True and design.certified is not False:
+        raise EntryError(f"stored 'certified' is not a boolean ({design.certified!r})")
+    if design.certified:
+        if not (rho < 1.0 and rho_design < 1.0):
+            raise EntryError(f"claims to be certified but rho = {rho:.6g}, rho_design = "
+                             f"{rho_design:.6g} (not both below 1)")
+        rate = design.certified_rate
+        if rate is not None and not (isinstance(rate, (int, float))
+                                     and rho_design < float(rate)):
+            raise EntryError(f"claims the certified rate {rate!r} but rho_design = "
+                             f"{rho_design:.6g} is not below it")
+
+
+def _check_kl(K_all: np.ndarray, L_all: np.ndarray, C: Sequence[np.ndarray]) -> None:
+    """``K_i C_i^T = L_i`` for every agent: vectorised over the agents with the same
+    number of outputs (the distinct C_i objects are converted once; agents often share
+    one)."""
+    N = len(C)
+    if N == 0:
+        return
+    codes = np.empty(N, dtype=np.int64)
+    index: dict[int, int] = {}
+    mats: list[np.ndarray] = []
+    for i, Ci in enumerate(C):
+        j = index.get(id(Ci))
+        if j is None:
+            j = index[id(Ci)] = len(mats)
+            mats.append(np.asarray(Ci, dtype=np.float64))
+        codes[i] = j
+    rows = np.array([M.shape[0] for M in mats], dtype=np.int64)
+    sizes = rows[codes]
+    offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+    bad_count, first = 0, None
+    for m in np.unique(sizes).tolist():
+        agents = np.flatnonzero(sizes == m)
+        used, inverse = np.unique(codes[agents], return_inverse=True)
+        Cs = np.stack([mats[j] for j in used.tolist()])[inverse]           # (g, m, n)
+        K = K_all[agents]                                                   # (g, n, n)
+        L = L_all[:, offsets[agents][:, None] + np.arange(m)].transpose(1, 0, 2)
+        with np.errstate(over="ignore", invalid="ignore"):
+            residual = np.linalg.norm(K @ Cs.transpose(0, 2, 1) - L, axis=(1, 2))
+            scale = (np.linalg.norm(K, axis=(1, 2)) * np.linalg.norm(Cs, axis=(1, 2))
+                     + np.linalg.norm(L, axis=(1, 2)))
+        bad = np.flatnonzero(~(residual <= KL_RTOL * scale))
+        if bad.size:
+            bad_count += int(bad.size)
+            i = int(agents[bad[0]])
+            if first is None or i < first[0]:
+                first = (i, float(residual[bad[0]]))
+    if first is not None:
+        raise EntryError(f"K_i C_i^T != L_i for {bad_count} agent(s) (agent {first[0]}: "
+                         f"residual {first[1]:.3g})")
+
+
+def read_entry(path: Path, key: str, scenario: Any,
+               request: dict[str, Any] | None = None) -> GainDesign:
+    """The design stored at ``path`` for fingerprint ``key``, verified.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The entry's file.
+    key : str
+        The fingerprint it must be made for (:func:`fingerprint`).
+    scenario : Scenario
+        The scenario it is looked up for (shapes, P, A, C_i).
+    request : dict, optional
+        The ``[gains]`` request: if given, the stored ``design_tau`` must be its
+        ``tau1`` and the stored ``method`` one its ``method`` produces.
+
+    Returns
+    -------
+    GainDesign
+        The stored design, which passed every check of the module docstring.
+
+    Raises
+    ------
+    FileNotFoundError
+        If there is no entry.
+    EntryError
+        If the entry cannot be read, was made for another key or layout, or fails a
+        check; the message (one line) says which.
+    """
+    meta, K_all, L_all = _read(path)
+    if meta.get("layout") != LAYOUT:
+        raise EntryError(f"layout {meta.get('layout')!r}, not {LAYOUT}")
+    if meta.get("fingerprint") != key:
+        raise EntryError(f"made for another key ({str(meta.get('fingerprint'))[:12]}...)")
+    n = scenario.plant.n_states
+    sizes = [C.shape[0] for C in scenario.plant.C]
+    if K_all.dtype != np.float64 or L_all.dtype != np.float64:
+        raise EntryError(f"arrays of dtype {K_all.dtype}, {L_all.dtype}, not float64")
+    if K_all.shape != (len(sizes), n, n) or L_all.shape != (n, sum(sizes)):
+        raise EntryError(f"arrays of shapes {K_all.shape}, {L_all.shape}, not "
+                         f"{(len(sizes), n, n)}, {(n, sum(sizes))}")
+    if not (np.all(np.isfinite(K_all)) and np.all(np.isfinite(L_all))):
+        raise EntryError("non-finite gains")
     try:
-        return GainDesign(L=L, K=K, **{name: meta[name] for name in _SCALARS})
-    except (KeyError, TypeError):
+        scalars = {name: meta[name] for name in _SCALARS}
+    except KeyError as exc:
+        raise EntryError(f"no field {exc}") from None
+    if meta.get("digest") != entry_digest(key, K_all, L_all, scalars):
+        raise EntryError("digest mismatch (the stored contents changed after writing)")
+    K = tuple(K_all)
+    if sizes and min(sizes) == max(sizes):  # the same m for all: views, no split loop
+        L = tuple(L_all.reshape(n, len(sizes), sizes[0]).transpose(1, 0, 2))
+    else:
+        L = tuple(np.split(L_all, np.cumsum(sizes)[:-1], axis=1)) if sizes else ()
+    try:
+        design = GainDesign(L=L, K=K, **scalars)
+    except (TypeError, ValueError) as exc:
+        raise EntryError(f"not a design ({_one_line(exc)})") from None
+    if request is not None:
+        _check_request(design, request)
+    try:
+        verify_design(design, scenario, (K_all, L_all))
+    except EntryError:
+        raise
+    except (TypeError, ValueError, ArithmeticError, RuntimeError) as exc:
+        raise EntryError(f"cannot be verified ({type(exc).__name__}: "
+                         f"{_one_line(exc)})") from None
+    return design
+
+
+def _check_request(design: GainDesign, request: dict[str, Any]) -> None:
+    """The stored design is of the kind the request asks for (method and tau1)."""
+    tau1 = request.get("tau1", 0)
+    if design.design_tau != tau1:
+        raise EntryError(f"stored design_tau = {design.design_tau!r}, the request's "
+                         f"tau1 = {tau1!r}")
+    produces = _PRODUCES.get(str(request.get("method")))
+    if produces is not None and not str(design.method).startswith(produces):
+        raise EntryError(f"stored method {design.method!r} is not what the request's "
+                         f"method {request.get('method')!r} produces")
+
+
+def load(path: Path, key: str, scenario: Any,
+         request: dict[str, Any] | None = None) -> GainDesign | None:
+    """The verified design stored at ``path`` for fingerprint ``key``, or None if it is
+    missing or fails :func:`read_entry` (silently; :func:`cached_design` warns).
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The entry's file.
+    key : str
+        Its fingerprint.
+    scenario : Scenario
+        The scenario it is looked up for.
+    request : dict, optional
+        Its ``[gains]`` request (see :func:`read_entry`).
+
+    Returns
+    -------
+    GainDesign or None
+    """
+    try:
+        return read_entry(path, key, scenario, request)
+    except (FileNotFoundError, EntryError):
         return None
+
+
+def _arrays(design: GainDesign) -> tuple[np.ndarray, np.ndarray]:
+    # layout 2+: K stacked (N, n, n), L side by side (n, sum m_i): two arrays at any N
+    K_all = np.ascontiguousarray(np.stack([np.asarray(K, dtype=np.float64)
+                                           for K in design.K]))
+    L_all = np.ascontiguousarray(np.concatenate(
+        [np.asarray(L, dtype=np.float64).reshape(len(K), -1)
+         for L, K in zip(design.L, design.K, strict=True)], axis=1))
+    return K_all, L_all
 
 
 def store(path: Path, key: str, design: GainDesign) -> None:
-    """Write ``design`` to ``path`` atomically (a failure to write is ignored: the cache
-    is an optimisation, never a reason to fail a command)."""
-    meta = {"fingerprint": key, "layout": LAYOUT,
-            **{name: getattr(design, name) for name in _SCALARS}}
-    # layout 2: K stacked (N, n, n), L side by side (n, sum m_i): two arrays at any N
-    arrays = {"K": np.stack([np.asarray(K) for K in design.K]),
-              "L": np.concatenate([np.asarray(L).reshape(len(K), -1)
-                                   for L, K in zip(design.L, design.K, strict=True)],
-                                  axis=1)}
+    """Write ``design`` to ``path`` atomically, with its fingerprint and digest.
+
+    A failure to write is ignored: the cache is an optimisation, never a reason to
+    fail a command.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The entry's file.
+    key : str
+        The fingerprint it is made for.
+    design : GainDesign
+        The design to store.
+    """
+    # the scalars as they read back (JSON round trip), so the digest is the reader's
+    scalars = json.loads(_canonical({name: getattr(design, name) for name in _SCALARS}))
+    K_all, L_all = _arrays(design)
+    meta = {"fingerprint": key, "layout": LAYOUT, **scalars,
+            "digest": entry_digest(key, K_all, L_all, scalars)}
     buffer = io.BytesIO()
-    np.savez(buffer, meta=np.array(json.dumps(meta, default=float)), **arrays)
+    np.savez(buffer, meta=np.array(json.dumps(meta, default=float)), K=K_all, L=L_all)
+    tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, tmp = tempfile.mkstemp(dir=path.parent, prefix=".tmp-", suffix=".npz")
@@ -162,24 +575,49 @@ def store(path: Path, key: str, design: GainDesign) -> None:
             out.write(buffer.getvalue())
         os.replace(tmp, path)
     except OSError:
-        try:
-            os.unlink(tmp)  # type: ignore[possibly-undefined]
-        except (OSError, NameError):
-            pass
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
 
 
 def cached_design(scenario: Any, request: dict[str, Any],
                   design: Callable[[], GainDesign], *, use_cache: bool = True
                   ) -> GainDesign:
-    """Return the cached design for (scenario, request), or run ``design()`` and store it."""
+    """Return the cached design for (scenario, request), or run ``design()`` and store it.
+
+    An entry that fails verification (:func:`read_entry`) is reported in one
+    :class:`GainCacheWarning`, removed, and replaced by the fresh design.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario (see :func:`fingerprint`).
+    request : dict
+        Its resolved ``[gains]`` request.
+    design : callable
+        Runs the design (called only on a miss or a rejected entry).
+    use_cache : bool, default True
+        False: always ``design()``, nothing read or written.
+
+    Returns
+    -------
+    GainDesign
+    """
     folder = cache_dir() if use_cache else None
     if folder is None:
         return design()
     key = fingerprint(scenario, request)
     path = folder / f"{key}.npz"
-    found = load(path, key, scenario)
-    if found is not None:
-        return found
+    try:
+        return read_entry(path, key, scenario, request)
+    except FileNotFoundError:
+        pass
+    except EntryError as exc:
+        warnings.warn(GainCacheWarning(
+            f"ignored the entry {path} ({_one_line(exc)}); the gains are designed afresh "
+            "and the entry rewritten"), stacklevel=2)
+        with contextlib.suppress(OSError):
+            path.unlink()
     result = design()
     store(path, key, result)
     return result

@@ -73,11 +73,12 @@ def test_a_bad_entry_is_ignored_and_rewritten(cache, damage):
             meta["fingerprint"] = "0" * 64  # an entry made for something else
             meta["rho"] = 0.0
         else:
-            data["K_0"] = np.zeros((2, 2))
+            data["K"] = np.zeros((2, 2))    # the layout's K, of the wrong shape
         data["meta"] = np.array(json.dumps(meta))
         with open(path, "wb") as out:
             np.savez(out, **data)
-    again = scenario_gains(scenario)
+    with pytest.warns(gaincache.GainCacheWarning, match=path.name):
+        again = scenario_gains(scenario)
     _same(again, good)                              # solved afresh, not trusted
     assert gaincache.load(path, gaincache.fingerprint(scenario, design_request(scenario)),
                           scenario) is not None     # and rewritten

@@ -23,10 +23,21 @@ import time
 import traceback
 from typing import Any
 
-__all__ = ["to_toml", "worker_main", "TIME_LIMIT_S"]
+__all__ = ["to_toml", "worker_main", "TIME_LIMIT_S", "WALL_LIMIT_S", "PRELOAD"]
 
-#: A request that runs longer than this is a failure (the promise: refuse, not hang).
+#: A request that uses more CPU time than this (seconds, the worker's user + system time,
+#: which another job on the machine does not inflate) is a failure: refuse, do not hang.
 TIME_LIMIT_S = 10
+#: A request still running after this many seconds of wall time is a hang (a blocking
+#: read uses no CPU); generous, so that a loaded machine never reaches it otherwise.
+WALL_LIMIT_S = 180
+#: Modules every request may import, imported before the first request: a time limit
+#: that fired inside a first import would leave a half-imported module behind (seen:
+#: "module 'cvxpy' has no attribute 'promote'").
+PRELOAD = ("numpy", "scipy.linalg", "scipy.sparse", "scipy.optimize", "networkx", "cvxpy",
+           "simpy", "mcap", "netsim.cli", "netsim.runner", "netsim.vectorised",
+           "netsim.kernel", "netsim.estimators.gains", "netsim.estimators.consensus",
+           "netsim.fusion", "netsim.aoi")
 
 _BARE = re.compile(r"^[A-Za-z0-9_-]+$")
 
@@ -85,33 +96,49 @@ def _alarm(signum: int, frame: Any) -> None:
     raise _Timeout()
 
 
+def _cpu() -> float:
+    t = os.times()
+    return t.user + t.system
+
+
 def _run(argv: list[str]) -> dict[str, Any]:
     from netsim.cli import main
 
     out, err = io.StringIO(), io.StringIO()
-    started = time.perf_counter()
+    started, cpu0 = time.perf_counter(), _cpu()
     escaped = None
     signal.signal(signal.SIGALRM, _alarm)
-    signal.alarm(TIME_LIMIT_S)
+    signal.signal(signal.SIGPROF, _alarm)
+    signal.setitimer(signal.ITIMER_PROF, TIME_LIMIT_S)  # CPU time of this process
+    signal.alarm(WALL_LIMIT_S)
     try:
         with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
             code = main(argv)
     except SystemExit as exc:
         code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
     except _Timeout:
-        code, escaped = None, f"timeout after {TIME_LIMIT_S} s"
+        code = None
+        escaped = (f"timeout after {TIME_LIMIT_S} s of CPU time" if _cpu() - cpu0
+                   >= TIME_LIMIT_S * 0.9 else f"hang: {WALL_LIMIT_S} s of wall time")
     except BaseException as exc:  # noqa: BLE001 - the point: nothing may escape
         code, escaped = None, "".join(traceback.format_exception(exc))[-3000:]
     finally:
+        signal.setitimer(signal.ITIMER_PROF, 0)
         signal.alarm(0)
     return {"code": code, "stderr": err.getvalue()[-4000:], "stdout_bytes": len(out.getvalue()),
-            "seconds": time.perf_counter() - started, "escaped": escaped}
+            "seconds": time.perf_counter() - started, "cpu_seconds": _cpu() - cpu0,
+            "escaped": escaped,
+            # an interrupted request may leave state behind: the test starts a new worker
+            "restart": escaped is not None}
 
 
 def worker_main() -> None:
     """Serve requests until stdin closes (see the module docstring)."""
+    import importlib
     import warnings
 
+    for name in PRELOAD:
+        importlib.import_module(name)
     warnings.simplefilter("default")
     folder = tempfile.mkdtemp(prefix="netsim-fuzz-")
     os.chdir(folder)

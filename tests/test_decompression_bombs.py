@@ -659,3 +659,13 @@ def test_the_bomb_files_are_what_they_claim(files):
                 total += len(piece)
         assert total == INFLATE, kind
     assert _chunks(files.absurd)[BOMB_CHUNK].uncompressed_size == HUGE
+
+
+@pytest.mark.parametrize("kind", ["zstd", "lz4"])
+def test_layout_stays_bounded_on_a_bomb(files, tmp_path, kind):
+    """netsim layout (its summary read, first messages and message-path series) streams
+    chunks through the same bounded inflation."""
+    path = files.bombs[kind, "summary"]
+    result = _run(tmp_path, [sys.executable, "-m", "netsim.cli", "layout", str(path), "-o",
+                             str(tmp_path / "l.json"), "--figure", str(tmp_path / "l.png")])
+    _bounded(result, path)

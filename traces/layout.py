@@ -241,7 +241,7 @@ def _scan_step_file(where: str) -> LayoutSource | None:
     killed): its records streamed up to the first damaged one, messages counted, not
     decoded. None when the file is not a format-3 netsim trace (or not readable)."""
     from mcap.records import Channel, Header, Message, Metadata
-    from mcap.stream_reader import StreamReader
+    from netsim.traces.reader import stream_records
 
     library = ""
     metadata: dict[str, dict[str, str]] = {}
@@ -250,7 +250,7 @@ def _scan_step_file(where: str) -> LayoutSource | None:
     try:
         with open(where, "rb") as f:
             try:
-                for record in StreamReader(f).records:
+                for record in stream_records(f, where=str(where)):
                     if isinstance(record, Message):
                         topic = channels.get(record.channel_id)
                         if topic is not None:
@@ -295,6 +295,35 @@ def source_from_trace(trace: Trace) -> LayoutSource:
         n_states=trace.n_states, neighbours=neighbours, substates=substates,
         drop_reasons=dict(trace.drop_reasons), family=trace.family,
         scenario=trace.scenario.get("name", ""), time_origin_ns=trace.time_origin_ns)
+
+
+def _first_messages(f: Any, topics: set[str], where: str) -> dict[str, Any]:
+    """The first decoded message of each of ``topics``, in file order, streamed with the
+    bounded chunk inflation of :func:`netsim.traces.reader.stream_records` (the mcap
+    library's own readers inflate a chunk without a bound)."""
+    from mcap.records import Channel, Message, Schema
+    from mcap_protobuf.decoder import DecoderFactory
+    from netsim.traces.reader import stream_records
+
+    factory = DecoderFactory()
+    schemas: dict[int, Schema] = {}
+    decoders: dict[int, tuple[str, Any]] = {}
+    first: dict[str, Any] = {}
+    for record in stream_records(f, where=where):
+        if isinstance(record, Schema):
+            schemas[record.id] = record
+        elif isinstance(record, Channel):
+            schema = schemas.get(record.schema_id)
+            if record.topic in topics and schema is not None:
+                decoders[record.id] = (record.topic,
+                                       factory.decoder_for(record.message_encoding, schema))
+        elif isinstance(record, Message) and record.channel_id in decoders:
+            topic, decode = decoders[record.channel_id]
+            if topic not in first:
+                first[topic] = decode(record.data)
+                if len(first) == len(topics):
+                    break
+    return first
 
 
 def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
@@ -343,11 +372,8 @@ def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
                 or ((info := parse_topic(t)) is not None and info.kind in ("update", "freshness"))]
             first: dict[str, Any] = {}
             if wanted:
-                for _schema, channel, _message, decoded in reader.iter_decoded_messages(
-                        topics=wanted, log_time_order=False):
-                    first.setdefault(channel.topic, decoded)
-                    if len(first) == len(wanted):
-                        break
+                f.seek(0)
+                first = _first_messages(f, set(wanted), where)
     except OSError as exc:
         raise TraceError(f"{where}: cannot read file ({exc.strerror or exc})") from None
     except Exception:  # noqa: BLE001 - unfinished or damaged: the full reader decides
@@ -723,8 +749,8 @@ def message_path_series(trace_path: str | os.PathLike[str], message_paths: Itera
         not have, or an array field without an index.
     """
     from mcap.records import Channel, Message, Schema
-    from mcap.stream_reader import StreamReader
     from mcap_protobuf.decoder import DecoderFactory
+    from netsim.traces.reader import stream_records
 
     wanted: dict[str, list[tuple[str, str, int | None]]] = {}
     for path in dict.fromkeys(message_paths):
@@ -738,7 +764,7 @@ def message_path_series(trace_path: str | os.PathLike[str], message_paths: Itera
     schemas: dict[int, Schema] = {}
     decoders: dict[int, Any] = {}
     with open(trace_path, "rb") as f:
-        records = iter(StreamReader(f).records)
+        records = iter(stream_records(f, where=str(trace_path)))
         while True:
             try:
                 record = next(records)

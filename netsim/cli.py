@@ -936,7 +936,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if args.scenario.endswith(".mcap"):
         from netsim.traces.analysis import analyze_trace
 
-        report = analyze_trace(_read(args.scenario))
+        report = analyze_trace(_read(args.scenario, "analyze"))
         return _emit(args, report.to_dict(), report.format_text())
     scenario = _load(args.scenario, what="netsim analyze")
     try:
@@ -995,13 +995,23 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     return 0
 
 
-def _read(path: str):
+def _read(path: str, command: str):
+    """The trace at ``path`` (one error line if unreadable); a damaged trace is read as
+    far as it can be, and one warning line on stderr says so, so that results computed
+    from it are never taken for the whole run's."""
     from netsim.traces.reader import TraceError, read_trace
 
     try:
-        return read_trace(path)
+        trace = read_trace(path)
     except TraceError as exc:
         raise CommandError(str(exc)) from None
+    if trace.damaged:
+        lost = trace.lost_messages
+        sys.stderr.write(
+            f"netsim {command}: warning: {path}: damaged: {len(trace.lost_chunks)} chunk(s) "
+            f"lost ({'an unknown number of' if lost is None else lost} messages); the results "
+            f"use what could be read (netsim inspect {path} lists it)\n")
+    return trace
 
 
 def _emit(args: argparse.Namespace, data: dict[str, Any], text: str) -> int:
@@ -1016,7 +1026,7 @@ def _emit(args: argparse.Namespace, data: dict[str, Any], text: str) -> int:
 def _cmd_replay(args: argparse.Namespace) -> int:
     from netsim.traces.replay import replay_trace
 
-    report = replay_trace(_read(args.trace))
+    report = replay_trace(_read(args.trace, "replay"))
     return _emit(args, report.to_dict(), report.format_text())
 
 
@@ -1030,7 +1040,7 @@ def _cmd_plot(args: argparse.Namespace) -> int:
         path = check_output(args.output, "-o", force=args.force, inputs=args.traces)
     except OutputFileError as exc:
         raise CommandError(str(exc)) from None
-    traces = [_read(p) for p in args.traces]
+    traces = [_read(p, "plot") for p in args.traces]
     try:
         with atomic_output(path) as tmp:
             plot_traces(traces, tmp)
@@ -1091,7 +1101,7 @@ def _cmd_layout(args: argparse.Namespace) -> int:
     if args.figure is not None:
         try:
             with atomic_output(args.figure) as tmp:
-                render_layout(_read(args.trace), layout, tmp, tabs=chosen)
+                render_layout(_read(args.trace, "layout"), layout, tmp, tabs=chosen)
             data["figure"] = str(args.figure)
         except OSError as exc:
             raise CommandError(f"cannot write {args.figure}: {exc.strerror or exc}") from None

@@ -364,10 +364,6 @@ def test_recovering_commands_stay_bounded_on_a_bomb(files, ran, command, kind):
     _bounded(ran[command, path.name], path)
 
 
-@pytest.mark.xfail(reason="replay, analyze and plot recover a damaged trace without "
-                          "mentioning Trace.lost_chunks (traces/replay.py, "
-                          "traces/analysis.py, traces/plot.py: not part of this change)",
-                   strict=False)
 @pytest.mark.parametrize("command", ["replay", "analyze", "plot"])
 def test_recovering_commands_report_the_bomb(files, ran, command):
     result = ran[command, files.bombs["zstd", "summary"].name]

@@ -1,10 +1,12 @@
 """The budget's memory estimates against the measured peak (issue 29).
 
-A run in a fresh process: after a warm-up (imports, gains, lazy caches), the growth of
-the peak resident set during one vectorised Monte Carlo run must not exceed the budget's
+A run in a fresh process: after a warm-up (imports, gains, lazy caches), the peak of
+the memory allocated during one vectorised Monte Carlo run (tracemalloc, which sees
+numpy's array buffers; a resident-set high-water mark would hide the run behind the
+gain design's own peak) must not exceed the budget's
 estimate (the estimate is what refusals rest on: an underestimate lets a run exhaust the
 machine), and the estimate must stay within a stated factor of it (not so pessimistic
-that it refuses what fits). Measured here: estimate / growth 1.7-2.7.
+that it refuses what fits). Measured here: estimate / peak 1.7-2.9.
 """
 
 from __future__ import annotations
@@ -20,7 +22,7 @@ import pytest
 PESSIMISM = 8.0
 
 SCRIPT = """
-import json, resource, sys
+import json, sys, tracemalloc
 from netsim import budget
 from netsim.models.scenario import resolve_scenario
 from netsim.runner import run_monte_carlo, scenario_gains
@@ -29,11 +31,11 @@ steps, trials = int(sys.argv[2]), int(sys.argv[3])
 g = scenario_gains(sc)
 run_monte_carlo(sc, steps=5, trials=1, families=["compensated"], gains=g,
                 engine="vectorised")
-base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+tracemalloc.start()  # numpy reports its array buffers to tracemalloc
 run_monte_carlo(sc, steps=steps, trials=trials, families=["compensated"], gains=g,
                 engine="vectorised")
-peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
-print(json.dumps({"growth": peak - base,
+_, peak = tracemalloc.get_traced_memory()
+print(json.dumps({"growth": peak,
                   "estimate": budget.run_bytes(sc, steps, trials, "vectorised")[0]}))
 """
 

@@ -6,7 +6,6 @@ import warnings
 
 import numpy as np
 import pytest
-
 from netsim.models.scenario import ScenarioWarning, parse_scenario
 
 

@@ -1,10 +1,11 @@
 """Graceful Ctrl-C: stop a run at the next step boundary, never inside a write.
 
 A KeyboardInterrupt raised at an arbitrary bytecode can land inside the MCAP writer and
-leave its bookkeeping inconsistent. :func:`graceful_interrupts` replaces the SIGINT
-handler for the duration of a command: the first Ctrl-C only sets a flag, which the
-kernel checks at the start of every step (:func:`check`) and turns into a
-KeyboardInterrupt there; a second Ctrl-C interrupts at once.
+leave its bookkeeping inconsistent. :func:`graceful_interrupts` replaces the SIGINT and
+SIGTERM handlers for the duration of a command: the first Ctrl-C (or ``kill``) only sets
+a flag, which the kernel checks at the start of every step (:func:`check`) and turns
+into a KeyboardInterrupt there (the command then finishes its traces and exits 130); a
+second signal interrupts at once.
 """
 
 from __future__ import annotations
@@ -32,7 +33,8 @@ def check() -> None:
 
 @contextmanager
 def graceful_interrupts() -> Iterator[None]:
-    """Within the block, the first SIGINT requests a stop at the next safe point."""
+    """Within the block, the first SIGINT or SIGTERM requests a stop at the next safe
+    point."""
     global _requested
     if threading.current_thread() is not threading.main_thread():
         yield
@@ -44,10 +46,11 @@ def graceful_interrupts() -> Iterator[None]:
             raise KeyboardInterrupt("interrupted twice")
         _requested = True
 
-    previous = signal.signal(signal.SIGINT, handler)
+    previous = {sig: signal.signal(sig, handler) for sig in (signal.SIGINT, signal.SIGTERM)}
     _requested = False
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for sig, old in previous.items():
+            signal.signal(sig, old)
         _requested = False

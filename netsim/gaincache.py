@@ -259,7 +259,18 @@ def _one_line(text: Any, limit: int = 160) -> str:
 
 
 def _read(path: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
-    """The meta dictionary and the raw K and L arrays of the file at ``path``."""
+    """The meta dictionary and the raw K and L arrays of the file at ``path`` (a regular
+    file only: a named pipe would block, a device would be read without end)."""
+    import stat
+
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise
+    except OSError as exc:
+        raise EntryError(f"cannot be read ({_one_line(exc)})") from None
+    if not stat.S_ISREG(mode):
+        raise EntryError("is not a regular file")
     try:
         with np.load(path, allow_pickle=False) as data:
             meta = json.loads(str(data["meta"][()]))

@@ -9,6 +9,7 @@ no traceback.
 
 from __future__ import annotations
 
+import json
 import os
 import resource
 import subprocess
@@ -94,3 +95,19 @@ def test_the_rule_in_isolation(tmp_path):
                      + "]\n[t.u.v]\nk = 'a.b.c.d.e'\n[[x.y]]\nz = {a.b = 1, c = 2}\n", "ok")
     with pytest.raises(InputFileError, match="line 2"):
         check_toml_depth("a = 1\nb" + ".b" * 70 + " = 2\n", "doc", max_depth=64)
+
+
+def test_a_gain_cache_entry_that_is_a_pipe_is_ignored_not_waited_for(tmp_path):
+    cache = tmp_path / "cache"
+    env = {"NETSIM_CACHE_DIR": str(cache)}
+    first = netsim("design", "lcsys2022-heterogeneous", "--json", env=env)
+    assert first.returncode == 0, first.stderr
+    (entry,) = cache.glob("*.npz")
+    entry.unlink()
+    os.mkfifo(entry)
+    again = netsim("design", "lcsys2022-heterogeneous", "--json", env=env)
+    assert again.returncode == 0, again.stderr
+    warn = [ln for ln in again.stderr.splitlines() if ln.strip()]
+    assert len(warn) == 1 and "not a regular file" in warn[0] and str(entry) in warn[0]
+    assert json.loads(again.stdout)["design"]["L"] == json.loads(first.stdout)["design"]["L"]
+    assert entry.is_file()  # rewritten as a regular file

@@ -140,3 +140,32 @@ def test_check_output_refuses_directories_pipes_and_missing_folders(tmp_path):
     with pytest.raises(OutputFileError, match="does not exist"):
         check_output(tmp_path / "no" / "x.png", "-o")
     assert check_output(tmp_path / "x.png", "-o") == tmp_path / "x.png"
+
+
+def test_a_full_disk_during_a_sweep_keeps_the_rows_written_and_resumes(tmp_path, capsys,
+                                                                        monkeypatch):
+    import errno
+
+    import netsim.sweep as sweep
+
+    real = sweep._Sink.write
+    calls = {"n": 0}
+
+    def write(self, row):  # the disk fills on the second row
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(self, row)
+
+    out = tmp_path / "r.jsonl"
+    args = ["bench", "sweep", "lcsys2022-heterogeneous", "--taus", "0,1,2", "--trials", "1",
+            "--steps", "10", "--workers", "1", "--out", str(out), "--no-progress"]
+    monkeypatch.setattr(sweep._Sink, "write", write)
+    assert main(args) == 2
+    line = one_error(capsys, "bench")
+    assert "No space left" in line and "1 row(s) written before are kept" in line
+    assert len(sweep.read_results(out)) == 1
+    monkeypatch.setattr(sweep._Sink, "write", real)
+    assert main(args) == 0  # the same command resumes: two cells computed, one reused
+    assert "1 reused" in capsys.readouterr().out
+    assert len(sweep.read_results(out)) == 3

@@ -356,6 +356,16 @@ def _cmd_sweep(args: Any) -> int:
         raise CommandError(str(exc), EXIT_INTERRUPTED) from None
     except ValueError as exc:
         raise CommandError(str(exc)) from None
+    except OSError as exc:  # e.g. the disk filled while rows were written
+        from netsim.sweep import read_results
+
+        try:
+            kept = len(read_results(args.out))
+        except (OSError, ValueError):
+            kept = 0
+        raise CommandError(f"--out {args.out}: cannot write the results "
+                           f"({exc.strerror or exc}); the {kept} row(s) written before are "
+                           "kept: the same command resumes from them") from None
     if args.json:
         json.dump({"rows": result.rows, "computed": result.computed, "reused": result.reused,
                    "results": result.path, "csv": result.csv_path}, sys.stdout, indent=2)

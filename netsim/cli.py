@@ -14,6 +14,7 @@ import os
 import sys
 from collections.abc import Sequence
 from contextlib import nullcontext
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -1216,6 +1217,17 @@ def _cmd_claims(args: argparse.Namespace) -> int:
     bar = tqdm(total=len(search_names(chosen)) + len(chosen), desc="netsim claims",
                unit="job", file=sys.stderr, leave=False,
                disable=True if args.no_progress else None)
+    from netsim.outfiles import OutputFileError
+
+    out_folder = Path(args.out)
+    if out_folder.is_symlink() or (out_folder.exists() and not out_folder.is_dir()):
+        raise CommandError(f"--out {args.out}: is a symbolic link or not a folder; netsim "
+                           "writes its report into a real folder")
+    if out_folder.is_dir():  # the files it will write there: never through a link
+        for name in ["claims.md", *(f"{c.id}-counterexample.toml" for c in chosen)]:
+            if (out_folder / name).is_symlink():
+                raise CommandError(f"--out {out_folder / name}: is a symbolic link; netsim "
+                                   "does not write through links")
     try:
         report = run_claims(chosen, seed=args.seed, budget=args.budget, out=args.out,
                             instances=args.instances,
@@ -1224,6 +1236,8 @@ def _cmd_claims(args: argparse.Namespace) -> int:
                                                           bar.update(1)))
     except OSError as exc:
         raise CommandError(f"--out {args.out}: {exc.strerror or exc}") from None
+    except OutputFileError as exc:
+        raise CommandError(str(exc)) from None
     finally:
         bar.close()
     return _emit(args, report.to_dict(), report.format_text())

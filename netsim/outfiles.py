@@ -27,7 +27,8 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
-__all__ = ["OutputFileError", "check_output", "same_file", "atomic_output"]
+__all__ = ["OutputFileError", "check_output", "same_file", "atomic_output",
+           "write_text_safely"]
 
 
 class OutputFileError(ValueError):
@@ -141,3 +142,20 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[Path]:
         with contextlib.suppress(OSError):
             tmp.unlink()
         raise
+
+
+def write_text_safely(path: str | os.PathLike[str], text: str, option: str) -> Path:
+    """Write ``text`` to ``path`` inside a folder the user named (``option``): never
+    through a symbolic link or onto a special file; atomically. The command owns the
+    file names it writes there (e.g. ``claims.md``), so an existing regular file of that
+    name is replaced."""
+    p = Path(path)
+    if p.is_symlink():
+        raise OutputFileError(f"{option} {p}: is a symbolic link; netsim does not write "
+                              "through links (name the target file itself)")
+    if p.exists() and not stat.S_ISREG(p.stat().st_mode):
+        raise OutputFileError(f"{option} {p}: is {_kind(p.stat().st_mode)}, not a regular "
+                              "file")
+    with atomic_output(p) as tmp:
+        tmp.write_text(text, encoding="utf-8")
+    return p

@@ -169,3 +169,19 @@ def test_a_full_disk_during_a_sweep_keeps_the_rows_written_and_resumes(tmp_path,
     assert main(args) == 0  # the same command resumes: two cells computed, one reused
     assert "1 reused" in capsys.readouterr().out
     assert len(sweep.read_results(out)) == 3
+
+
+def test_claims_never_write_their_report_through_a_link(tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "victim.md"
+    victim.write_text("victim")
+    (out / "claims.md").symlink_to(victim)
+    assert main(["claims", "L-rho", "--out", str(out), "--no-progress"]) == 2
+    assert "symbolic link" in one_error(capsys, "claims")
+    assert victim.read_text() == "victim" and (out / "claims.md").is_symlink()
+    assert sorted(p.name for p in out.iterdir()) == ["claims.md"]
+    (out / "claims.md").unlink()
+    assert main(["claims", "L-rho", "--out", str(out), "--no-progress"]) == 0
+    assert (out / "claims.md").read_text().startswith("# Paper claims")
+    assert victim.read_text() == "victim"

@@ -228,7 +228,9 @@ def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float | None =
                 report.files.append(cx["scenario"])
         md = folder / "claims.md"
         report.files.insert(0, str(md))
-        md.write_text(report.markdown(), encoding="utf-8")
+        from netsim.outfiles import write_text_safely
+
+        write_text_safely(md, report.markdown(), "--out")
     return report
 
 

@@ -690,6 +690,7 @@ def scenario_toml(inst: ScalarInstance, tau: int, name: str, note: str) -> str:
 def write_scenario(inst: ScalarInstance, tau: int, folder: Path, name: str, note: str) -> Path:
     """Write :func:`scenario_toml` to ``folder/name.toml``; return the path."""
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}.toml"
-    path.write_text(scenario_toml(inst, tau, name, note), encoding="utf-8")
-    return path
+    from netsim.outfiles import write_text_safely
+
+    return write_text_safely(folder / f"{name}.toml", scenario_toml(inst, tau, name, note),
+                             "--out")

@@ -589,9 +589,10 @@ def write_delayed_scenario(x: DelayedInstance, folder: Path, name: str, note: st
                            estimators: tuple[str, ...] = ("compensated",)) -> Path:
     """Write :func:`delayed_scenario_toml` to ``folder/name.toml``; return the path."""
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"{name}.toml"
-    path.write_text(delayed_scenario_toml(x, name, note, estimators), encoding="utf-8")
-    return path
+    from netsim.outfiles import write_text_safely
+
+    return write_text_safely(folder / f"{name}.toml",
+                             delayed_scenario_toml(x, name, note, estimators), "--out")
 
 
 def confirm_run(scenario: Path | str | dict[str, Any], family: str, steps: int = 400,

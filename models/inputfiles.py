@@ -14,7 +14,8 @@ import os
 import stat
 from pathlib import Path
 
-__all__ = ["InputFileError", "read_input_bytes", "check_toml_depth", "MAX_SCENARIO_BYTES",
+__all__ = ["InputFileError", "read_input_bytes", "check_toml_depth", "file_kind",
+           "MAX_SCENARIO_BYTES",
            "MAX_TABLE_BYTES", "MAX_TOML_DEPTH"]
 
 #: Largest scenario file read (bytes); ``NETSIM_MAX_SCENARIO_BYTES`` replaces it.
@@ -29,7 +30,8 @@ class InputFileError(ValueError):
     """An input file netsim refuses to read (the message names it and why)."""
 
 
-def _kind(mode: int) -> str:
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words (``a named pipe``, ...)."""
     if stat.S_ISDIR(mode):
         return "a directory"
     if stat.S_ISCHR(mode):
@@ -69,7 +71,7 @@ def read_input_bytes(path: str | os.PathLike[str], what: str, max_bytes: int) ->
     except OSError as exc:
         raise InputFileError(f"cannot read {what} {p}: {exc.strerror or exc}") from None
     if not stat.S_ISREG(st.st_mode):
-        raise InputFileError(f"{what} {p} is {_kind(st.st_mode)}, not a regular file")
+        raise InputFileError(f"{what} {p} is {file_kind(st.st_mode)}, not a regular file")
     if st.st_size > max_bytes:
         raise InputFileError(f"{what} {p} has {_mib(st.st_size)}, more than the "
                              f"{_mib(max_bytes)} netsim reads")

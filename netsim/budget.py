@@ -53,6 +53,7 @@ __all__ = [
     "trace_write_bytes",
     "trace_channels",
     "check_trace_size",
+    "check_duration",
     "MCAP_MAX_CHANNELS",
     "eig_cost",
     "check_run",
@@ -235,6 +236,19 @@ def check_time(seconds: float, parameter: str, what: str, value: Any = None,
             f"{format_seconds(seconds)} (at a nominal {FLOPS:.0e} flop/s), more than the "
             f"limit of {format_seconds(limit)} (NETSIM_TIME_LIMIT); "
             f"{hint or 'lower ' + parameter}", parameter, seconds, limit)
+
+
+def check_duration(seconds: float, parameter: str, value: Any, what: str,
+                   hint: str | None = None) -> None:
+    """Raise :class:`ResourceError` if ``what`` would take longer than
+    :func:`time_limit`, estimated as ``seconds`` from the request's counts (by a
+    per-unit cost measured on the reference machine, not by flops)."""
+    limit = time_limit()
+    if seconds > limit:
+        raise ResourceError(
+            f"{_named(parameter, value)}: {what} would take about "
+            f"{format_seconds(seconds)}, more than the limit of {format_seconds(limit)} "
+            f"(NETSIM_TIME_LIMIT); {hint or 'lower ' + parameter}", parameter, seconds, limit)
 
 
 def delay_horizon(max_delay: float, steps: int) -> int:

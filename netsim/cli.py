@@ -1195,15 +1195,10 @@ def _cmd_claims(args: argparse.Namespace) -> int:
     if args.instances is not None:
         if args.instances < 1:
             raise CommandError(f"--instances must be a positive integer, got {args.instances}")
-        from netsim.budget import ResourceError, format_seconds, time_limit
+        from netsim.budget import check_duration
 
-        seconds, limit = args.instances * CLAIMS_SECONDS_PER_INSTANCE, time_limit()
-        if seconds > limit:
-            raise ResourceError(
-                f"--instances = {args.instances}: the counterexample searches would take "
-                f"about {format_seconds(seconds)}, more than the limit of "
-                f"{format_seconds(limit)} (NETSIM_TIME_LIMIT); lower --instances",
-                "--instances", seconds, limit)
+        check_duration(args.instances * CLAIMS_SECONDS_PER_INSTANCE, "--instances",
+                       args.instances, "the counterexample searches")
     if args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     try:

@@ -400,18 +400,14 @@ def check_fusion_run(setup: dk.DkfeSetup, steps: int, trials: int, engine: str) 
     """Refuse a fusion run this machine cannot hold or finish within the time limit
     (:class:`netsim.budget.ResourceError`, one line naming ``--trials``), from the counts
     alone, before anything is allocated."""
-    from netsim.budget import ResourceError, check_memory, format_seconds, time_limit
+    from netsim.budget import check_duration, check_memory
 
     check_memory(fusion_run_bytes(setup, steps, trials), "--trials",
                  f"the fusion run ({steps} steps, n = {setup.n}, {setup.n_sinks} sinks)",
                  trials, "lower --trials or --steps")
-    seconds = FUSION_SECONDS_PER_TRIAL_STEP[engine] * steps * trials
-    if seconds > time_limit():
-        raise ResourceError(
-            f"--trials = {trials}: the fusion run ({steps} steps, {engine} engine) would "
-            f"take about {format_seconds(seconds)}, more than the limit of "
-            f"{format_seconds(time_limit())} (NETSIM_TIME_LIMIT); lower --trials or --steps",
-            "--trials", seconds, time_limit())
+    check_duration(FUSION_SECONDS_PER_TRIAL_STEP[engine] * steps * trials, "--trials", trials,
+                   f"the fusion run ({steps} steps, {engine} engine)",
+                   "lower --trials or --steps")
 
 
 def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,

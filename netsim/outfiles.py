@@ -27,6 +27,8 @@ import tempfile
 from collections.abc import Iterable, Iterator
 from pathlib import Path
 
+from netsim.models.inputfiles import file_kind
+
 __all__ = ["OutputFileError", "check_output", "same_file", "atomic_output",
            "write_text_safely"]
 
@@ -45,20 +47,6 @@ def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
     except OSError:
         pass
     return os.path.realpath(pa) == os.path.realpath(pb)
-
-
-def _kind(mode: int) -> str:
-    if stat.S_ISDIR(mode):
-        return "a directory"
-    if stat.S_ISCHR(mode):
-        return "a character device"
-    if stat.S_ISBLK(mode):
-        return "a block device"
-    if stat.S_ISFIFO(mode):
-        return "a named pipe"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "not a regular file"
 
 
 def check_output(path: str | os.PathLike[str], option: str, *, force: bool = False,
@@ -106,7 +94,7 @@ def check_output(path: str | os.PathLike[str], option: str, *, force: bool = Fal
     if p.exists():
         mode = p.stat().st_mode
         if not stat.S_ISREG(mode):
-            raise OutputFileError(f"{head}: is {_kind(mode)}, not a regular file")
+            raise OutputFileError(f"{head}: is {file_kind(mode)}, not a regular file")
         if overwrites and not force:
             raise OutputFileError(f"{head}: exists; pass --force to overwrite it")
     folder = p.parent
@@ -154,7 +142,7 @@ def write_text_safely(path: str | os.PathLike[str], text: str, option: str) -> P
         raise OutputFileError(f"{option} {p}: is a symbolic link; netsim does not write "
                               "through links (name the target file itself)")
     if p.exists() and not stat.S_ISREG(p.stat().st_mode):
-        raise OutputFileError(f"{option} {p}: is {_kind(p.stat().st_mode)}, not a regular "
+        raise OutputFileError(f"{option} {p}: is {file_kind(p.stat().st_mode)}, not a regular "
                               "file")
     with atomic_output(p) as tmp:
         tmp.write_text(text, encoding="utf-8")

@@ -298,7 +298,7 @@ SWEEP_SECONDS_PER_AGENT_STEP = 2e-6
 def _check_sweep_sizes(scenario: str, agents: int, tau: int, trials: int, steps: int) -> None:
     """Refuse --sizes whose largest cell this machine cannot hold or finish within the time
     limit, estimated from the counts alone (the network is not built)."""
-    from netsim.budget import ResourceError, check_memory, format_seconds, time_limit
+    from netsim.budget import check_duration, check_memory
     from netsim.cliutil import CommandError
     from netsim.models.scenario import ScenarioError, resolve_scenario
 
@@ -311,13 +311,8 @@ def _check_sweep_sizes(scenario: str, agents: int, tau: int, trials: int, steps:
     check_memory(agents * (trials * n * depth * SWEEP_BYTES_PER_AGENT_STATE
                            + SWEEP_BYTES_PER_AGENT), "--sizes",
                  f"a sweep cell of {agents} agents ({trials} trials, n = {n})", agents)
-    seconds = agents * trials * steps * SWEEP_SECONDS_PER_AGENT_STEP
-    if seconds > time_limit():
-        raise ResourceError(
-            f"--sizes = {agents}: a sweep cell of {agents} agents x {trials} trials x {steps} "
-            f"steps would take about {format_seconds(seconds)}, more than the limit of "
-            f"{format_seconds(time_limit())} (NETSIM_TIME_LIMIT); lower --sizes",
-            "--sizes", seconds, time_limit())
+    check_duration(agents * trials * steps * SWEEP_SECONDS_PER_AGENT_STEP, "--sizes", agents,
+                   f"a sweep cell of {agents} agents x {trials} trials x {steps} steps")
 
 
 def _cmd_sweep(args: Any) -> int:

@@ -163,52 +163,55 @@ def _simpler_delayed(x: DelayedInstance) -> list[DelayedInstance]:
 # -- LCSYS2022 eq. (26) ---------------------------------------------------------------
 
 
-def _eq26_draw(rng: np.random.Generator) -> DelayedInstance | None:
-    inst = _random_instance(rng)
+def _with_delays(inst: ScalarInstance, rng: np.random.Generator, up_to_tau_star: bool
+                 ) -> DelayedInstance | None:
+    """``inst`` with delays drawn by :func:`_draw_delays` at a bound tau in
+    ``1..SEARCH_TAU`` (and ``<= tau*`` when ``up_to_tau_star``); None if the instance
+    breaks the hypotheses (Lemma 1, rho(A-hat) < 1; ``tau* >= 1``)."""
     if inst.hypotheses() is not None:
         return None
-    star = inst.tau_star()
-    if star is None or star < 1:
-        return None
-    return _draw_delays(rng, inst, int(rng.integers(1, min(star, SEARCH_TAU) + 1)))
+    top = SEARCH_TAU
+    if up_to_tau_star:
+        star = inst.tau_star()
+        if star is None or star < 1:
+            return None
+        top = min(star, SEARCH_TAU)
+    return _draw_delays(rng, inst, int(rng.integers(1, top + 1)))
 
 
-def _eq26_judge(x: DelayedInstance) -> dict[str, Any] | None:
-    if x.tau < 1 or x.inst.hypotheses() is not None:
-        return None
-    star = x.inst.tau_star()
-    if star is None or x.tau > star:
-        return None
-    exact = x.exact(True)
-    bound = float(delay_bound_lcsys(*x.inst.matrices(), x.tau))
-    if not exact >= bound + BOUND_SLACK:
-        return None
-    return {"tau": x.tau, "tau_star": star, "homogeneous": x.homogeneous,
-            "exact_rho": exact, "bound": bound, "rho_delay_free": x.inst.rho_delay_free()}
+def _eq26_draw(rng: np.random.Generator) -> DelayedInstance | None:
+    return _with_delays(_random_instance(rng), rng, True)
 
 
 def _eq26_hard_draw(rng: np.random.Generator) -> DelayedInstance | None:
-    inst = _hard_instance(rng)
-    if inst.hypotheses() is not None:
-        return None
-    star = inst.tau_star()
-    if star is None or star < 1:
-        return None
-    return _draw_delays(rng, inst, int(rng.integers(1, min(star, SEARCH_TAU) + 1)))
+    return _with_delays(_hard_instance(rng), rng, True)
 
 
-def _bound_score(x: DelayedInstance, compensated: bool) -> float:
-    """Exact rho minus the claimed bound minus BOUND_SLACK (-inf outside the hypotheses)."""
+def _bound_margin(x: DelayedInstance, compensated: bool
+                  ) -> tuple[float, dict[str, Any] | None]:
+    """Exact rho minus the claimed bound minus BOUND_SLACK (``-inf`` outside the
+    hypotheses), and the judge's numbers: LCSYS2022 eq. (26) (``compensated``, tau <=
+    tau*) or the delay-tolerant Lemma 5 bound rho(A-hat)^(1/(tau+1))."""
     if x.tau < 1 or x.inst.hypotheses() is not None:
-        return -math.inf
+        return -math.inf, None
+    numbers: dict[str, Any] = {"tau": x.tau}
     if compensated:
         star = x.inst.tau_star()
         if star is None or x.tau > star:
-            return -math.inf
+            return -math.inf, None
+        numbers["tau_star"] = star
         bound = float(delay_bound_lcsys(*x.inst.matrices(), x.tau))
     else:
         bound = float(delay_bound_tolerant(*x.inst.matrices(), x.tau))
-    return x.exact(compensated) - bound - BOUND_SLACK
+    exact = x.exact(compensated)
+    return exact - (bound + BOUND_SLACK), {
+        **numbers, "homogeneous": x.homogeneous, "exact_rho": exact, "bound": bound,
+        "rho_delay_free": x.inst.rho_delay_free()}
+
+
+def _eq26_judge(x: DelayedInstance) -> dict[str, Any] | None:
+    margin, numbers = _bound_margin(x, True)
+    return numbers if margin >= 0 else None
 
 
 def _delayed_attack(family: str, starts: int, evaluations: int,
@@ -222,24 +225,27 @@ def _delayed_attack(family: str, starts: int, evaluations: int,
                   decode, score)
 
 
-def _scalar_phases(instances: int, draw: Callable[[np.random.Generator], Any | None],
-                   hard: Callable[[np.random.Generator], Any | None],
-                   random_family: str = RANDOM_FAMILY,
-                   hard_family: str = HARD_FAMILY) -> list[Phase]:
-    return [Phase(random_family, instances, draw),
-            Phase(hard_family, max(1, instances // 2), hard)]
+def _scalar_search(claim: str, seed: Any, instances: int, deadline: float,
+                   draw: Callable[[np.random.Generator], DelayedInstance | None],
+                   hard: Callable[[np.random.Generator], DelayedInstance | None],
+                   judge: Callable[[DelayedInstance], dict[str, Any] | None],
+                   score: Callable[[DelayedInstance], float],
+                   families: tuple[str, str] = (RANDOM_FAMILY, HARD_FAMILY)) -> Found:
+    """The counted search of a scalar delayed claim: ``instances`` random draws,
+    ``instances // 2`` of the hard family, then the optimiser (4 starts from the hard
+    family, ``instances // 8`` evaluations each) maximising ``score``; hits shrunk."""
+    phases = [Phase(families[0], instances, draw),
+              Phase(families[1], max(1, instances // 2), hard)]
+    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), hard, score)
+    return counted_search(claim, phases, judge, _simpler_delayed, seed=seed, attack=attack,
+                          deadline=deadline)
 
 
 def search_eq26(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
                 deadline: float = math.inf) -> Found:
-    """Search LCSYS2022 eq. (26) / Lemma 5 (compensated loop) for an exact rho above it:
-    random and hard scalar families, then the optimiser (counted, seeded)."""
-    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), _eq26_hard_draw,
-                             lambda x: _bound_score(x, True))
-    return counted_search("L-eq26-bound",
-                          _scalar_phases(instances, _eq26_draw, _eq26_hard_draw),
-                          _eq26_judge, _simpler_delayed, seed=seed, attack=attack,
-                          deadline=deadline)
+    """Search LCSYS2022 eq. (26) / Lemma 5 (compensated loop) for an exact rho above it."""
+    return _scalar_search("L-eq26-bound", seed, instances, deadline, _eq26_draw,
+                          _eq26_hard_draw, _eq26_judge, lambda x: _bound_margin(x, True)[0])
 
 
 # -- delay-tolerant Lemma 5 and Theorem 1 ---------------------------------------------
@@ -247,41 +253,25 @@ def search_eq26(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
 
 def _tolerant_draw(rng: np.random.Generator, a_max: float = 2.0, **kw: Any
                    ) -> DelayedInstance | None:
-    inst = _random_instance(rng, a_max=a_max, **kw)
-    if inst.hypotheses() is not None:
-        return None
-    return _draw_delays(rng, inst, int(rng.integers(1, SEARCH_TAU + 1)))
-
-
-def _lemma5_judge(x: DelayedInstance) -> dict[str, Any] | None:
-    if x.tau < 1 or x.inst.hypotheses() is not None:
-        return None
-    exact = x.exact(False)
-    bound = float(delay_bound_tolerant(*x.inst.matrices(), x.tau))
-    if not exact >= bound + BOUND_SLACK:
-        return None
-    return {"tau": x.tau, "homogeneous": x.homogeneous, "exact_rho": exact, "bound": bound,
-            "rho_delay_free": x.inst.rho_delay_free()}
+    return _with_delays(_random_instance(rng, a_max=a_max, **kw), rng, False)
 
 
 def _tolerant_hard_draw(rng: np.random.Generator, a_max: float = 2.0, **kw: Any
                         ) -> DelayedInstance | None:
-    inst = _hard_instance(rng, a_max=a_max, **kw)
-    if inst.hypotheses() is not None:
-        return None
-    return _draw_delays(rng, inst, int(rng.integers(1, SEARCH_TAU + 1)))
+    return _with_delays(_hard_instance(rng, a_max=a_max, **kw), rng, False)
+
+
+def _lemma5_judge(x: DelayedInstance) -> dict[str, Any] | None:
+    margin, numbers = _bound_margin(x, False)
+    return numbers if margin >= 0 else None
 
 
 def search_lemma5(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
                   deadline: float = math.inf) -> Found:
-    """Search the delay-tolerant Lemma 5 bound rho(A-hat)^(1/(tau+1)) (eq. 11 matrix):
-    random and hard scalar families, then the optimiser (counted, seeded)."""
-    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), _tolerant_hard_draw,
-                             lambda x: _bound_score(x, False))
-    return counted_search("T-lemma5-bound",
-                          _scalar_phases(instances, _tolerant_draw, _tolerant_hard_draw),
-                          _lemma5_judge, _simpler_delayed, seed=seed, attack=attack,
-                          deadline=deadline)
+    """Search the delay-tolerant Lemma 5 bound rho(A-hat)^(1/(tau+1)) (eq. 11 matrix)."""
+    return _scalar_search("T-lemma5-bound", seed, instances, deadline, _tolerant_draw,
+                          _tolerant_hard_draw, _lemma5_judge,
+                          lambda x: _bound_margin(x, False)[0])
 
 
 def _t1_draw(rng: np.random.Generator) -> DelayedInstance | None:
@@ -290,28 +280,26 @@ def _t1_draw(rng: np.random.Generator) -> DelayedInstance | None:
     return _tolerant_draw(rng, a_max=1.0, k_range=(-2.0, 4.0), a_edge=0.5)
 
 
-def _t1_judge(x: DelayedInstance) -> dict[str, Any] | None:
+def _t1_margin(x: DelayedInstance) -> tuple[float, dict[str, Any] | None]:
+    """Exact eq. (11) rho minus (1 + MARGIN) (``-inf`` outside the hypotheses: |a| <= 1,
+    rho(A-hat) <= 1 - MARGIN), and the judge's numbers."""
     if x.tau < 1 or abs(x.inst.a) > 1 or x.inst.hypotheses() is not None:
-        return None
+        return -math.inf, None
     if not x.inst.rho_delay_free() <= 1.0 - MARGIN:
-        return None  # rho(A-hat) clearly below 1, not a marginal instance
+        return -math.inf, None  # rho(A-hat) not clearly below 1
     exact = x.exact(False)
-    if exact < 1.0 + MARGIN:
-        return None
-    return {"tau": x.tau, "homogeneous": x.homogeneous, "exact_rho": exact,
-            "rho_delay_free": x.inst.rho_delay_free()}
+    return exact - (1.0 + MARGIN), {"tau": x.tau, "homogeneous": x.homogeneous,
+                                    "exact_rho": exact,
+                                    "rho_delay_free": x.inst.rho_delay_free()}
+
+
+def _t1_judge(x: DelayedInstance) -> dict[str, Any] | None:
+    margin, numbers = _t1_margin(x)
+    return numbers if margin >= 0 else None
 
 
 def _t1_hard_draw(rng: np.random.Generator) -> DelayedInstance | None:
     return _tolerant_hard_draw(rng, a_max=1.0, k_range=(-2.0, 4.0))
-
-
-def _t1_score(x: DelayedInstance) -> float:
-    if x.tau < 1 or abs(x.inst.a) > 1 or x.inst.hypotheses() is not None:
-        return -math.inf
-    if not x.inst.rho_delay_free() <= 1.0 - MARGIN:
-        return -math.inf
-    return x.exact(False) - (1.0 + MARGIN)
 
 
 #: The families of the delay-tolerant Theorem 1 search, in words.
@@ -321,15 +309,10 @@ T1_HARD_FAMILY = "scalar N = 2, self-loops undelayed, a = +-1"
 
 def search_tolerant_theorem1(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
                              deadline: float = math.inf) -> Found:
-    """Search the delay-tolerant Theorem 1 (|a| <= 1): eq. (11) exact rho >= 1 + MARGIN
-    (random and hard scalar families, then the optimiser; counted, seeded)."""
-    attack = _delayed_attack(OPTIMISER_FAMILY, 4, max(1, instances // 8), _t1_hard_draw,
-                             _t1_score)
-    return counted_search("T-theorem1",
-                          _scalar_phases(instances, _t1_draw, _t1_hard_draw,
-                                         T1_RANDOM_FAMILY, T1_HARD_FAMILY),
-                          _t1_judge, _simpler_delayed, seed=seed, attack=attack,
-                          deadline=deadline)
+    """Search the delay-tolerant Theorem 1 (|a| <= 1): eq. (11) exact rho >= 1 + MARGIN."""
+    return _scalar_search("T-theorem1", seed, instances, deadline, _t1_draw, _t1_hard_draw,
+                          _t1_judge, lambda x: _t1_margin(x)[0],
+                          (T1_RANDOM_FAMILY, T1_HARD_FAMILY))
 
 
 def simulate_error_growth(x: DelayedInstance, compensated: bool, steps: int = 600,

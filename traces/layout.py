@@ -63,7 +63,7 @@ import json
 import math
 import os
 import re
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Container, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -297,10 +297,13 @@ def source_from_trace(trace: Trace) -> LayoutSource:
         scenario=trace.scenario.get("name", ""), time_origin_ns=trace.time_origin_ns)
 
 
-def _first_messages(f: Any, topics: set[str], where: str) -> dict[str, Any]:
-    """The first decoded message of each of ``topics``, in file order, streamed with the
-    bounded chunk inflation of :func:`netsim.traces.reader.stream_records` (the mcap
-    library's own readers inflate a chunk without a bound)."""
+def _decoded_messages(f: Any, topics: Container[str], where: str, *,
+                      until_damage: bool = False) -> Iterator[tuple[str, int, Any]]:
+    """``(topic, log_time, decoded message)`` of every message on ``topics`` in file
+    order, streamed with the bounded chunk inflation of
+    :func:`netsim.traces.reader.stream_records` (the mcap library's own readers inflate a
+    chunk without a bound). ``until_damage``: a file cut short or damaged ends the
+    messages where it breaks, instead of raising."""
     from mcap.records import Channel, Message, Schema
     from mcap_protobuf.decoder import DecoderFactory
     from netsim.traces.reader import stream_records
@@ -308,8 +311,16 @@ def _first_messages(f: Any, topics: set[str], where: str) -> dict[str, Any]:
     factory = DecoderFactory()
     schemas: dict[int, Schema] = {}
     decoders: dict[int, tuple[str, Any]] = {}
-    first: dict[str, Any] = {}
-    for record in stream_records(f, where=where):
+    records = iter(stream_records(f, where=where))
+    while True:
+        try:
+            record = next(records)
+        except StopIteration:
+            return
+        except Exception:
+            if until_damage:
+                return
+            raise
         if isinstance(record, Schema):
             schemas[record.id] = record
         elif isinstance(record, Channel):
@@ -319,10 +330,16 @@ def _first_messages(f: Any, topics: set[str], where: str) -> dict[str, Any]:
                                        factory.decoder_for(record.message_encoding, schema))
         elif isinstance(record, Message) and record.channel_id in decoders:
             topic, decode = decoders[record.channel_id]
-            if topic not in first:
-                first[topic] = decode(record.data)
-                if len(first) == len(topics):
-                    break
+            yield topic, record.log_time, decode(record.data)
+
+
+def _first_messages(f: Any, topics: set[str], where: str) -> dict[str, Any]:
+    """The first decoded message of each of ``topics``, in file order."""
+    first: dict[str, Any] = {}
+    for topic, _, message in _decoded_messages(f, topics, where):
+        first.setdefault(topic, message)
+        if len(first) == len(topics):
+            break
     return first
 
 
@@ -748,10 +765,6 @@ def message_path_series(trace_path: str | os.PathLike[str], message_paths: Itera
         A path :func:`parse_message_path` does not accept, a field the message type does
         not have, or an array field without an index.
     """
-    from mcap.records import Channel, Message, Schema
-    from mcap_protobuf.decoder import DecoderFactory
-    from netsim.traces.reader import stream_records
-
     wanted: dict[str, list[tuple[str, str, int | None]]] = {}
     for path in dict.fromkeys(message_paths):
         topic, name, index = parse_message_path(path)
@@ -760,38 +773,20 @@ def message_path_series(trace_path: str | os.PathLike[str], message_paths: Itera
         origin_ns = layout_source(trace_path).time_origin_ns
     rows: dict[str, list[tuple[int, float]]] = {
         path: [] for entries in wanted.values() for path, _, _ in entries}
-    factory = DecoderFactory()
-    schemas: dict[int, Schema] = {}
-    decoders: dict[int, Any] = {}
     with open(trace_path, "rb") as f:
-        records = iter(stream_records(f, where=str(trace_path)))
-        while True:
-            try:
-                record = next(records)
-            except StopIteration:
-                break
-            except Exception:  # noqa: BLE001 - cut short or damaged: what was read
-                break
-            if isinstance(record, Schema):
-                schemas[record.id] = record
-            elif isinstance(record, Channel):
-                schema = schemas.get(record.schema_id)
-                if record.topic in wanted and schema is not None:
-                    decoders[record.id] = (record.topic,
-                                           factory.decoder_for(record.message_encoding, schema))
-            elif isinstance(record, Message) and record.channel_id in decoders:
-                topic, decode = decoders[record.channel_id]
-                message = decode(record.data)
-                for path, name, index in wanted[topic]:
-                    if name not in message.DESCRIPTOR.fields_by_name:
-                        raise ValueError(f"{path}: {message.DESCRIPTOR.full_name} has no "
-                                         f"field {name!r}")
-                    value = getattr(message, name)
-                    if index is not None:
-                        value = value[index] if index < len(value) else math.nan
-                    elif not isinstance(value, (int, float)):
-                        raise ValueError(f"{path}: {name!r} is an array; give an index")
-                    rows[path].append((record.log_time, float(value)))
+        # a file cut short or damaged: what was read
+        for topic, log_time, message in _decoded_messages(f, wanted, str(trace_path),
+                                                          until_damage=True):
+            for path, name, index in wanted[topic]:
+                if name not in message.DESCRIPTOR.fields_by_name:
+                    raise ValueError(f"{path}: {message.DESCRIPTOR.full_name} has no "
+                                     f"field {name!r}")
+                value = getattr(message, name)
+                if index is not None:
+                    value = value[index] if index < len(value) else math.nan
+                elif not isinstance(value, (int, float)):
+                    raise ValueError(f"{path}: {name!r} is an array; give an index")
+                rows[path].append((log_time, float(value)))
     out = {}
     for path, points in rows.items():
         points.sort(key=lambda point: point[0])

@@ -81,7 +81,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     from netsim.cliutil import TableEpilogFormatter
-    from netsim.verdicts import VERDICT_TABLE as RUN_VERDICTS
+    from netsim.verdicts import VERDICT_TABLE
 
     run = sub.add_parser(
         "run",
@@ -97,7 +97,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
             "run or, for any other verdict, its last trusted MSE and growth. The same "
             "seed gives the same numbers, bit for bit."
         ),
-        epilog=RUN_VERDICTS, formatter_class=TableEpilogFormatter,
+        epilog=VERDICT_TABLE, formatter_class=TableEpilogFormatter,
     )
     run.add_argument("scenario", help="built-in scenario name (see 'netsim scenarios') or a "
                      "path to a scenario TOML file")
@@ -271,8 +271,6 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
                         help="overwrite an existing layout file")
     layout.add_argument("--json", action="store_true",
                         help="print {\"layout\": FILE.json, ...} as JSON on stdout")
-
-    from netsim.verdicts import VERDICT_TABLE
 
     claims = sub.add_parser(
         "claims", help="the papers' statements as executable checks (refuted / proved for "

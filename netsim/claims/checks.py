@@ -860,11 +860,6 @@ def check_lemma4(context: Context) -> Outcome:
 # -- aoi --------------------------------------------------------------------------------
 
 
-def check_aoi_corollary1_search(context: Context) -> Outcome:
-    """aoi Corollary 1: the fixed cases and the counted search."""
-    return _aoi_claim(context, "corollary_1")
-
-
 def aoi_numbers_example() -> dict[str, Any]:
     """:func:`netsim.claims.searches.aoi_numbers` for the Section 3 example."""
     from netsim.aoi import illustrative_example

@@ -127,7 +127,7 @@ _CLAIMS = [
     Claim("A-corollary1", _p.AOI, "Corollary 1",
           "with deadbeat gains the freshness-index observer's error is zero after at most "
           "n + 2N(N-1)T steps",
-          _AOI_HYP, "theorem", _c.check_aoi_corollary1_search, searches=("A-corollary1",)),
+          _AOI_HYP, "theorem", _c.check_aoi_corollary1, searches=("A-corollary1",)),
     Claim("A-naive-growth", _p.AOI, "Section 3, Fig. 2",
           "naive consensus with uniform weights or with weights along the tree rooted at "
           "node 1 has unstable errors on the Section 3 example (x[k+1] = 2 x[k])",

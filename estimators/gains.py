@@ -68,6 +68,8 @@ from netsim.models.observability import DEFAULT_RTOL, unobservable_modes
 from netsim.models.validation import check_system
 from numpy.typing import ArrayLike
 
+from netsim.threads import single_threaded_blas
+
 if TYPE_CHECKING:
     from netsim.models.scenario import Scenario
 
@@ -1697,6 +1699,7 @@ def design_request(
     }
 
 
+@single_threaded_blas()
 def design_for_scenario(
     scenario: Scenario,
     *,

@@ -12,14 +12,9 @@ submodule (``netsim.models``, ``netsim.traces``) stays light:
 - :func:`design_gains`, :func:`analyze`, :func:`read_trace`; ``__version__``.
 """
 
-import os as _os
-
-# The analytics take eigenvalues of many small dense matrices (a few hundred rows),
-# where a multithreaded BLAS is 10-100x slower than one thread on a busy 2-core
-# machine. Only a default: a value set by the user wins. Must run before numpy loads.
-_os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
-
-from netsim.models.delaysources import (  # noqa: E402
+# Importing netsim changes nothing process-wide (no environment variables): the work
+# that wants one BLAS thread limits it while it runs (netsim.threads).
+from netsim.models.delaysources import (
     register_delay_source as _register_delay_source,
 )
 

@@ -36,6 +36,7 @@ from netsim.models.augmented import (
 from netsim.models.jsonsafe import json_tree as _jsonable
 from netsim.models.scenario import Scenario
 from netsim.parallel import ordered_map
+from netsim.threads import single_threaded_blas
 
 __all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "DENSE_SECONDS_PER_CUBE",
            "STRUCTURED_SECONDS_PER_CALL", "STRUCTURED_SECONDS_PER_ROW", "BoundRow",
@@ -169,6 +170,7 @@ def analysis_seconds(n_agents: int, n: int, depths: Sequence[int]) -> float:
     return total
 
 
+@single_threaded_blas()
 def analyze(
     scenario: Scenario, gains: GainDesign, tau_max: int = DEFAULT_TAU_RANGE, *,
     progress: Callable[[int], None] | None = None,

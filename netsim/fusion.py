@@ -56,6 +56,7 @@ from netsim.models import dkfe as dk
 from netsim.models.delays import DelayModel, FixedDelays
 from netsim.models.jsonsafe import json_tree
 from netsim.models.seeding import SeedLike, child_sequence, stream
+from netsim.threads import single_threaded_blas
 
 __all__ = [
     "fusion_delay_model",
@@ -410,6 +411,7 @@ def check_fusion_run(setup: dk.DkfeSetup, steps: int, trials: int, engine: str) 
                    "lower --trials or --steps")
 
 
+@single_threaded_blas()
 def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
                trials: int = 50, seed: int = 0, *, engine: str = "kernel",
                time_varying: bool = False,

@@ -96,8 +96,12 @@ def env_workers() -> int | None:
 
 
 def _ignore_sigint() -> None:
-    """Worker initialiser: Ctrl-C is the parent's to handle (it cancels the pool)."""
+    """Worker initialiser: Ctrl-C is the parent's to handle (it cancels the pool); one
+    BLAS thread (:func:`netsim.threads.limit_worker_threads`)."""
+    from netsim.threads import limit_worker_threads
+
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    limit_worker_threads()
 
 
 def _context() -> Any:

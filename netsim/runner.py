@@ -48,6 +48,7 @@ from netsim.models.jsonsafe import json_number as _json_float
 from netsim.models.jsonsafe import json_tree as _json_tree
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import SEED_LAYOUT, SeedLike, child_sequence, stream
+from netsim.threads import single_threaded_blas
 
 __all__ = [
     "GROWTH_TOLERANCE",
@@ -82,6 +83,7 @@ ENGINES = ("auto", "vectorised", "events")
 GROWTH_TOLERANCE = verdicts.GROWTH_TOLERANCE
 
 
+@single_threaded_blas()
 def scenario_gains(scenario: Scenario) -> GainDesign:
     """Return the gains of the scenario's ``[gains]`` table (:func:`design_for_scenario`),
     from the disk cache when it holds them (:mod:`netsim.gaincache`).
@@ -728,6 +730,7 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
     return result
 
 
+@single_threaded_blas()
 def run_monte_carlo(
     scenario: Scenario,
     *,

@@ -53,6 +53,7 @@ import numpy as np
 
 from netsim.models.jsonsafe import json_default, json_tree
 from netsim.models.seeding import child_sequence
+from netsim.threads import single_threaded_blas
 
 __all__ = [
     "csv_columns",
@@ -290,7 +291,8 @@ def _worker_name() -> str:
 def _run_cell(fn: Callable[..., dict[str, Any]], params: dict[str, Any],
               seed: np.random.SeedSequence, context: Any) -> tuple[dict[str, Any], float, str]:
     start = time.perf_counter()
-    result = fn(params, seed, context)
+    with single_threaded_blas():  # in every executor's worker, serial or not
+        result = fn(params, seed, context)
     # normalise to plain JSON types here, so every executor returns the same thing
     result = json.loads(_canonical(json_tree(result, str_keys=True)))
     return result, time.perf_counter() - start, _worker_name()

@@ -20,6 +20,7 @@ from netsim.claims.core import (
     Context,
     Outcome,
 )
+from netsim.threads import limit_worker_threads, single_threaded_blas
 
 __all__ = ["ClaimResult", "ClaimsReport", "run_claims", "run_searches", "search_names"]
 
@@ -165,7 +166,8 @@ def run_searches(names: Sequence[str], seed: int, budget: float | None = None,
     ctx = multiprocessing.get_context("forkserver")
     # the counterexample searches first, then the shorter jobs
     names.sort(key=lambda n: n.startswith(("bench:", "fusion:")))
-    with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx) as pool:
+    with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx,
+                             initializer=limit_worker_threads) as pool:
         futures = {pool.submit(run_search, n, seed, budget, instances): n for n in names}
         for future in as_completed(futures):
             future.result()  # a failed search fails loudly here
@@ -173,6 +175,7 @@ def run_searches(names: Sequence[str], seed: int, budget: float | None = None,
         return {_search_key(n): f.result() for f, n in futures.items()}
 
 
+@single_threaded_blas()
 def run_claims(claims: Sequence[Claim], *, seed: int = 0, budget: float | None = None,
                instances: int | None = None,
                out: str | Path | None = None,

@@ -149,6 +149,10 @@ class TrialResult:
         Dropped messages by reason (see :mod:`netsim.links`); sums to messages_dropped.
     extras : dict
         What the family's own observer collected (``EstimatorFamily.observer``).
+    drops : list of (int, int, int, float, str) or None
+        Every dropped message as (sender j, receiver i, sent step s, drop time in
+        sampling periods, reason), in the order they were dropped, when effective
+        delays are recorded (``record_delays``); else None.
     """
 
     states: np.ndarray
@@ -164,6 +168,7 @@ class TrialResult:
     messages_dropped: int = 0
     drop_reasons: dict[str, int] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
+    drops: list[tuple[int, int, int, float, str]] | None = None
 
 
 class Simulation:
@@ -250,6 +255,7 @@ class Simulation:
         self._messages: list[Message] = []
         self._discarded = 0
         self._drop_reasons: dict[str, int] = {}
+        self._drops: list[tuple[int, int, int, float, str]] = []
         if observer is None and not record_messages:
             # Nothing needs Message objects: plain links hand deliveries straight to
             # the receiver's estimator (Link's lean path, same events and times).
@@ -259,6 +265,9 @@ class Simulation:
 
     def _dropped(self, message: Message, reason: str) -> None:
         self._drop_reasons[reason] = self._drop_reasons.get(reason, 0) + 1
+        if self.record_delays:
+            self._drops.append((message.sender, message.receiver, message.sent_step,
+                                float(self.env.now), reason))
         if self.observer is not None and hasattr(self.observer, "on_dropped"):
             self.observer.on_dropped(message, reason, self.env.now * self.sample_period)
 
@@ -303,6 +312,7 @@ class Simulation:
             messages_discarded=self._discarded + sum(link.discarded for link in links),
             messages=self._messages,
             drop_reasons=dict(self._drop_reasons),
+            drops=list(self._drops) if self.record_delays else None,
         )
 
 

@@ -43,6 +43,7 @@ from netsim import budget, interrupt
 from netsim.estimators.gains import GainDesign
 from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult, squared_threshold
 from netsim.linkschedule import (
+    DELIVERED,
     LinkSchedule,
     MessageSelection,
     build_schedule,
@@ -643,6 +644,25 @@ def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
     return out
 
 
+def _drop_records(schedule: LinkSchedule, trial: int, end: int
+                  ) -> list[tuple[int, int, int, float, str]]:
+    """The messages of one trial dropped by step ``end``, as the kernel records them
+    (``TrialResult.drops``: sender, receiver, sent step, drop time in sampling periods,
+    reason), ordered by drop time."""
+    if schedule.constant_delay is not None or schedule.lossless_steps:
+        return []
+    lost = (schedule.fate[trial] != DELIVERED) & (schedule.drop_time[trial] <= end)
+    link, q = np.nonzero(lost)
+    times = schedule.drop_time[trial][link, q]
+    codes = schedule.fate[trial][link, q]
+    order = np.argsort(times, kind="stable")
+    return [(*schedule.links[e], int(schedule.send_steps[s]), float(when),
+             schedule.reasons[c - 1])
+            for e, s, when, c in zip(link[order].tolist(), q[order].tolist(),
+                                     times[order].tolist(), codes[order].tolist(),
+                                     strict=True)]
+
+
 def run_batch(
     scenario: Scenario,
     family: str,
@@ -732,13 +752,16 @@ def run_batch(
         counts: dict[str, Any] = {"sent": 0, "delivered": 0, "dropped": 0, "drop_reasons": {}}
         discarded = 0
         delays = None
+        drops = None
         if schedule is not None:
             counts = all_counts[t]
             discarded = int(all_discarded[t])
             if t in wanted:
                 delays = _effective_delays(selection, schedule, scenario, updated, t, end)
+                drops = _drop_records(schedule, t, end)
         elif t in wanted:
             delays = np.full((K + 1, N, N), NOT_USED, dtype=np.int32)
+            drops = []
         results.append(TrialResult(
             states=states,
             measurements=measurements,
@@ -751,6 +774,7 @@ def run_batch(
             messages_discarded=discarded,
             messages_dropped=counts["dropped"],
             drop_reasons=counts["drop_reasons"],
+            drops=drops,
         ))
     if progress is not None:
         progress(T)

@@ -18,6 +18,7 @@ True
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
@@ -42,6 +43,7 @@ from netsim.estimators.registry import (
 )
 from netsim.models.scenario import Scenario, ScenarioError, parse_scenario, resolve_scenario
 from netsim.models.seeding import child_sequence
+from netsim.threads import single_threaded_blas
 
 __all__ = [
     "Estimator",
@@ -168,6 +170,10 @@ class FamilyRun:
     summary : netsim.runner.EstimatorSummary
         Network MSE, verdict, growth, and the steady-state MSE (stable runs only; NaN
         otherwise: see its last trusted MSE).
+    drops : list of list of (int, int, int, float, str), or None
+        Per trial, every message the links dropped, as (sender j, receiver i, sent step
+        s, drop time in sampling periods, reason) (``TrialResult.drops``); None when
+        not recorded (with ``effective_delays``).
     """
 
     family: str
@@ -177,20 +183,90 @@ class FamilyRun:
     effective_delays: np.ndarray | None
     diverged_at: list[int | None]
     summary: Any
+    drops: list[list[tuple[int, int, int, float, str]]] | None = None
 
     @property
     def mse(self) -> np.ndarray:
         """Network MSE (1/N) sum_i ||x_k - x-hat^i_k||^2 over non-diverged trials, (K+1,)."""
         return self.summary.mse
 
+    def __repr__(self) -> str:
+        shapes = ", ".join(f"{name} {getattr(self, name).shape}" for name in
+                           ("states", "estimates", "squared_errors"))
+        return (f"<FamilyRun {self.family}: {self.summary.verdict}, "
+                f"{len(self.diverged_at)} trial(s); {shapes}>")
 
-@dataclass
+
+#: What :meth:`RunResult.to_dataframe` can tabulate.
+TABLES = ("errors", "estimates", "states", "delays", "drops")
+
+#: The columns of each table of :meth:`RunResult.to_dataframe`.
+TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
+    "errors": ("family", "trial", "step", "time", "agent", "squared_error"),
+    "estimates": ("family", "trial", "step", "time", "agent", "component", "estimate"),
+    "states": ("family", "trial", "step", "time", "component", "state"),
+    "delays": ("family", "trial", "step", "time", "agent", "sender", "delay"),
+    "drops": ("family", "trial", "sent_step", "sender", "receiver", "time", "reason"),
+}
+
+#: Estimators listed one per line in ``repr`` (the others are counted).
+_REPR_FAMILIES = 12
+
+
+def _pandas(what: str) -> Any:
+    """Import pandas, or raise ImportError naming it and the extra that installs it."""
+    try:
+        import pandas
+    except ImportError:
+        raise ImportError(f"{what} needs pandas: pip install 'netsim[notebook]'") from None
+    return pandas
+
+
+def _number(value: Any) -> str:
+    """A float for a table cell: 4 significant digits, ``-`` for NaN or None."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "-"
+    return f"{value:.4g}"
+
+
+def _write_table(frame: Any, path: str | os.PathLike[str], option: str, force: bool,
+                 write: Callable[[Any, Path], None]) -> Path:
+    """Write ``frame`` by the output-file rule (:mod:`netsim.outfiles`): never through a
+    link, an existing file only with ``force``, atomically."""
+    from netsim.outfiles import OutputFileError, atomic_output, check_output
+
+    try:
+        target = check_output(path, option, force=force)
+    except OutputFileError as error:  # the API's word for --force
+        raise OutputFileError(str(error).replace("--force", "force=True")) from None
+    with atomic_output(target) as tmp:
+        write(frame, tmp)
+    return target
+
+
+@dataclass(repr=False)
 class RunResult:
     """Result of :func:`run`: per-family trial arrays and the Monte Carlo summary.
 
     Index by family name (``result["compensated"]``) for a :class:`FamilyRun`;
     ``summary`` maps names to summaries; ``monte_carlo`` is the full
     :class:`netsim.runner.MonteCarloResult` (what ``netsim run --json`` prints).
+
+    In a notebook the result shows its summary table (``repr`` of a few lines, or
+    HTML); :meth:`plot` draws the network MSE of every family, :meth:`to_dataframe`
+    gives the errors, estimates, states, effective delays or drops as a tidy pandas
+    table, and :meth:`to_csv` / :meth:`to_parquet` write them.
+
+    Example
+    -------
+    >>> import netsim
+    >>> result = netsim.run("lcsys2022-heterogeneous", steps=50, trials=2,
+    ...                     estimators=["compensated", "centralized-kf"])
+    >>> print(repr(result).splitlines()[0])                 # doctest: +ELLIPSIS
+    <RunResult lcsys2022-heterogeneous: 2 estimator(s), 2 trial(s), steps 0..50, ...>
+    >>> frame = result.to_dataframe(what="estimates")       # doctest: +SKIP
+    >>> list(frame.columns)                                 # doctest: +SKIP
+    ['family', 'trial', 'step', 'time', 'agent', 'component', 'estimate']
     """
 
     scenario: Scenario
@@ -217,30 +293,260 @@ class RunResult:
         """The JSON-ready summary (the same as ``netsim run --json``)."""
         return self.monte_carlo.to_dict()
 
-    def to_dataframe(self) -> Any:
-        """One row per (family, trial, step, agent) with the squared error (pandas).
+    # -- notebook display ---------------------------------------------------------
 
-        Columns: ``family``, ``trial``, ``step``, ``agent``, ``squared_error``.
-        Raises ImportError with a clear message when pandas is not installed.
+    def _header(self) -> str:
+        mc = self.monte_carlo
+        return (f"{self.scenario.name}: {len(self.families) or len(self.summary)} "
+                f"estimator(s), {mc.trials} trial(s), steps 0..{mc.steps}, "
+                f"Ts = {self.scenario.sample_period:g}, seed {mc.seed}, engine {mc.engine}")
+
+    def summary_rows(self) -> list[dict[str, Any]]:
+        """The summary table: one dict per family (what ``repr`` and HTML show).
+
+        Keys: ``estimator``, ``engine``, ``verdict``, ``steady_state_mse`` (NaN unless
+        stable), ``last_trusted_mse``, ``last_trusted_step``, ``growth_rate`` (MSE
+        growth factor per step), ``diverged`` (trials that blew up), ``trials``,
+        ``sent``, ``delivered``, ``dropped`` and ``discarded`` (messages, all trials).
         """
-        try:
-            import pandas as pd
-        except ImportError:
-            raise ImportError("RunResult.to_dataframe() needs pandas: pip install pandas"
-                              ) from None
-        frames = []
+        mc = self.monte_carlo
+        rows = []
+        for name, s in self.summary.items():
+            runs = mc.runs.get(name, [])
+            rows.append({
+                "estimator": name, "engine": mc.engines.get(name, mc.engine),
+                "verdict": s.verdict, "steady_state_mse": s.steady_state_mse,
+                "last_trusted_mse": s.last_trusted_mse,
+                "last_trusted_step": s.last_trusted_step, "growth_rate": s.growth_rate,
+                "diverged": len(s.diverged), "trials": s.trials_finished or mc.trials,
+                "sent": s.messages_sent, "delivered": s.messages_delivered,
+                "dropped": sum(r.messages_dropped for r in runs),
+                "discarded": s.messages_discarded,
+            })
+        return rows
+
+    def __repr__(self) -> str:
+        rows = self.summary_rows()
+        width = max([len("estimator"), *(len(r["estimator"]) for r in rows[:_REPR_FAMILIES])])
+        lines = [f"<RunResult {self._header()}>",
+                 f"  {'estimator':<{width}}  {'verdict':<10} {'steady MSE':>10} "
+                 f"{'last MSE':>10} {'at k':>5} {'growth':>7} {'diverged':>8}"]
+        for r in rows[:_REPR_FAMILIES]:
+            step = "-" if r["last_trusted_step"] is None else r["last_trusted_step"]
+            lines.append(f"  {r['estimator']:<{width}}  {r['verdict']:<10} "
+                         f"{_number(r['steady_state_mse']):>10} "
+                         f"{_number(r['last_trusted_mse']):>10} {step:>5} "
+                         f"{_number(r['growth_rate']):>7} "
+                         f"{str(r['diverged']) + '/' + str(r['trials']):>8}")
+        if len(rows) > _REPR_FAMILIES:
+            lines.append(f"  ... and {len(rows) - _REPR_FAMILIES} more (result.summary)")
+        lines.append('  arrays: result["<estimator>"].states / .estimates / .squared_errors; '
+                     ".plot(); .to_dataframe(what=...)")
+        return "\n".join(lines)
+
+    def _repr_html_(self) -> str:
+        """The summary table as HTML (Jupyter's rich display); every value escaped."""
+        import html
+
+        heads = ("estimator", "engine", "verdict", "steady-state MSE", "last trusted MSE",
+                 "at step", "growth / step", "diverged", "messages sent", "delivered",
+                 "dropped", "discarded stale")
+        body = []
+        for r in self.summary_rows():
+            cells = (r["estimator"], r["engine"], r["verdict"],
+                     _number(r["steady_state_mse"]), _number(r["last_trusted_mse"]),
+                     "-" if r["last_trusted_step"] is None else r["last_trusted_step"],
+                     _number(r["growth_rate"]), f"{r['diverged']} / {r['trials']}",
+                     r["sent"], r["delivered"], r["dropped"], r["discarded"])
+            body.append("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in cells)
+                        + "</tr>")
+        head = "".join(f"<th>{html.escape(h)}</th>" for h in heads)
+        return (f"<div><p><b>RunResult</b> {html.escape(self._header())}</p>"
+                f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody>"
+                "</table></div>")
+
+    def plot(self, ax: Any = None, *, log: bool | None = None) -> Any:
+        """Plot the network MSE over time of every family, one line each (matplotlib).
+
+        Parameters
+        ----------
+        ax : matplotlib.axes.Axes, optional
+            Where to draw (default: a new figure).
+        log : bool, optional
+            Logarithmic MSE axis; by default when every finite MSE is positive and
+            they span more than a factor of 10.
+
+        Returns
+        -------
+        matplotlib.axes.Axes
+            The axes (its figure is ``ax.figure``). The line of family ``f`` has the
+            label ``f`` and the data ``summary[f].mse`` (NaN where no trial counts).
+
+        Example
+        -------
+        >>> ax = result.plot()                       # doctest: +SKIP
+        >>> ax.figure.savefig("mse.png")             # doctest: +SKIP
+        """
+        if ax is None:
+            import matplotlib.pyplot as plt
+
+            _, ax = plt.subplots(figsize=(7, 4))
+        finite = []
+        for name, s in self.summary.items():
+            mse = np.asarray(s.mse, dtype=float)
+            ax.plot(np.arange(len(mse)), mse, label=name)
+            finite.append(mse[np.isfinite(mse)])
+        values = np.concatenate(finite) if finite else np.zeros(0)
+        if log is None:
+            log = bool(values.size) and bool(np.all(values > 0)) and (
+                values.max() > 10 * values.min())
+        if log:
+            ax.set_yscale("log")
+        ax.set_xlabel("step k")
+        ax.set_ylabel("network MSE")
+        ax.set_title(f"{self.scenario.name}: {self.monte_carlo.trials} trial(s)")
+        ax.legend()
+        return ax
+
+    # -- tables -------------------------------------------------------------------
+
+    def to_dataframe(self, what: str = "errors") -> Any:
+        """One tidy (long) pandas table of the run's arrays.
+
+        Parameters
+        ----------
+        what : str
+            Which table (:data:`TABLES`); the columns are :data:`TABLE_COLUMNS`.
+            ``family`` is the estimator family, ``trial`` the Monte Carlo trial
+            (0..M-1), ``step`` k (0..K), ``time`` the simulation time in seconds
+            (k Ts), ``agent`` i, ``component`` the index into the state vector.
+
+            - ``"errors"`` (default): one row per (family, trial, step, agent),
+              ``squared_error`` = ||x_k - x-hat^i_k||^2 (NaN after a divergence), the
+              numbers the summary's MSE averages;
+            - ``"estimates"``: per (family, trial, step, agent, component), the
+              estimate x-hat^i_{k|k} (N = 1 agent for a centralised filter);
+            - ``"states"``: per (family, trial, step, component), the true state x_k
+              of that family's run (every family sees the same plant trials; NaN
+              after a divergence);
+            - ``"delays"``: the effective delays r_ij[k] agent i's update at step k
+              used: one row per (family, trial, step, agent i, sender j) where
+              j's estimate entered the update, ``delay`` = k - 1 - s_j (-1: nothing
+              had arrived, i's own prediction stood in); the (k, i, j) entries marked
+              not used are left out;
+            - ``"drops"``: one row per message a link dropped, ``sent_step`` s,
+              ``sender`` j, ``receiver`` i, ``time`` of the drop in seconds and its
+              ``reason`` (see :mod:`netsim.links`), ordered by trial and time.
+
+        Returns
+        -------
+        pandas.DataFrame
+
+        Raises
+        ------
+        ImportError
+            When pandas is not installed (``pip install 'netsim[notebook]'``).
+        ValueError
+            For an unknown ``what``; for ``delays`` or ``drops`` of a run that did
+            not record them (a traced :func:`run` keeps neither: read the trace).
+
+        Example
+        -------
+        >>> frame = result.to_dataframe(what="estimates")       # doctest: +SKIP
+        >>> frame.groupby(["family", "step"]).estimate.mean()   # doctest: +SKIP
+        """
+        if what not in TABLES:
+            raise ValueError(f"what={what!r}: expected one of {', '.join(TABLES)}")
+        pd = _pandas("to_dataframe")
+        names = list(TABLE_COLUMNS[what])
+        parts: dict[str, list[np.ndarray]] = {c: [] for c in names}
+        ts = float(self.scenario.sample_period)
         for name, fam in self.families.items():
-            M, K1, N = fam.squared_errors.shape
-            trial, step, agent = np.meshgrid(np.arange(M), np.arange(K1), np.arange(N),
-                                             indexing="ij")
-            frames.append(pd.DataFrame({
-                "family": name, "trial": trial.ravel(), "step": step.ravel(),
-                "agent": agent.ravel(), "squared_error": fam.squared_errors.ravel()}))
-        return pd.concat(frames, ignore_index=True)
+            if what in ("delays", "drops") and (fam.effective_delays is None
+                                                or fam.drops is None):
+                raise ValueError(f"to_dataframe(what={what!r}): family {name!r} did not "
+                                 "record its effective delays and drops (a traced run "
+                                 "keeps neither; read them from the trace)")
+            columns = _table(what, fam, ts)
+            count = len(next(iter(columns.values())))
+            parts["family"].append(np.full(count, name, dtype=object))
+            for column, values in columns.items():
+                parts[column].append(values)
+        data = {c: (np.concatenate(v) if v else np.zeros(0, dtype=object if c in (
+            "family", "reason") else float)) for c, v in parts.items()}
+        return pd.DataFrame(data, columns=names)
+
+    def to_csv(self, path: str | os.PathLike[str], what: str = "errors", *,
+               force: bool = False) -> Path:
+        """Write :meth:`to_dataframe` (``what``) to a CSV file, without the index.
+
+        The file is written by netsim's output-file rule (:mod:`netsim.outfiles`):
+        never through a symbolic link, never over an existing file unless
+        ``force=True``, atomically (a failed write leaves the old file). Returns the
+        path written.
+        """
+        frame = self.to_dataframe(what)
+        return _write_table(frame, path, "to_csv", force,
+                            lambda f, tmp: f.to_csv(tmp, index=False))
+
+    def to_parquet(self, path: str | os.PathLike[str], what: str = "errors", *,
+                   force: bool = False) -> Path:
+        """Write :meth:`to_dataframe` (``what``) to a Parquet file (needs pyarrow).
+
+        Same file rule as :meth:`to_csv`. Returns the path written.
+        """
+        frame = self.to_dataframe(what)
+        try:
+            import pyarrow  # noqa: F401
+        except ImportError:
+            raise ImportError("to_parquet needs pyarrow: pip install 'netsim[notebook]'"
+                              ) from None
+        return _write_table(frame, path, "to_parquet", force,
+                            lambda f, tmp: f.to_parquet(tmp, index=False))
+
+
+def _indices(shape: tuple[int, ...]) -> list[np.ndarray]:
+    """Row-major index columns of an array of ``shape`` (one per axis, all its cells)."""
+    return [np.asarray(a).ravel() for a in np.indices(shape, dtype=np.int64)]
+
+
+def _table(what: str, fam: FamilyRun, ts: float) -> dict[str, np.ndarray]:
+    """The columns (but ``family``) of one family's part of a :data:`TABLES` table."""
+    if what == "errors":
+        t, k, i = _indices(fam.squared_errors.shape)
+        return {"trial": t, "step": k, "time": k * ts, "agent": i,
+                "squared_error": fam.squared_errors.ravel()}
+    if what == "estimates":
+        t, k, i, c = _indices(fam.estimates.shape)
+        return {"trial": t, "step": k, "time": k * ts, "agent": i, "component": c,
+                "estimate": fam.estimates.ravel()}
+    if what == "states":
+        t, k, c = _indices(fam.states.shape)
+        return {"trial": t, "step": k, "time": k * ts, "component": c,
+                "state": fam.states.ravel()}
+    if what == "delays":
+        from netsim.kernel import NOT_USED
+
+        delays = np.asarray(fam.effective_delays)
+        t, k, i, j = (a.astype(np.int64) for a in np.nonzero(delays != NOT_USED))
+        return {"trial": t, "step": k, "time": k * ts, "agent": i, "sender": j,
+                "delay": delays[t, k, i, j].astype(np.int64)}
+    rows = sorted((trial, when, sender, receiver, sent, reason)
+                  for trial, records in enumerate(fam.drops or [])
+                  for sender, receiver, sent, when, reason in records)
+    return {
+        "trial": np.array([r[0] for r in rows], dtype=np.int64),
+        "sent_step": np.array([r[4] for r in rows], dtype=np.int64),
+        "sender": np.array([r[2] for r in rows], dtype=np.int64),
+        "receiver": np.array([r[3] for r in rows], dtype=np.int64),
+        "time": np.array([r[1] * ts for r in rows], dtype=float),
+        "reason": np.array([r[5] for r in rows], dtype=object),
+    }
 
 
 def _stack(name: str, trials: list[Any], summary: Any) -> FamilyRun:
     delays = [t.effective_delays for t in trials]
+    drops = [getattr(t, "drops", None) for t in trials]
     return FamilyRun(
         family=name,
         states=np.stack([t.states for t in trials]),
@@ -250,6 +556,7 @@ def _stack(name: str, trials: list[Any], summary: Any) -> FamilyRun:
                           else None),
         diverged_at=[t.diverged_at for t in trials],
         summary=summary,
+        drops=(drops if drops and all(d is not None for d in drops) else None),
     )
 
 
@@ -304,6 +611,7 @@ def run(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any], *,
     return out
 
 
+@single_threaded_blas()
 def run_one(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any],
             estimator: str | EstimatorFamily, *, trial: int = 0, seed: int | None = None,
             steps: int | None = None, observer: Any = None) -> Any:
@@ -324,6 +632,7 @@ def run_one(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any],
                      steps, observer=observer)
 
 
+@single_threaded_blas()
 def analyze(scenario: Scenario | str | os.PathLike[str], tau_max: int = 30) -> Any:
     """Exact spectral radii of the augmented closed loop beside the papers' bounds.
 

@@ -224,8 +224,9 @@ def test_lcsys_instance_numbers_against_hand_matrices():
 
 def test_figure_checks_follow_the_bench_cells(monkeypatch):
     import netsim.claims.checks as checks
+    import netsim.claims.searches as searches
 
-    monkeypatch.setattr(checks, "BENCH_TRIALS", 2)
+    monkeypatch.setattr(searches, "BENCH_TRIALS", 2)
     ctx = Context()
     out = REGISTRY["T-fig2-stable"].run(ctx)
     # a figure of the paper's unprinted system cannot be refuted on another system: the

@@ -67,3 +67,110 @@ def test_no_models_module_imports_traces():
 @pytest.mark.parametrize("module", ["netsim.bench", "netsim.bench.command"])
 def test_bench_does_not_load_the_cli(module):
     assert "netsim.cli" not in _loaded_after(f"import {module}")
+
+
+# -- no import cycles ----------------------------------------------------------------
+#
+# Every import of netsim's own modules, at module level or inside a function (a lazy
+# import is still a dependency: it only moves the cycle to run time), except those under
+# ``if TYPE_CHECKING:``. ``from package import name`` depends on ``package.name`` when that
+# is a module, else on the package's __init__; importing a submodule is not counted as
+# depending on its parent package (an __init__ re-exporting its submodules is no cycle).
+
+#: Source folders and the package each installs as (pyproject.toml's package-dir).
+PACKAGE_DIRS = {"netsim": "netsim", "models": "netsim.models",
+                "estimators": "netsim.estimators", "traces": "netsim.traces"}
+
+#: Cycles allowed for now, each the set of modules of one strongly connected component.
+KNOWN_CYCLES = [
+    # issue 30: being removed (the lead engineer is editing these four modules)
+    {"netsim.budget", "netsim.runner", "netsim.vectorised", "netsim.vectrace"},
+]
+
+
+def _modules() -> dict[str, Path]:
+    found = {}
+    for folder, package in PACKAGE_DIRS.items():
+        for path in sorted((ROOT / folder).rglob("*.py")):
+            parts = list(path.relative_to(ROOT / folder).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            found[".".join([package, *parts])] = path
+    return found
+
+
+def _runtime_imports(tree: ast.AST):
+    """Import statements of ``tree``, skipping ``if TYPE_CHECKING:`` blocks."""
+    stack = [tree]
+    while stack:
+        node = stack.pop()
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            stack.extend(node.orelse)
+            continue
+        if isinstance(node, ast.Import | ast.ImportFrom):
+            yield node
+        stack.extend(ast.iter_child_nodes(node))
+
+
+def import_graph():
+    import networkx as nx
+
+    modules = _modules()
+    graph = nx.DiGraph()
+    graph.add_nodes_from(modules)
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in _runtime_imports(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Import):
+                targets = [alias.name for alias in node.names]
+            else:
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[:len(package.split(".")) - (node.level - 1)]
+                    base = ".".join([*up, *([node.module] if node.module else [])])
+                targets = [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base
+                           for a in node.names]
+            for target in targets:
+                # ``import netsim.traces.reader`` names a module; a dotted name that is not
+                # one (``import netsim.models.x as y`` of a removed module) counts its package
+                while target and target not in modules:
+                    target = target.rpartition(".")[0]
+                if target and target != name:
+                    graph.add_edge(name, target)
+    return graph
+
+
+def _cycles(graph) -> list[set[str]]:
+    import networkx as nx
+
+    return [set(c) for c in nx.strongly_connected_components(graph) if len(c) > 1]
+
+
+def test_import_graph_sees_the_imports():
+    graph = import_graph()
+    assert graph.has_edge("netsim.bench.delay_tolerance", "netsim.bench.claims")
+    assert graph.has_edge("netsim.claims.registry", "netsim.bench.claims")
+    assert graph.has_edge("netsim.claims.searches", "netsim.bench.delay_tolerance")  # lazy
+    assert graph.has_edge("netsim.traces.stepread", "netsim.traces.schemas")
+    assert len(graph) > 80
+
+
+def test_no_import_cycles_but_the_known_one():
+    unexpected = [sorted(c) for c in _cycles(import_graph())
+                  if not any(c <= known for known in KNOWN_CYCLES)]
+    assert unexpected == [], f"import cycles: {unexpected}"
+
+
+@pytest.mark.xfail(strict=True, reason="issue 30: being removed (budget <-> runner <-> "
+                   "vectorised <-> vectrace); when this passes, empty KNOWN_CYCLES")
+def test_no_import_cycles_at_all():
+    assert _cycles(import_graph()) == []
+
+
+def test_bench_never_imports_the_claims():
+    """The claims sit above the bench: they run it (claims.checks) and read its claim
+    rows (netsim.bench.claims); the bench imports nothing of netsim.claims."""
+    graph = import_graph()
+    bad = [(a, b) for a, b in graph.edges
+           if a.startswith("netsim.bench") and b.startswith("netsim.claims")]
+    assert bad == []

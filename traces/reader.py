@@ -59,7 +59,12 @@ from mcap.records import (
 from mcap.stream_reader import CRCValidationError, StreamReader, breakup_chunk
 from mcap.well_known import MessageEncoding, SchemaEncoding
 from mcap_protobuf.decoder import DecoderFactory
-from netsim.traces.schemas import DROP_REASONS_METADATA, LINK_EVENTS, parse_topic
+from netsim.traces.schemas import (
+    DROP_REASONS_METADATA,
+    LINK_EVENTS,
+    TraceRecord,
+    parse_topic,
+)
 from netsim.traces.schemas import PACKAGE_PREFIX as PACKAGE
 from netsim.traces.schemas import estimate_topic as _estimate_topic
 from netsim.traces.schemas import freshness_topic as _freshness_topic
@@ -103,17 +108,6 @@ class ChunkTooLarge(TraceError):
         super().__init__(message)
         self.declared = declared
         self.limit = limit
-
-
-class TraceRecord(NamedTuple):
-    """One decoded message (``log_time``, ``publish_time``: as in the file, ns; subtract
-    :attr:`Trace.time_origin_ns` for simulation time)."""
-
-    topic: str
-    log_time: int
-    publish_time: int
-    sequence: int
-    message: Any
 
 
 class LinkEvent(NamedTuple):

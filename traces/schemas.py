@@ -61,6 +61,7 @@ from typing import Any, NamedTuple
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
 __all__ = [
+    "TraceRecord",
     "varint",
     "FORMAT",
     "TRACE_FORMAT",
@@ -122,6 +123,20 @@ DEFAULT_TIME_ORIGIN_NS = 946_684_800 * 10**9
 
 _F = descriptor_pb2.FieldDescriptorProto
 _ONE, _MANY = _F.LABEL_OPTIONAL, _F.LABEL_REPEATED
+
+
+class TraceRecord(NamedTuple):
+    """One decoded message of a trace (``log_time``, ``publish_time``: as in the file, ns;
+    subtract :attr:`netsim.traces.reader.Trace.time_origin_ns` for simulation time).
+
+    Defined here, below :mod:`netsim.traces.reader` and :mod:`netsim.traces.stepread`,
+    which both build it; the reader re-exports it."""
+
+    topic: str
+    log_time: int
+    publish_time: int
+    sequence: int
+    message: Any
 
 
 class Field(NamedTuple):

@@ -62,9 +62,9 @@ from typing import Any
 import numpy as np
 from google.protobuf.descriptor_pb2 import FieldDescriptorProto
 from netsim.traces.bulkproto import BulkEncoder
-from netsim.traces.reader import TraceRecord
 from netsim.traces.schemas import MESSAGES as MESSAGES2
 from netsim.traces.schemas import (
+    TraceRecord,
     estimate_topic,
     freshness_topic,
     link_topic,

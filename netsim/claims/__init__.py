@@ -10,8 +10,9 @@ counterexample in M instances of <family> (seed s)``, or ``undecided`` with the 
 first the counterexample searches and long runs the claims read, in worker processes;
 :mod:`netsim.claims.search` is the seeded search and shrinking engine (and the LCSYS2022
 Theorem 1 search), :mod:`netsim.claims.searches` the searches of the other claims
-stated over a class of systems; :mod:`netsim.claims.bench_checks` holds the same claims'
-checks on a ``netsim bench delay-tolerance`` report; :mod:`netsim.claims.findings`
+stated over a class of systems; :mod:`netsim.bench.claims` holds the same claims'
+checks on a ``netsim bench delay-tolerance`` report (the papers' printed numbers are in
+:mod:`netsim.papers`); :mod:`netsim.claims.findings`
 generates the README's findings from a report.
 """
 

@@ -32,7 +32,7 @@ from netsim.models.augmented import (
 
 __all__ = ["lcsys_instance", "homogeneous_delays", "theorem1_on", "eq14_on", "bound_on",
            "naive_growth", "HETEROGENEOUS_EXAMPLE", "searched", "confirm_run",
-           "bench_report", "fusion_report", "BENCH_TRIALS", "convergence_time", "lemma2_on",
+           "convergence_time", "lemma2_on",
            "lemma4_on", "kron_observable", "aoi_rate", "aoi_numbers_example"]
 
 #: The scalar heterogeneous example of :func:`netsim.models.augmented.delay_bound_lcsys`:
@@ -690,27 +690,12 @@ def check_dkfe_77(context: Context) -> Outcome:
 # -- checks added for full coverage -----------------------------------------------------
 
 
-def bench_report(preset: str, seed: int) -> dict[str, Any]:
-    """A small ``netsim bench delay-tolerance PRESET`` report: BENCH_TRIALS trials, the
-    preset's steps, its focus family only (serial: it may run in a worker process)."""
-    from netsim.bench.delay_tolerance import run_delay_tolerance
-    from netsim.bench.presets import PRESETS
-    from netsim.models.scenario import resolve_scenario
-
-    p = PRESETS[preset]
-    return run_delay_tolerance(resolve_scenario(p.scenario), taus=p.taus, delays=p.delays,
-                               trials=BENCH_TRIALS, steps=p.steps, seed=seed,
-                               families=[p.focus], preset=p, executor="serial",
-                               progress=False)
-
-
 def _bench(context: Context, preset: str) -> dict[str, Any]:
-    """:func:`bench_report` for the context's seed, cached per preset."""
+    """:func:`netsim.claims.searches.bench_report` for the context's seed, cached per
+    preset."""
+    from netsim.claims.searches import bench_report
+
     return context.cached(f"bench:{preset}", lambda: bench_report(preset, context.seed))
-
-
-#: Trials of the bench runs behind the figure claims.
-BENCH_TRIALS = 10
 
 
 def _from_bench(context: Context, claim_id: str, preset: str) -> Outcome:
@@ -718,7 +703,7 @@ def _from_bench(context: Context, claim_id: str, preset: str) -> Outcome:
     instance (a bench report): agreement is no counterexample in the trials run; a
     disagreement cannot refute a figure of another system, so it is undecided with the
     difference stated."""
-    from netsim.claims.bench_checks import BENCH_CHECKS
+    from netsim.bench.claims import CLAIMS as BENCH_CHECKS
 
     data = _bench(context, preset)
     row = BENCH_CHECKS[claim_id](data)
@@ -1173,20 +1158,10 @@ def check_corollary1(context: Context) -> Outcome:
 # -- dkfe Figs. 6-8 from a Monte Carlo run with the exact covariances ----------------------
 
 
-def fusion_report(seed: int, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
-    """``netsim fusion`` on Example 2 (300 steps, lockstep), x(0) ~ N(0, scale I)."""
-    from dataclasses import replace
-
-    from netsim.fusion import run_fusion
-    from netsim.models.dkfe import example2
-
-    setup = example2()
-    setup = replace(setup, x0_cov=scale * np.eye(setup.n))
-    return run_fusion(setup, steps=300, trials=trials, seed=seed, engine="lockstep").to_dict()
-
-
 def _fusion(context: Context, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
-    """:func:`fusion_report` for the context's seed, cached."""
+    """:func:`netsim.claims.searches.fusion_report` for the context's seed, cached."""
+    from netsim.claims.searches import fusion_report
+
     return context.cached(f"fusion:{scale:g}:{trials}",
                           lambda: fusion_report(context.seed, scale, trials))
 

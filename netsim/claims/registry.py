@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from netsim import papers as _p
+from netsim.bench.claims import CLAIMS as _B
 from netsim.claims import checks as _c
-from netsim.claims import papers as _p
-from netsim.claims.bench_checks import BENCH_CHECKS as _B
 from netsim.claims.core import Claim
 
 __all__ = ["REGISTRY", "CLAIM_IDS", "get_claim", "select"]

@@ -72,7 +72,8 @@ from netsim.models.augmented import (
 )
 
 __all__ = ["DelayedInstance", "AoiInstance", "DkfeInstance", "aoi_numbers", "dkfe_numbers",
-           "SEARCHES", "run_search", "simulate_error_growth",
+           "SEARCHES", "run_search", "bench_report", "fusion_report", "BENCH_TRIALS",
+           "simulate_error_growth",
            "search_eq26", "search_lemma5", "search_tolerant_theorem1", "search_aoi",
            "search_dkfe", "delayed_scenario_toml", "write_delayed_scenario", "confirm_run",
            "verify_counterexample", "BOUND_SLACK", "T1_RANDOM_FAMILY", "T1_HARD_FAMILY",
@@ -641,6 +642,36 @@ SEARCHES: dict[str, Callable[[Any, int, float], Any]] = {
 _ORDER = tuple(SEARCHES)
 
 
+#: Trials of the bench runs behind the figure claims (``bench:PRESET``).
+BENCH_TRIALS = 10
+
+
+def bench_report(preset: str, seed: int) -> dict[str, Any]:
+    """A small ``netsim bench delay-tolerance PRESET`` report: BENCH_TRIALS trials, the
+    preset's steps, its focus family only (serial: it may run in a worker process)."""
+    from netsim.bench.delay_tolerance import run_delay_tolerance
+    from netsim.bench.presets import PRESETS
+    from netsim.models.scenario import resolve_scenario
+
+    p = PRESETS[preset]
+    return run_delay_tolerance(resolve_scenario(p.scenario), taus=p.taus, delays=p.delays,
+                               trials=BENCH_TRIALS, steps=p.steps, seed=seed,
+                               families=[p.focus], preset=p, executor="serial",
+                               progress=False)
+
+
+def fusion_report(seed: int, scale: float = 1.0, trials: int = 20) -> dict[str, Any]:
+    """``netsim fusion`` on Example 2 (300 steps, lockstep), x(0) ~ N(0, scale I)."""
+    from dataclasses import replace
+
+    from netsim.fusion import run_fusion
+    from netsim.models.dkfe import example2
+
+    setup = example2()
+    setup = replace(setup, x0_cov=scale * np.eye(setup.n))
+    return run_fusion(setup, steps=300, trials=trials, seed=seed, engine="lockstep").to_dict()
+
+
 def run_search(claim_id: str, seed: int, budget: float | None = None,
                instances: int | None = None) -> Any:
     """Run the search of ``claim_id`` (L-theorem1 with ``seed`` itself, the others with
@@ -649,18 +680,14 @@ def run_search(claim_id: str, seed: int, budget: float | None = None,
     seconds if given.
 
     Also runs the claims' other long computations by name, so that they can share the
-    worker processes: ``bench:PRESET`` (:func:`netsim.claims.checks.bench_report`) and
-    ``fusion:SCALE:TRIALS`` (:func:`netsim.claims.checks.fusion_report`).
+    worker processes: ``bench:PRESET`` (:func:`bench_report`) and ``fusion:SCALE:TRIALS``
+    (:func:`fusion_report`).
     """
     import time
 
     if claim_id.startswith("bench:"):
-        from netsim.claims.checks import bench_report
-
         return bench_report(claim_id.split(":", 1)[1], seed)
     if claim_id.startswith("fusion:"):
-        from netsim.claims.checks import fusion_report
-
         _, scale, trials = claim_id.split(":")
         return fusion_report(seed, float(scale), int(trials))
     count = DEFAULT_INSTANCES if instances is None else int(instances)

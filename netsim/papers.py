@@ -1,4 +1,5 @@
-"""The papers' printed numbers (one place; the registry and the bench read them here)."""
+"""The papers' printed numbers (one place; the claim registry, :mod:`netsim.claims`, and
+the bench's claim rows, :mod:`netsim.bench.claims`, read them here)."""
 
 from __future__ import annotations
 

@@ -21,8 +21,10 @@ Metadata records (written first, so even a file whose writer was killed has them
   ``trial``, ``seed``, ``sample_period``, ``steps`` (expected, if known),
   ``time_origin_ns`` and ``time_origin`` (ISO 8601), ``time_unit`` and the list of
   matrix attachments.
-- ``drop_reasons`` (written when a link first drops a message for a new reason, with
-  the table so far): ``LinkDropped.reason`` code -> reason text.
+- ``drop_reasons`` (written once, by :meth:`TraceRecorder.close`, when the run dropped
+  messages): ``LinkDropped.reason`` code -> reason text. Traces of earlier versions
+  wrote it again per new reason (each copy the table so far); readers take the union.
+  A file whose writer was killed has none (its reason codes are then unnamed).
 - ``run_status`` (written by :meth:`TraceRecorder.close`): ``status`` =
   ``complete`` | ``interrupted`` (KeyboardInterrupt) | ``failed`` (other exception)
   | anything given to :meth:`TraceRecorder.set_status` (e.g. ``diverged``),
@@ -70,7 +72,7 @@ import os
 import re
 import stat
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -346,6 +348,10 @@ class TraceRecorder:
         event (:mod:`netsim.traces.schemas`); 3: a
         message per step and kind (:mod:`netsim.traces.schemas3`, written by
         :class:`netsim.traces.stepwriter.StepLog`).
+    writer_tap : callable, optional
+        ``writer_tap(writer, recorder)`` returns the object the recorder writes through
+        instead of its MCAP writer (the same methods; e.g. :mod:`netsim.live`'s tee,
+        which also serves every record to a live viewer). Default: the writer itself.
     """
 
     def __init__(
@@ -367,6 +373,7 @@ class TraceRecorder:
         run_metadata: Mapping[str, str] | None = None,
         time_origin_ns: int = DEFAULT_TIME_ORIGIN_NS,
         trace_format: int | None = None,
+        writer_tap: Callable[[Any, Any], Any] | None = None,
     ) -> None:
         if trace_format is None:
             trace_format = DEFAULT_TRACE_FORMAT
@@ -416,6 +423,8 @@ class TraceRecorder:
                 self._stream, chunk_size=int(chunk_size), compression=_compression(compression),
                 level=_ZSTD_LEVEL,
             )
+            if writer_tap is not None:
+                self._writer = writer_tap(self._writer, self)
             self._writer.start(profile="", library=f"{fmt_name} {_mcap_library()}")
             self._writer.add_metadata(
                 "scenario", {str(k): str(v) for k, v in scenario_metadata.items()}
@@ -688,6 +697,9 @@ class TraceRecorder:
                 self._steps.close()
                 record["messages"] = str(self.messages_written)
             self._writer.flush()
+            if self.drop_reasons:  # one record, the complete table
+                self._writer.add_metadata(DROP_REASONS_METADATA, {
+                    str(c): r for r, c in self.drop_reasons.items()})
             self._writer.add_metadata("run_status", record)
             self._writer.finish()
         finally:
@@ -719,10 +731,8 @@ class TraceRecorder:
 
     def _drop_code(self, reason: str) -> int:
         code = self.drop_reasons.get(reason)
-        if code is None:  # a new reason: write the table so far (readers take the union)
+        if code is None:  # a new reason (the table is written by close())
             code = self.drop_reasons[reason] = len(self.drop_reasons) + 1
-            self._writer.add_metadata(DROP_REASONS_METADATA, {
-                str(c): r for r, c in self.drop_reasons.items()})
         return code
 
     def _link_event(self, message: Any, event: str, when: float, *, payload: bool = False,

@@ -146,6 +146,17 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
 
         add_aoi_arguments(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
+    run.add_argument("--live", nargs="?", const="127.0.0.1:8765", metavar="ADDR",
+                     help="serve the run to Foxglove or Lichtblick over the Foxglove WebSocket "
+                     "protocol at ADDR (default 127.0.0.1:8765; needs pip install "
+                     "'netsim[live]'): the trace's topics and schemas, paced in simulation "
+                     "time; waits for a viewer, then serves until Ctrl-C (see netsim.live)")
+    run.add_argument("--speed", type=float, default=1.0, metavar="X",
+                     help="with --live: simulation seconds per wall-clock second (default 1; "
+                     "0 or inf: as fast as possible)")
+    run.add_argument("--live-linger", type=float, default=None, metavar="SECONDS",
+                     help="with --live: end this long after the run was served (default: "
+                     "serve until Ctrl-C)")
 
     design = sub.add_parser(
         "design",
@@ -428,6 +439,10 @@ def _positive(value: int | None, option: str) -> None:
 
 
 def _cmd_run(args: argparse.Namespace) -> int:
+    if getattr(args, "live", None) is not None:  # netsim.live serves the run, then calls back
+        from netsim.live import run_live
+
+        return run_live(args, _cmd_run)
     from tqdm import tqdm
 
     from netsim.models.scenario import ScenarioError, resolve_scenario
@@ -518,7 +533,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
     finally:
         bar.close()
-    data = _run_data(result, scenario, args.trace, written)
+    data = _run_data(result, scenario, None if getattr(args, "live_scratch", False)
+                     else args.trace, written)
     if args.json:
         json.dump(data, sys.stdout, indent=2, allow_nan=False)
         sys.stdout.write("\n")
@@ -536,6 +552,8 @@ def _trace_options(args: argparse.Namespace) -> dict[str, Any]:
         if value not in (None, False) and args.trace is None:
             raise CommandError(f"{flag} needs --trace FILE.mcap")
     options: dict[str, Any] = {}
+    if getattr(args, "live_tap", None) is not None:  # netsim.live's tee
+        options["writer_tap"] = args.live_tap
     if args.trace_format is not None:
         options["trace_format"] = args.trace_format
     if args.trace_compression is not None:

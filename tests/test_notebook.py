@@ -213,8 +213,8 @@ def test_drops_table_lists_every_drop_on_both_engines(lossy):
         trials = run.monte_carlo.runs["compensated"]
         assert len(frame) == sum(r.messages_dropped for r in trials) > 0
         for t, trial in enumerate(trials):
-            assert frame.query("trial == @t").reason.value_counts().to_dict() == \
-                trial.drop_reasons
+            reasons = frame[frame.trial == t].reason.value_counts().to_dict()
+            assert reasons == trial.drop_reasons
         links = set(run.scenario.links)
         assert set(zip(frame.sender, frame.receiver, strict=True)) <= links
         assert (frame.time >= frame.sent_step * run.scenario.sample_period).all()

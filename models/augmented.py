@@ -801,7 +801,7 @@ def _companion_rho(row: _FirstRow, what: str) -> float:
     return _arpack_rho(power, nodes.size, label, q) ** (1.0 / p)
 
 
-def _arpack_attempts(q: int, D: int, k: int) -> list[tuple[int, int]]:
+def _arpack_attempts(q: int, D: int, k: int) -> list[tuple[int, int, int]]:
     """The ``(power, ncv, maxiter)`` of each ARPACK run of :func:`_arpack_rho`, in order.
 
     The first run uses :data:`ARPACK_NCV` Krylov vectors (fewer if the basis would

@@ -262,12 +262,22 @@ def latency_to_steps(latency: float, sample_period: float = 1.0) -> int:
 class DelayModel(Protocol):
     """Contract of a delay model used by the kernel."""
 
-    #: ``"steps"`` (integer step delays) or ``"time"`` (continuous latencies).
-    unit: Literal["steps", "time"]
-    #: Upper bound tau-bar on the step delay (the papers' bound).
-    max_delay: int
-    #: Whether the delay of a link is constant over time.
-    time_invariant: bool
+    # Read-only properties here, so that frozen dataclasses and computed properties
+    # satisfy the contract as well as plain attributes do.
+    @property
+    def unit(self) -> Literal["steps", "time"]:
+        """``"steps"`` (integer step delays) or ``"time"`` (continuous latencies)."""
+        ...
+
+    @property
+    def max_delay(self) -> int:
+        """Upper bound tau-bar on the step delay (the papers' bound)."""
+        ...
+
+    @property
+    def time_invariant(self) -> bool:
+        """Whether the delay of a link is constant over time."""
+        ...
 
     def draw(self, sender: int, receiver: int, send_step: int) -> float:
         """Return the delay of one message (steps or time, see ``unit``)."""
@@ -299,7 +309,8 @@ class FixedDelays:
     time_invariant: bool = True
 
     def __post_init__(self) -> None:
-        for link, d in {**self.delays, "default": self.default}.items():
+        checked: list[tuple[Link | str, int]] = [*self.delays.items(), ("default", self.default)]
+        for link, d in checked:
             if int(d) != d or d < 0:
                 raise ValueError(f"delay of link {link} must be a non-negative integer, got {d}")
 
@@ -433,24 +444,26 @@ class AsynchronousRandomDelays:
                 lambda g, n: g.integers(0, high, size=n))
         return source
 
-    def _in_block(self, sender: int, receiver: int) -> bool:
-        return self.block is not None and (sender, receiver) in self.block.column
+    def _block_of(self, sender: int, receiver: int) -> LinkBlockDraws | None:
+        """The link set's block stream if the link is in it, else None."""
+        block = self.block
+        return block if block is not None and (sender, receiver) in block.column else None
 
     def draw(self, sender: int, receiver: int, send_step: int) -> int:
-        if self._in_block(sender, receiver):
-            return int(self.block.next((sender, receiver)))
+        if (block := self._block_of(sender, receiver)) is not None:
+            return int(block.next((sender, receiver)))
         return int(self._source(sender, receiver).next())
 
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's draw as one callable send_step -> delay (the same sequence)."""
-        if self._in_block(sender, receiver):
-            return self.block.sampler((sender, receiver))
+        if (block := self._block_of(sender, receiver)) is not None:
+            return block.sampler((sender, receiver))
         return self._source(sender, receiver).sampler
 
     def draw_many(self, sender: int, receiver: int, send_steps: np.ndarray) -> np.ndarray:
         """Delays of the link's next len(send_steps) messages."""
-        if self._in_block(sender, receiver):
-            return self.block.take([(sender, receiver)], len(send_steps))[:, 0].astype(
+        if (block := self._block_of(sender, receiver)) is not None:
+            return block.take([(sender, receiver)], len(send_steps))[:, 0].astype(
                 np.int64, copy=False)
         return self._source(sender, receiver).take(len(send_steps)).astype(np.int64, copy=False)
 
@@ -485,7 +498,9 @@ class FixedLatencies:
     time_invariant: bool = True
 
     def __post_init__(self) -> None:
-        for link, lat in {**self.latencies, "default": self.default}.items():
+        checked: list[tuple[Link | str, float]] = [*self.latencies.items(),
+                                                   ("default", self.default)]
+        for link, lat in checked:
             if not math.isfinite(lat) or lat < 0:
                 raise ValueError(f"latency of link {link} must be finite and >= 0, got {lat}")
 

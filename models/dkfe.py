@@ -630,7 +630,7 @@ def second_moment_radius(
 
 def second_moment_parts(
     A: np.ndarray, Phi: np.ndarray, selection: SelectionScheme, d: int
-) -> dict[str, float]:
+) -> dict[str, float | str]:
     """Where :func:`second_moment_radius` comes from.
 
     A_i(t) (66) is block upper triangular, so E{A_i kron A_i} has the eigenvalues of its

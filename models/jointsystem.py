@@ -364,7 +364,9 @@ def _invariant_subspace(M: np.ndarray, centre: complex, radius: float) -> np.nda
     of ``centre`` (ordered complex Schur form)."""
     from scipy.linalg import schur
 
-    _, Z, sdim = schur(M.astype(complex), output="complex",
+    # scipy-stubs type ``sort`` as Callable[[float, float], bool] (the real Schur form's
+    # (re, im) callable); with output="complex" scipy calls it with one complex number.
+    _, Z, sdim = schur(M.astype(complex), output="complex",  # type: ignore[call-overload]
                        sort=lambda z: abs(z - centre) <= radius)
     return Z[:, :sdim]
 
@@ -647,7 +649,7 @@ def _conclude(kind: str, rho_err: float, modes: Sequence[PlantMode], period: int
         reason = (f"{forcing_words}; the plant mode lambda = {_eig_text(m.eigenvalue)} "
                   f"(|lambda| = 1, excited only by the prior, no noise on it) keeps a "
                   f"bounded, persistent error; {recursion} has rho {_fmt(rho_err)} < 1")
-    elif entering:
+    elif top is not None:  # some mode enters
         reason = (f"{recursion} has rho {_fmt(rho_err)} < 1 and the plant modes that force "
                   f"the error decay ({plant_growth(top)} < 1): the MSE is bounded; its "
                   f"MSE transient decays as {_fmt(factor)} = rho^2 per step")

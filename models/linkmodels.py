@@ -257,7 +257,7 @@ class UniformDelay(DelayDistribution):
 
     def sample(self, rng: np.random.Generator, size: int) -> np.ndarray:
         if self.unit == "steps":
-            return rng.integers(self.low, self.high + 1, size=size)
+            return rng.integers(int(self.low), int(self.high) + 1, size=size)
         return rng.uniform(self.low, self.high, size=size)
 
     def cdf(self, x: Any) -> np.ndarray:
@@ -545,8 +545,10 @@ class DistributionDelays:
                                      links)
                       if mode == "asynchronous" and links is not None else None)
 
-    def _in_block(self, sender: int, receiver: int) -> bool:
-        return self.block is not None and (sender, receiver) in self.block.column
+    def _block_of(self, sender: int, receiver: int) -> LinkBlockDraws | None:
+        """The link set's block stream if the link is in it, else None."""
+        block = self.block
+        return block if block is not None and (sender, receiver) in block.column else None
 
     def _sampler(self, sender: int, receiver: int) -> BatchedDraws:
         sampler = self._per_link.get((sender, receiver))
@@ -566,8 +568,8 @@ class DistributionDelays:
     def draw(self, sender: int, receiver: int, send_step: int) -> float:
         mode = self.mode
         if mode == "asynchronous":
-            if self._in_block(sender, receiver):
-                return self.block.next((sender, receiver))
+            if (block := self._block_of(sender, receiver)) is not None:
+                return block.next((sender, receiver))
             return self._sampler(sender, receiver).next()
         if mode == "synchronous":
             self._sync_steps(send_step)
@@ -581,8 +583,8 @@ class DistributionDelays:
     def sampler(self, sender: int, receiver: int) -> Any:
         """The link's ``draw`` as one callable send_step -> delay."""
         if self.mode == "asynchronous":
-            if self._in_block(sender, receiver):
-                return self.block.sampler((sender, receiver))
+            if (block := self._block_of(sender, receiver)) is not None:
+                return block.sampler((sender, receiver))
             return self._sampler(sender, receiver).sampler
         return lambda send_step: self.draw(sender, receiver, send_step)
 
@@ -590,8 +592,8 @@ class DistributionDelays:
         """The delays ``draw`` gives for messages sent at ``send_steps``, in order."""
         count = len(send_steps)
         if self.mode == "asynchronous":
-            if self._in_block(sender, receiver):
-                return self.block.take([(sender, receiver)], count)[:, 0]
+            if (block := self._block_of(sender, receiver)) is not None:
+                return block.take([(sender, receiver)], count)[:, 0]
             return self._sampler(sender, receiver).take(count)
         if self.mode == "synchronous":
             steps = np.asarray(send_steps, dtype=np.int64)
@@ -1153,7 +1155,7 @@ class LinksSpec:
             cfg = self.config(link)
             own = cfg.delay is not self.default.delay  # the link has a delay of its own
             delay: DelayModel | None = None
-            loss = None
+            loss: Any = None  # as LinkModel.loss: any object with drop_reason
             if cfg.delay is not None:
                 dist = cfg.delay.distribution
                 if isinstance(dist, TraceReplay):
@@ -1168,9 +1170,9 @@ class LinksSpec:
                     key = id(cfg.delay) if not own else -1
                     if own or key not in shared:
                         name = f"links/link/{j}-{i}/delay" if own else "links/delay"
-                        model = DistributionDelays(dist, cfg.delay.mode, trial_seed, self.seed,
-                                                   name=name, sample_period=sample_period,
-                                                   links=[link] if own else sharing[key])
+                        model: DelayModel = DistributionDelays(
+                            dist, cfg.delay.mode, trial_seed, self.seed, name=name,
+                            sample_period=sample_period, links=[link] if own else sharing[key])
                         if not own:
                             shared[key] = model
                     else:

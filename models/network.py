@@ -70,7 +70,7 @@ def directed_cycle(n_agents: int) -> nx.DiGraph:
     """
     if n_agents < 2:
         raise NetworkError(f"a directed cycle needs at least 2 agents, got {n_agents}")
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[int] = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
     graph.add_edges_from((i, (i + 1) % n_agents) for i in range(n_agents))
     return graph
@@ -100,7 +100,7 @@ def random_strongly_connected(
     if n_agents < 2:
         raise NetworkError(f"a strongly-connected digraph needs at least 2 agents, got {n_agents}")
     src, dst = random_links(n_agents, edge_probability, seed)
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[int] = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
     graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
     return graph
@@ -129,7 +129,7 @@ def geometric(n_agents: int, radius: float | None = None, seed: SeedLike = None)
     if n_agents < 2:
         raise NetworkError(f"a geometric network needs at least 2 agents, got {n_agents}")
     src, dst, positions = geometric_links(n_agents, radius, seed)
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[int] = nx.DiGraph()
     for i in range(n_agents):
         graph.add_node(i, pos=(float(positions[i, 0]), float(positions[i, 1])))
     graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
@@ -328,7 +328,7 @@ def sparse_lazy_metropolis_weights(n_agents: int, src: np.ndarray, dst: np.ndarr
     return P
 
 
-def links_from_weights(weights: sp.sparray | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def links_from_weights(weights: sp.csr_array | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sorted links (sender j, receiver i) of the off-diagonal nonzeros ``P[i, j]``,
     dense or sparse, without building a graph."""
     if sp.issparse(weights):
@@ -340,7 +340,7 @@ def links_from_weights(weights: sp.sparray | np.ndarray) -> tuple[np.ndarray, np
         keep = (i != j) & (csc.data != 0)
         return j[keep], i[keep]
     else:
-        i, j = np.nonzero(weights)
+        i, j = np.nonzero(np.asarray(weights))
         keep = i != j
         i, j = i[keep], j[keep]
     return _sorted_links(np.asarray(j), np.asarray(i))
@@ -436,7 +436,7 @@ def graph_from_weights(weights: np.ndarray) -> nx.DiGraph:
     networkx.DiGraph
     """
     n_agents = weights.shape[0]
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[int] = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
     if sp.issparse(weights):  # no N x N array (a networkx graph still costs ~1 kB a link)
         src, dst = links_from_weights(weights)
@@ -494,7 +494,7 @@ def check_consensus_matrix(weights: np.ndarray, name: str = "P") -> None:
         )
 
 
-def check_sparse_consensus_matrix(weights: sp.sparray, name: str = "P") -> None:
+def check_sparse_consensus_matrix(weights: sp.csr_array, name: str = "P") -> None:
     """:func:`check_consensus_matrix` on a sparse matrix, O(N + nnz).
 
     The same properties and messages: square, finite, nonnegative, row sums 1,

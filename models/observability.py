@@ -483,7 +483,7 @@ def system_digraph(A: ArrayLike, atol: float = DEFAULT_PATTERN_ATOL) -> nx.DiGra
     pat = sparsity_pattern(A, atol)
     if pat.shape[0] != pat.shape[1]:
         raise ValueError(f"the system digraph needs a square matrix, got shape {pat.shape}")
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[int] = nx.DiGraph()
     graph.add_nodes_from(range(pat.shape[0]))
     rows, cols = np.nonzero(pat)
     graph.add_edges_from((int(j), int(i)) for i, j in zip(rows, cols, strict=True))
@@ -512,7 +512,7 @@ def structural_rank(pattern: ArrayLike, atol: float = DEFAULT_PATTERN_ATOL) -> i
     """
     pat = sparsity_pattern(pattern, atol)
     p, q = pat.shape
-    graph = nx.Graph()
+    graph: nx.Graph[tuple[str, int]] = nx.Graph()
     rows = [("r", i) for i in range(p)]
     graph.add_nodes_from(rows, bipartite=0)
     graph.add_nodes_from((("c", j) for j in range(q)), bipartite=1)

@@ -99,9 +99,9 @@ class LinearPlant:
         return self.A @ x + self._factors[1] @ rng.standard_normal(self.n_states)
 
     @cached_property
-    def _stacked_measurement(self) -> tuple[np.ndarray, np.ndarray, bool, list[int]]:
+    def _stacked_measurement(self) -> tuple[np.ndarray, np.ndarray, bool, tuple[slice, ...]]:
         """C stacked, the noise factor (diagonal as a vector if every m_i = 1, else
-        block-diagonal), whether it is diagonal, and the split points."""
+        block-diagonal), whether it is diagonal, and the sensors' row slices."""
         factors = self._factors[2]
         sizes = [C.shape[0] for C in self.C]
         if all(m == 1 for m in sizes):

@@ -32,7 +32,7 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import networkx as nx
 import numpy as np
@@ -62,6 +62,7 @@ from netsim.models.linkmodels import (
     ShiftedGamma,
     ShiftedPareto,
     UniformDelay,
+    Unit,
     load_latency_csv,
     load_trace_replay,
 )
@@ -360,7 +361,7 @@ class Scenario:
         networkx graph costs about 1 kB per link: large-N code reads
         :attr:`link_table` instead.)"""
         if self.topology is not None:
-            graph = nx.DiGraph()
+            graph: nx.DiGraph[int] = nx.DiGraph()
             graph.add_nodes_from(range(self.topology.n_agents))
             graph.add_edges_from(self.topology.links())
             return graph
@@ -409,7 +410,7 @@ class Scenario:
                                 f"{8 * N * N / 2**30:.1f} GiB at N = {N} agents (sparse "
                                 f"paths go up to any N; dense ones to "
                                 f"{DENSE_WEIGHTS_MAX_AGENTS})")
-        return self.weights.toarray()
+        return cast(sp.csr_array, self.weights).toarray()
 
     def densified(self, what: str = "this command") -> Scenario:
         """This scenario with dense weights (itself if they are dense already).
@@ -427,7 +428,7 @@ class Scenario:
                                 f"paths go up to {DENSE_WEIGHTS_MAX_AGENTS} agents); at this "
                                 "size `netsim run` (vectorised engine, [gains] method = "
                                 "'local' or 'auto') is supported")
-        return replace(self, weights=self.weights.toarray())
+        return replace(self, weights=cast(sp.csr_array, self.weights).toarray())
 
     @cached_property
     def links(self) -> list[tuple[int, int]]:
@@ -454,13 +455,12 @@ class Scenario:
         99.9 % quantile for unbounded ones) and serialisation."""
         if self.link_spec is not None and (self.link_spec.bound is not None
                                            or self.link_spec.sets_delays):
-            return self._links_bound(self._base_delay_model(0))
+            return self._links_bound(self.link_spec, self._base_delay_model(0))
         if self.delays.model in ("homogeneous", "heterogeneous", "synchronous", "asynchronous"):
             return int(self.delays.tau)
         return self.max_delay
 
-    def _links_bound(self, base: DelayModel) -> int:
-        spec = self.link_spec
+    def _links_bound(self, spec: LinksSpec, base: DelayModel) -> int:
         if spec.bound is not None:
             return int(spec.bound)
         if spec.sets_delays:
@@ -524,7 +524,7 @@ class Scenario:
             return base
         return self.link_spec.build(
             self.links, base, trial_seed, sample_period=self.sample_period,
-            tau=self._links_bound(base), n_states=self.plant.n_states,
+            tau=self._links_bound(self.link_spec, base), n_states=self.plant.n_states,
         )
 
     def _base_delay_model(self, trial_seed: SeedLike) -> DelayModel:
@@ -756,7 +756,10 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     if topology is None:
         raise ScenarioError("network.topology", "is missing (or give the matrix network.P)")
     if agents >= SPARSE_MIN_AGENTS:
-        return _parse_sparse_network(table, agents, topology, weights_spec, seed)
+        # CSR from SPARSE_MIN_AGENTS agents on (Scenario.weights is annotated as the
+        # dense array that every size below that gives)
+        return cast(np.ndarray, _parse_sparse_network(table, agents, topology, weights_spec,
+                                                      seed))
     if topology == "cycle":
         graph = directed_cycle(agents)
     elif topology == "random":
@@ -875,12 +878,12 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
     return P
 
 
-def _check_weights(P: np.ndarray | sp.sparray, key: str) -> None:
+def _check_weights(P: np.ndarray | sp.csr_array, key: str) -> None:
     try:
-        if sp.issparse(P):
-            check_sparse_consensus_matrix(P, key)
-        else:
+        if isinstance(P, np.ndarray):
             check_consensus_matrix(P, key)
+        else:
+            check_sparse_consensus_matrix(P, key)
     except NetworkError as exc:
         error = ScenarioError("", str(exc))  # the message already starts with the key
         error.key = key
@@ -993,7 +996,7 @@ def _parse_link_delay(value: Any, key: str, base: Path) -> DelayConfig:
             raise ScenarioError(f"{key}.file", str(exc)) from None
         return DelayConfig(replay, "asynchronous")
     units = _DISTRIBUTION_UNITS[name]
-    unit = _choice(table.get("unit", units[0]), f"{key}.unit", units)
+    unit = cast(Unit, _choice(table.get("unit", units[0]), f"{key}.unit", units))
 
     def num(k: str, default: float | None = None) -> float:
         return _number(table.get(k, default), f"{key}.{k}")
@@ -1204,7 +1207,7 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
         topology = _parse_topology(_section(data, "topology"), plant.n_sensors)
     if topology is not None and "network" not in data:
         # consensus weights of the union graph, for families that need a P
-        union = nx.DiGraph()
+        union: nx.DiGraph[int] = nx.DiGraph()
         union.add_nodes_from(range(plant.n_sensors))
         union.add_edges_from(topology.links())
         P = uniform_weights(union)

@@ -187,7 +187,7 @@ class GraphSequence:
         return frozenset(out)
 
     def digraph(self, step: int) -> nx.DiGraph:
-        g = nx.DiGraph()
+        g: nx.DiGraph[int] = nx.DiGraph()
         g.add_nodes_from(range(self.n_agents))
         g.add_edges_from(self.edges(step))
         return g
@@ -248,8 +248,8 @@ class LinkSchedule:
 
     def __init__(self, base: GraphSequence | Iterable[Sequence[int]], *,
                  n_agents: int | None = None,
-                 down: Mapping[Sequence[int], Iterable[Sequence[int | None]]] | None = None,
-                 duty: Mapping[Sequence[int], Sequence[int]] | None = None) -> None:
+                 down: Mapping[Edge, Iterable[tuple[int, int | None]]] | None = None,
+                 duty: Mapping[Edge, Sequence[int]] | None = None) -> None:
         if not isinstance(base, GraphSequence):
             if n_agents is None:
                 raise TopologyError("LinkSchedule over an edge set needs n_agents")

@@ -10,8 +10,8 @@ The rule
    non-finite is ``diverged`` (printed ``diverged at step k``); nothing else is judged.
 2. **Precision horizon** (:func:`precision_horizon`). On an unstable plant the state
    grows like rho(A)^k while the estimation error stays of the size of the noise; the
-   error x_k - x-hat_k is a difference of two numbers of size |x_k|, so its rounding is
-   about ``eps |x_k|``. The horizon is the first step where
+   error x_k - x-hat_k is a difference of two numbers of size ``|x_k|``, so its rounding
+   is about ``eps |x_k|``. The horizon is the first step where
    ``HORIZON_FACTOR * eps * max|x_k|`` (over the trials) reaches ``HORIZON_FRACTION`` of
    the error scale (the RMS error over the early steady state, steps K0/2..K0 of the
    steps before the state grows by 1e6 of its start, or the first half of the run).

@@ -114,6 +114,30 @@ class AnalysisReport:
     #: Predictions (Theorem 1's "stable for tau <= tau*") that the exact rho contradicts.
     contradictions: list[str] = field(default_factory=list)
 
+    def __repr__(self) -> str:
+        """One line (the rows are in ``rows``, ``to_dict()`` or ``_repr_html_``)."""
+        taus = f"tau {self.rows[0].tau}..{self.rows[-1].tau}" if self.rows else "no tau"
+        return (f"<AnalysisReport {self.scenario}: rho delay-free "
+                f"{self.rho_delay_free:.6g}, tau* {self.tau_star}, {taus}, "
+                f"{len(self.violations)} violation(s), "
+                f"{len(self.contradictions)} contradiction(s)>")
+
+    def _repr_html_(self) -> str:
+        """The homogeneous-delay rows as an HTML table (Jupyter), every value escaped."""
+        import html
+
+        heads = ("tau", "rho compensated", "eq. (26) bound", "verdict", "Theorem 1 stable",
+                 "rho uncompensated", "tolerant bound", "verdict")
+        body = "".join(
+            "<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in (
+                r.tau, f"{r.rho_compensated:.6g}", f"{r.bound_eq26:.6g}", r.verdict_eq26,
+                r.theorem1_predicts_stable, f"{r.rho_uncompensated:.6g}",
+                f"{r.bound_tolerant:.6g}", r.verdict_tolerant)) + "</tr>"
+            for r in self.rows)
+        head = "".join(f"<th>{html.escape(h)}</th>" for h in heads)
+        return (f"<div><p>{html.escape(repr(self))}</p><table><thead><tr>{head}</tr>"
+                f"</thead><tbody>{body}</tbody></table></div>")
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "scenario": self.scenario,

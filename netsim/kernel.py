@@ -170,6 +170,16 @@ class TrialResult:
     extras: dict[str, Any] = field(default_factory=dict)
     drops: list[tuple[int, int, int, float, str]] | None = None
 
+    def __repr__(self) -> str:
+        """A few lines (the arrays' shapes, not their values; issue 30)."""
+        fate = ("not diverged" if self.diverged_at is None
+                else f"diverged at step {self.diverged_at}")
+        return (f"<TrialResult steps 0..{len(self.states) - 1}, {fate}; messages "
+                f"{self.messages_sent} sent, {self.messages_delivered} delivered, "
+                f"{self.messages_dropped} dropped, {self.messages_discarded} discarded; "
+                f"states {self.states.shape}, estimates {self.estimates.shape}, "
+                f"squared_errors {self.squared_errors.shape}>")
+
 
 class Simulation:
     """One run: a plant, agents and links in a SimPy environment.

@@ -53,6 +53,23 @@ def test_repr_is_a_few_lines_naming_every_estimator(result):
         assert len(repr(result[name])) < 300
 
 
+def test_other_results_have_short_reprs(tmp_path):
+    """What run_one, analyze (a scenario or a trace) and read_trace return."""
+    trial = netsim.run_one("lcsys2022-heterogeneous", "compensated", steps=STEPS)
+    assert len(repr(trial)) < 400 and "(51, 4, 6)" in repr(trial)
+    report = netsim.analyze("lcsys2022-heterogeneous", tau_max=30)
+    assert len(repr(report)) < 400 and "tau 0..30" in repr(report)
+    parser = _Table()
+    parser.feed(report._repr_html_())
+    assert "table" in parser.tags and "30" in parser.cells
+    netsim.run("lcsys2022-heterogeneous", steps=STEPS, trials=1, estimators=["compensated"],
+               trace=tmp_path / "t.mcap")
+    trace = netsim.read_trace(tmp_path / "t.mcap")
+    assert len(repr(trace)) < 400 and "format 3" in repr(trace)
+    analysed = netsim.analyze(tmp_path / "t.mcap", tau_max=4)
+    assert len(repr(analysed)) < 400 and "compensated" in repr(analysed)
+
+
 class _Table(html.parser.HTMLParser):
     """The tags seen and the text of every table cell."""
 

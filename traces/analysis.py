@@ -363,6 +363,13 @@ class TraceAnalysis:
     verdicts: dict[str, str] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
 
+    def __repr__(self) -> str:
+        """One line (``format_text()`` gives the report)."""
+        rho = "-" if self.rho_exact_max is None else f"{self.rho_exact_max:.6g}"
+        return (f"<TraceAnalysis {self.path}: {self.family}, trial {self.trial}, steps "
+                f"0..{self.steps}, tau_obs {self.tau_obs}, rho max {rho}, "
+                f"{len(self.patterns)} pattern(s), verdicts on {', '.join(self.verdicts)}>")
+
     @property
     def max_pattern(self) -> PatternStats | None:
         """The delay pattern (no substitution, if any) with the largest rho."""

@@ -261,6 +261,13 @@ class Trace:
         if not self.file_topics and not self.file_counts:
             self.file_topics, self.file_counts = dict(self.topics), dict(self.counts)
 
+    def __repr__(self) -> str:
+        """One line: the file, its format and message count (not the records)."""
+        state = "truncated" if self.truncated else "finished"
+        return (f"<Trace {self.path}: format {self.format}, {state}, "
+                f"{len(self.messages)} message(s) on {len(self.topics)} topic(s), "
+                f"{len(self.lost_chunks)} lost chunk(s)>")
+
     @property
     def format(self) -> int:
         """Trace format: 1, 2 or 3 (from ``run.trace_format`` ``netsim-trace/<n>``)."""

@@ -1,8 +1,9 @@
-"""The README's "Findings so far" list is what `netsim claims` reports (issue 18).
+"""The documentation's "Findings so far" list (docs/findings.rst) is what `netsim claims`
+reports (issue 18).
 
 Every line of the generated block names one registry claim with its verdict, every
 claim has one line, and the claims that need neither a search nor a bench run are run
-here and must give the README's line exactly (the full comparison, searches included,
+here and must give the page's line exactly (the full comparison, searches included,
 is ``python -m netsim.claims.findings --check``, run by the slow test).
 """
 
@@ -14,10 +15,10 @@ from pathlib import Path
 import pytest
 
 from netsim.claims import CLAIM_IDS, REGISTRY, VERDICTS, run_claims
-from netsim.claims.findings import finding_line, main, readme_findings
+from netsim.claims.findings import finding_line, main, page_findings
 
-README = Path(__file__).resolve().parents[1] / "README.md"
-LINE = re.compile(r"^- `(?P<id>[A-Za-z0-9-]+)` \((?P<paper>[^,]+), .*?\): "
+PAGE = Path(__file__).resolve().parents[1] / "docs" / "findings.rst"
+LINE = re.compile(r"^- ``(?P<id>[A-Za-z0-9-]+)`` \((?P<paper>[^,]+), .*?\): "
                   r"\*\*(?P<verdict>[a-z ]+)\*\*")
 #: Claims whose checks need no search and no bench run (a few seconds together).
 CHEAP = ("L-decay", "L-lemma2", "L-lemma1", "L-lemma3", "L-corollary1", "L-rho", "L-tau-star",
@@ -27,7 +28,7 @@ CHEAP = ("L-decay", "L-lemma2", "L-lemma1", "L-lemma3", "L-corollary1", "L-rho",
 
 
 def _lines() -> list[str]:
-    return readme_findings(README.read_text(encoding="utf-8"))
+    return page_findings(PAGE.read_text(encoding="utf-8"))
 
 
 def test_every_finding_is_one_registry_claim_with_its_verdict():
@@ -53,9 +54,9 @@ def _roundoff_blind(line: str) -> str:
 def test_cheap_findings_equal_a_fresh_run():
     assert not any(REGISTRY[c].searches for c in CHEAP)
     report = run_claims([REGISTRY[c] for c in CHEAP], seed=0, workers=1)
-    readme = {LINE.match(ln)["id"]: ln for ln in _lines()}
+    page = {LINE.match(ln)["id"]: ln for ln in _lines()}
     for r in report.results:
-        assert _roundoff_blind(readme[r.claim.id]) == _roundoff_blind(finding_line(r)), (
+        assert _roundoff_blind(page[r.claim.id]) == _roundoff_blind(finding_line(r)), (
             r.claim.id)
 
 
@@ -66,5 +67,24 @@ def test_roundoff_blind_keeps_every_other_number():
 
 
 @pytest.mark.slow
-def test_readme_findings_are_the_full_report():
-    assert main([str(README), "--check"]) == 0
+def test_page_findings_are_the_full_report():
+    assert main([str(PAGE), "--check"]) == 0
+
+
+def test_markdown_form_and_markers_round_trip():
+    from netsim.claims.findings import (
+        END,
+        RST_END,
+        RST_START,
+        START,
+        _rst_text,
+        replace_findings,
+    )
+
+    assert _rst_text("tau* |x| a_b `c` \\") == "tau\\* \\|x\\| a\\_b \\`c\\` \\\\"
+    for start, end in ((RST_START, RST_END), (START, END)):
+        text = f"head\n\n{start}\n\n- old\n\n{end}\ntail\n"
+        assert page_findings(text) == ["- old"]
+        new = replace_findings(text, f"{start}\n\n- new\n\n{end}")
+        assert page_findings(new) == ["- new"] and new.startswith("head") and new.endswith(
+            "tail\n")

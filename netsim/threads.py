@@ -31,10 +31,15 @@ from __future__ import annotations
 import contextlib
 import threading
 from collections.abc import Iterator
+from typing import Any
 
 __all__ = ["single_threaded_blas", "limit_worker_threads"]
 
-_state = threading.local()
+#: Open :func:`single_threaded_blas` blocks in this process (any thread), and the
+#: limiter the first one set (restored when the last one closes).
+_lock = threading.Lock()
+_open = 0
+_limiter: Any = None
 
 
 @contextlib.contextmanager
@@ -42,29 +47,30 @@ def single_threaded_blas() -> Iterator[None]:
     """Limit the process's BLAS thread pools to one thread while the block runs.
 
     Usable as ``with single_threaded_blas():`` or as a decorator
-    (``@single_threaded_blas()``). Nested uses cost nothing: only the outermost one
-    sets and restores the limit (about a millisecond, so it belongs at entry points,
-    never inside a loop).
+    (``@single_threaded_blas()``). Nested (or concurrent, from several threads) uses
+    cost nothing: the first one to open sets the limit and the last one to close
+    restores the pools as they were (setting it takes about a millisecond, so it
+    belongs at entry points, never inside a loop).
 
     Yields
     ------
     None
     """
-    if getattr(_state, "depth", 0):
-        _state.depth += 1
-        try:
-            yield
-        finally:
-            _state.depth -= 1
-        return
-    from threadpoolctl import threadpool_limits
+    global _open, _limiter
+    with _lock:
+        if _open == 0:
+            from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=1, user_api="blas"):
-        _state.depth = 1
-        try:
-            yield
-        finally:
-            _state.depth = 0
+            _limiter = threadpool_limits(limits=1, user_api="blas")
+        _open += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _open -= 1
+            if _open == 0:
+                limiter, _limiter = _limiter, None
+                limiter.restore_original_limits()
 
 
 def limit_worker_threads() -> None:

@@ -1,7 +1,8 @@
 """The ``netsim`` command line.
 
 Exit codes: 0 success (an estimator that diverged is a result, not an error);
-2 bad input (scenario, arguments);
+2 bad input (scenario, arguments; an optional dependency not installed: the message
+names the extra, netsim.extras);
 3 gain design failed; 130 interrupted.
 """
 
@@ -32,6 +33,7 @@ from netsim.cliutil import (
     note_kernel_fallbacks,
     scenario_warnings,
 )
+from netsim.extras import MissingExtra
 from netsim.models.jsonsafe import json_number as _num
 
 # CommandError and the exit codes live in netsim.cliutil (shared with netsim.bench);
@@ -1083,6 +1085,10 @@ def _cmd_layout(args: argparse.Namespace) -> int:
         raise CommandError(f"-o {args.output}: the layout must be a .json file")
     if args.figure is not None and not args.figure.lower().endswith(".png"):
         raise CommandError(f"--figure {args.figure}: the figure must be a .png file")
+    if args.figure is not None:  # before the layout is written
+        from netsim.extras import require
+
+        require("matplotlib", "plot", "--figure")
     from netsim.outfiles import OutputFileError, atomic_output, check_output
 
     out = layout_path_for(args.trace) if args.output is None else Path(args.output)
@@ -1261,6 +1267,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
+    from netsim.extras import require
+
+    require("matplotlib", "plot", "netsim reproduce (its figures)")
     from netsim.reproduce import cmd_reproduce
 
     return cmd_reproduce(args)
@@ -1297,6 +1306,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return exc.code
     except ResourceError as exc:  # refused before allocating (netsim.budget)
+        sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
+        return EXIT_BAD_INPUT
+    except MissingExtra as exc:  # an optional dependency (netsim.extras): pip install ...
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

@@ -333,11 +333,9 @@ class SchedulerUnreachable(ValueError):
 
 class _Dask:
     def __init__(self, address: Any) -> None:
-        try:
-            from distributed import Client
-        except ImportError:  # pragma: no cover - dask is a dependency
-            raise RuntimeError("Dask executor needs the 'distributed' package "
-                               "(pip install 'dask[distributed]')") from None
+        from netsim.extras import require
+
+        Client = require("distributed", "dask", "the Dask executor (--dask)").Client
         if isinstance(address, Client):
             self.client, self.own = address, False
         else:

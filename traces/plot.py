@@ -30,9 +30,15 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-from matplotlib.axes import Axes
-from matplotlib.figure import Figure
-from matplotlib.ticker import MaxNLocator
+
+from netsim.extras import missing
+
+try:
+    from matplotlib.axes import Axes
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import MaxNLocator
+except ModuleNotFoundError as _error:  # matplotlib is the plot extra
+    raise missing(_error.name or "matplotlib", "plot", "plotting traces") from None
 from netsim.models.augmented import (
     augmented_spectral_radius,
     delay_bound_lcsys,

@@ -178,6 +178,7 @@ def cmd_bench(args: Any) -> int:
 
 def _executor(args: Any) -> dict[str, Any]:
     if args.dask:
+        _require("distributed", "dask", "--dask")
         return {"executor": "dask", "dask_address": args.dask, "workers": args.workers}
     return {"executor": "serial" if args.workers == 1 else "local", "workers": args.workers}
 
@@ -201,6 +202,8 @@ def _cmd_delay_tolerance(args: Any) -> int:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     if args.plot and not args.plot.lower().endswith(".png"):
         raise CommandError(f"--plot {args.plot}: the output must be a .png file")
+    if args.plot:  # before the runs, not after them
+        _require("matplotlib", "plot", "--plot")
     _check_outputs(args.scenario, [("--plot", args.plot, True), ("--resume", args.resume, False)],
                    getattr(args, "force", False))
     try:
@@ -383,6 +386,17 @@ def _cmd_sweep(args: Any) -> int:
         lines.append(f"  {p}: {verdicts}")
     sys.stdout.write("\n".join(lines) + "\n")
     return 0
+
+
+def _require(module: str, extra: str, needed_for: str) -> None:
+    """An optional dependency (:func:`netsim.extras.require`), else CommandError."""
+    from netsim.cliutil import CommandError
+    from netsim.extras import MissingExtra, require
+
+    try:
+        require(module, extra, needed_for)
+    except MissingExtra as exc:
+        raise CommandError(str(exc)) from None
 
 
 def main(argv: Sequence[str] | None = None) -> int:

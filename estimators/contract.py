@@ -20,9 +20,10 @@ used by the last update; -1 when the agent substituted its own),
 and an ``out`` parameter of ``step`` (``step(k, y, out)`` may write the estimate into
 the host's row ``out``, shape (n,), float64, and return it).
 
-Example
--------
+Examples
+--------
 >>> import numpy as np
+>>> from netsim.estimators.contract import check_estimator
 >>> class Hold:
 ...     def __init__(self, n):
 ...         self.estimate = np.zeros(n)

@@ -4,8 +4,8 @@ Everything here is re-exported by ``import netsim`` (lazily, so that importing a
 submodule such as ``netsim.models`` stays light). The command line is built on the
 same functions.
 
-Example
--------
+Examples
+--------
 >>> import netsim
 >>> scenario = netsim.load_scenario("lcsys2022-heterogeneous")
 >>> run = netsim.run(scenario, steps=50, trials=2, estimators=["compensated"])
@@ -81,6 +81,23 @@ def load_scenario(source: str | os.PathLike[str] | Mapping[str, Any]) -> Scenari
     ScenarioError
         Naming the first offending key (an estimator that does not resolve is
         ``run.estimators[i]``).
+
+    Examples
+    --------
+    >>> import netsim
+    >>> scenario = netsim.load_scenario("lcsys2022-heterogeneous")
+    >>> scenario.name, scenario.n_agents
+    ('lcsys2022-heterogeneous', 4)
+    >>> scenario.with_tau(8).delay_bound      # a copy with another delay bound
+    8
+
+    A dict with the TOML's structure works too; a wrong key is named:
+
+    >>> netsim.load_scenario({"name": "x", "plant": {"A": [[1.0]], "C": [[[1.0]]]},
+    ...                       "network": {"P": [[1.0]]}, "run": {"stepz": 3}})
+    Traceback (most recent call last):
+    ...
+    netsim.models.scenario.ScenarioError: run.stepz: unknown key; allowed: ...
     """
     if isinstance(source, Mapping):
         scenario = parse_scenario(dict(source), source="")
@@ -118,8 +135,8 @@ def register_estimator(estimator: Any, name: str | None = None, *,
         Overrides of :class:`EstimatorFamily` fields (``needs_gains``, ``batched``,
         ``description``, ...).
 
-    Example
-    -------
+    Examples
+    --------
     >>> import numpy as np, netsim
     >>> class Hold:          # keeps its prior: the worst sensible estimator
     ...     def __init__(self, setup):
@@ -143,7 +160,17 @@ def register_estimator(estimator: Any, name: str | None = None, *,
 
 
 def design_gains(scenario: Scenario) -> GainDesign:
-    """The innovation gains the scenario's consensus estimators use (its ``[gains]``)."""
+    """The innovation gains the scenario's consensus estimators use (its ``[gains]``).
+
+    The design is cached on disk (``$NETSIM_CACHE_DIR``, default
+    ``~/.cache/netsim/gains``); ``netsim design`` prints the same.
+
+    Examples
+    --------
+    >>> import netsim
+    >>> gains = netsim.design_gains(netsim.load_scenario("lcsys2022-heterogeneous"))
+    >>> gains.method, round(gains.rho, 4), len(gains.L)
+    ('block-diagonal-lmi-bisection', 0.8276, 4)"""
     from netsim.runner import scenario_gains
 
     return scenario_gains(scenario)
@@ -257,8 +284,8 @@ class RunResult:
     gives the errors, estimates, states, effective delays or drops as a tidy pandas
     table, and :meth:`to_csv` / :meth:`to_parquet` write them.
 
-    Example
-    -------
+    Examples
+    --------
     >>> import netsim
     >>> result = netsim.run("lcsys2022-heterogeneous", steps=50, trials=2,
     ...                     estimators=["compensated", "centralized-kf"])
@@ -382,8 +409,8 @@ class RunResult:
             The axes (its figure is ``ax.figure``). The line of family ``f`` has the
             label ``f`` and the data ``summary[f].mse`` (NaN where no trial counts).
 
-        Example
-        -------
+        Examples
+        --------
         >>> ax = result.plot()                       # doctest: +SKIP
         >>> ax.figure.savefig("mse.png")             # doctest: +SKIP
         """
@@ -450,8 +477,8 @@ class RunResult:
             For an unknown ``what``; for ``delays`` or ``drops`` of a run that did
             not record them (a traced :func:`run` keeps neither: read the trace).
 
-        Example
-        -------
+        Examples
+        --------
         >>> frame = result.to_dataframe(what="estimates")       # doctest: +SKIP
         >>> frame.groupby(["family", "step"]).estimate.mean()   # doctest: +SKIP
         """
@@ -591,6 +618,18 @@ def run(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any], *,
     Returns
     -------
     RunResult
+
+    Examples
+    --------
+    >>> import netsim
+    >>> result = netsim.run("lcsys2022-heterogeneous", steps=50, trials=2,
+    ...                     estimators=["compensated", "centralized-kf"])
+    >>> list(result)
+    ['compensated', 'centralized-kf']
+    >>> result["compensated"].squared_errors.shape      # (trials, K+1, N)
+    (2, 51, 4)
+    >>> result.summary["compensated"].verdict
+    'stable'
     """
     from netsim.runner import run_monte_carlo
 
@@ -620,6 +659,18 @@ def run_one(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any],
     The trial's randomness is the same as trial ``trial`` of :func:`run` with the same
     seed. Returns a :class:`netsim.kernel.TrialResult` (states (K+1, n), estimates
     (K+1, N, n), squared_errors (K+1, N), effective_delays (K+1, N, N), counts).
+
+    Examples
+    --------
+    >>> import numpy as np, netsim
+    >>> one = netsim.run_one("lcsys2022-heterogeneous", "compensated", trial=1, steps=50)
+    >>> one.squared_errors.shape                        # (K+1, N)
+    (51, 4)
+    >>> batch = netsim.run("lcsys2022-heterogeneous", steps=50, trials=2,
+    ...                    estimators=["compensated"])  # the vectorised engine
+    >>> np.allclose(one.squared_errors, batch["compensated"].squared_errors[1],
+    ...             rtol=1e-9, atol=1e-12)
+    True
     """
     from netsim.runner import family_of, run_trial, scenario_gains
 
@@ -639,6 +690,13 @@ def analyze(scenario: Scenario | str | os.PathLike[str], tau_max: int = 30) -> A
     ``scenario``: a Scenario or what :func:`load_scenario` takes; a path ending in
     ``.mcap`` analyses a trace instead (:func:`netsim.traces.analysis.analyze_trace`).
     Returns the report object (``to_dict()``, ``format_text()`` where available).
+
+    Examples
+    --------
+    >>> import netsim
+    >>> report = netsim.analyze("lcsys2022-homogeneous", tau_max=8)
+    >>> report.tau_star, round(report.rho_delay_free, 4)
+    (8, 0.8276)
     """
     if isinstance(scenario, str | os.PathLike) and Path(scenario).suffix == ".mcap":
         from netsim.traces.analysis import analyze_trace
@@ -652,7 +710,21 @@ def analyze(scenario: Scenario | str | os.PathLike[str], tau_max: int = 30) -> A
 
 
 def read_trace(path: str | os.PathLike[str]) -> Any:
-    """Read an MCAP trace written by netsim (:class:`netsim.traces.reader.Trace`)."""
+    """Read an MCAP trace written by netsim (:class:`netsim.traces.reader.Trace`).
+
+    Formats 1, 2 and 3 are read alike (a format-3 file is shown as its format-2 view;
+    ``Trace.file_topics`` lists the file's own topics).
+
+    Examples
+    --------
+    >>> import netsim
+    >>> _ = netsim.run("lcsys2022-heterogeneous", steps=20, trials=1,
+    ...                estimators=["compensated"], trace="run.mcap")
+    >>> trace = netsim.read_trace("run.mcap")
+    >>> trace.estimates().shape                         # (K+1, N, n)
+    (21, 4, 6)
+    >>> "/agents/estimate" in trace.file_topics
+    True"""
     from netsim.traces.reader import read_trace as read
 
     return read(os.fspath(path))

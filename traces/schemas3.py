@@ -48,6 +48,12 @@ plant step's time); ``LinkDeliveries.accepted`` lists, for each of them in incre
 (link l, s), whether the receiver kept it (False: older than one it holds). Which
 messages they are and their delays and arrival times are in ``/links/sent``.
 
+Drops per link: ``LinkDrops.link_reason[l]`` is, for every link l, the largest reason
+code of the messages link l lost in the message's sample period, 0 for none (written for
+networks of at most :data:`MAX_LINK_REASON_LINKS` links, else empty; traces of earlier
+versions do not have it): one plottable series per link (``link``, ``sent_step`` and
+``reason`` list the drops in the order they happened).
+
 Sentinels: :data:`ABSENT` (-3) in an integer array marks an entry with nothing to say
 (no message sent on that link at k, an agent that did not report that neighbour);
 ``Estimates.updated[i]`` is 0 when agent i did not update at k (its values are NaN).
@@ -72,6 +78,7 @@ __all__ = [
     "TOPICS",
     "LAYOUT_METADATA",
     "ABSENT",
+    "MAX_LINK_REASON_LINKS",
     "file_descriptor_proto",
     "file_descriptor_set",
     "message_classes",
@@ -92,6 +99,8 @@ PROTO_PATH = Path(__file__).with_name("netsim_trace_v3.proto")
 LAYOUT_METADATA = "trace_layout"
 #: Integer sentinel: nothing to say for this entry at this step.
 ABSENT = -3
+#: ``LinkDrops.link_reason`` is written for networks of at most this many links.
+MAX_LINK_REASON_LINKS = 4096
 
 _F = descriptor_pb2.FieldDescriptorProto
 _ONE, _MANY = _F.LABEL_OPTIONAL, _F.LABEL_REPEATED
@@ -138,6 +147,7 @@ MESSAGES: dict[str, tuple[Field, ...]] = {
         _r("sent_step", 4, _UINT32),
         _r("reason", 5, _UINT32),
         _r("drop_time", 6),
+        _r("link_reason", 7, _UINT32),
     ),
 }
 

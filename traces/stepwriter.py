@@ -33,6 +33,7 @@ from mcap.well_known import MessageEncoding, SchemaEncoding
 from netsim.traces.schemas3 import (
     ABSENT,
     LAYOUT_METADATA,
+    MAX_LINK_REASON_LINKS,
     TOPICS,
     file_descriptor_set,
     schema_name,
@@ -52,6 +53,23 @@ def drop_bucket(drop_time: float, sample_period: float) -> int:
     """The step whose ``/links/dropped`` message lists a drop at ``drop_time``: the
     first k with k Ts >= drop_time (times within 1e-9 steps of k Ts count as k Ts)."""
     return int(math.ceil(drop_time / sample_period - 1e-9))
+
+
+def link_reasons(link: Column, reason: Column, rows: int, n_links: int) -> Column:
+    """``LinkDrops.link_reason`` of ``rows`` messages: per message and link l, the largest
+    reason code of link l's drops in it (0 none); no values beyond
+    :data:`netsim.traces.schemas3.MAX_LINK_REASON_LINKS` links."""
+    if not 0 < n_links <= MAX_LINK_REASON_LINKS:
+        return Column(np.zeros(0, dtype=np.uint32), np.zeros(rows, dtype=np.int64))
+    counts = (np.full(rows, link.values.shape[1], dtype=np.int64) if link.counts is None
+              else np.asarray(link.counts, dtype=np.int64))
+    row = np.repeat(np.arange(rows), counts)
+    table = np.zeros((rows, n_links), dtype=np.uint32)
+    links = np.asarray(link.values, dtype=np.int64).ravel()
+    known = links < n_links
+    np.maximum.at(table, (row[known], links[known]),
+                  np.asarray(reason.values, dtype=np.uint32).ravel()[known])
+    return Column(table)
 
 
 @functools.cache
@@ -75,6 +93,7 @@ class StepWriter:
         self._schemas: dict[str, int] = {}
         self._channels: dict[str, int] = {}
         self._layout_written: dict[str, str] | None = None
+        self._n_links = 0
 
     def channel(self, type_name: str) -> int:
         """The channel id of a message type's topic (registered on first use)."""
@@ -92,6 +111,7 @@ class StepWriter:
         """Write the ``trace_layout`` metadata record (again when it changed: readers
         take the last one; every list in it only grows, so an index never moves)."""
         record = {str(k): json.dumps(v, separators=(",", ":")) for k, v in layout.items()}
+        self._n_links = len(layout.get("links", ()))
         if record != self._layout_written:
             self.writer.add_metadata(LAYOUT_METADATA, record)
             self._layout_written = record
@@ -104,6 +124,9 @@ class StepWriter:
         if not rows:
             return
         recorder = self.recorder
+        if type_name == "LinkDrops" and "link_reason" not in columns:
+            columns = {**columns, "link_reason": link_reasons(
+                columns["link"], columns["reason"], rows, self._n_links)}
         time = np.asarray(time, dtype=float)
         log_time = (np.round(time * 1e9).astype(np.int64)
                     + np.int64(recorder.time_origin_ns)).astype(np.uint64)

@@ -68,7 +68,7 @@ from __future__ import annotations
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from netsim.estimators.errors import GainDesignError
@@ -232,9 +232,9 @@ def rate_gain(A: ArrayLike, C: ArrayLike, rho: float,
         raise GainDesignError(f"rate design needs rho > 0 (use deadbeat for 0), got {rho}")
     if poles is None:
         poles = [rho * (1.0 - 0.5 * t / n) for t in range(n)]
-    poles = np.asarray(poles, dtype=float)
-    if poles.shape != (n,) or len(set(poles.tolist())) != n:
-        raise GainDesignError(f"need {n} distinct poles, got {poles.tolist()}")
+    wanted = np.asarray(poles, dtype=float)
+    if wanted.shape != (n,) or len(set(wanted.tolist())) != n:
+        raise GainDesignError(f"need {n} distinct poles, got {wanted.tolist()}")
     u, s, vt = np.linalg.svd(C, full_matrices=False)
     scale = max(float(np.linalg.norm(A, 2)), float(s[0]) if s.size else 0.0)
     r = int(np.sum(s > 1e-10 * scale))
@@ -242,14 +242,14 @@ def rate_gain(A: ArrayLike, C: ArrayLike, rho: float,
         raise GainDesignError("the pair is not observable (C = 0)")
     Cr = s[:r, None] * vt[:r]  # r x n, C = u[:, :r] Cr
     try:
-        result = place_poles(A.T, Cr.T, poles)
+        result = place_poles(A.T, Cr.T, wanted)
     except ValueError as exc:
         raise GainDesignError(f"pole placement failed: {exc}") from None
     Lr = result.gain_matrix.T  # n x r
     L = Lr @ u[:, :r].T
     got = np.sort(np.linalg.eigvals(A - L @ C).real)
-    if not np.allclose(got, np.sort(poles), rtol=1e-6, atol=1e-8 * max(1.0, scale)):
-        raise GainDesignError(f"poles placed at {got.tolist()}, wanted {sorted(poles)}")
+    if not np.allclose(got, np.sort(wanted), rtol=1e-6, atol=1e-8 * max(1.0, scale)):
+        raise GainDesignError(f"poles placed at {got.tolist()}, wanted {sorted(wanted)}")
     return L
 
 
@@ -625,7 +625,8 @@ class FreshnessObserver(_SubstateObserverBase):
             return tied[0]
         if self.tie_rule == "highest":
             return tied[-1]
-        return tied[int(self._rng.integers(len(tied)))]
+        rng = cast(np.random.Generator, self._rng)  # tie_rule "random" has one
+        return tied[int(rng.integers(len(tied)))]
 
     def _neighbour_value(self, k: int, j: int, sent: int, msg: AoIMessage,
                          z_old: np.ndarray) -> tuple[int, np.ndarray]:
@@ -732,7 +733,8 @@ class NaiveConsensusObserver(_SubstateObserverBase):
                     for u in others:
                         used[u] = 0
             else:
-                p = self._parent(j, self.agent, k - 1)
+                parent = cast("Callable[[int, int, int], int | None]", self._parent)  # tree: given
+                p = parent(j, self.agent, k - 1)
                 if p is not None and p in heard:
                     mix = heard[p][1].z[blk]
                     adopted[j] = p
@@ -1001,7 +1003,8 @@ def aoi_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
                       axis=(0, 2))
     conv = [_converged_at(e, t.states, t.diverged_at is not None) if noise_free else None
             for e, t in zip(errs, trials, strict=True)]
-    converged_at = max(conv) if conv and all(c is not None for c in conv) else None
+    known = [c for c in conv if c is not None]
+    converged_at = max(known) if conv and len(known) == len(conv) else None
     growths = [_growth(e) for e in errs]
     growth = max((g for g in growths if math.isfinite(g)), default=math.nan)
     if diverged:

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
@@ -246,23 +247,27 @@ class _ConsensusBase:
             vectors = [own, *(v for v in self._payloads if v is not None), y]
         else:
             # every neighbour heard from: the lags k - s_j, straight into the key
-            used = key = (exponent, *[k - s for s in stamps])
-            vectors = [own, *self._payloads, y]
+            heard = cast("list[int]", stamps)  # no None left (no silent neighbour)
+            used = key = (exponent, *[k - s for s in heard])
+            vectors = [own, *cast("list[np.ndarray]", self._payloads), y]
         operator = self._operators.get(key)
         if operator is None:
-            lags = key[1:]
+            key_lags = key[1:]
             # a lag k - s_j < 1 is never cached, so checking here catches it (the
             # full check only when some lag is below 1: a silent neighbour's is -1)
-            if min(lags, default=1) < 1:
-                self._check_lags(k, lags)
-            operator = self._operator(exponent, lags)
+            if min(key_lags, default=1) < 1:
+                self._check_lags(k, key_lags)
+            operator = self._operator(exponent, key_lags)
             if self._operator_room >= operator.nbytes:
                 self._operator_room -= operator.nbytes
                 self._operators[key] = operator
         self._used = used
         if self._float_inputs and getattr(y, "dtype", None) is _FLOAT64:
             try:
-                return operator.dot(_from_bytes(_join_bytes(vectors)), out)
+                # numpy's stubs give ndarray the buffer protocol (__buffer__) only for
+                # Python >= 3.12; b"".join takes arrays on 3.11 too.
+                return operator.dot(_from_bytes(_join_bytes(vectors)),  # type: ignore[arg-type]
+                                    out)
             except TypeError:  # a vector that is not contiguous
                 pass
         return self._written(operator.dot(np.concatenate(vectors)), out)
@@ -437,8 +442,8 @@ def _consensus_agents(make: type[_ConsensusBase] | None, block: bool = False):
         for i in range(scenario.n_agents):
             params = ConsensusParameters(agent=i, weights=P[i], A=plant.A, C=plant.C[i],
                                          L=gains.L[i], prior=plant.x0_mean)
-            estimator = (BlockUpdateEstimator(params, scenario.delay_bound) if block
-                         else make(params))
+            estimator = (BlockUpdateEstimator(params, scenario.delay_bound)
+                         if block or make is None else make(params))
             plans.append(AgentPlan(estimator, (i,), tuple(sorted(graph.successors(i)))))
         return plans
 

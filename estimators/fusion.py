@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast, overload
 
 import numpy as np
 import scipy.linalg as sla
@@ -184,7 +184,8 @@ class SinkNode:
         if self._selector is not None:
             idx = np.asarray(self._selector(k, batch), dtype=np.int64).reshape(batch)
         else:
-            idx = np.asarray(self.selection.draw(self._rng, size=batch), dtype=np.int64)
+            rng = cast(np.random.Generator, self._rng)  # given when there is no selector
+            idx = np.asarray(self.selection.draw(rng, size=batch), dtype=np.int64)
         values = np.take_along_axis(x, self._components[idx], axis=1)
         self._x = x
         self.last_step = k
@@ -322,17 +323,25 @@ class FusionCentre:
         self.arrivals[(i, int(sent_step))] = usable
         return True
 
+    @overload
+    def _shape(self, x: np.ndarray) -> np.ndarray: ...
+
+    @overload
+    def _shape(self, x: None) -> None: ...
+
     def _shape(self, x: np.ndarray | None) -> np.ndarray | None:
         if x is None:
             return None
         if self._scalar:
             return x[0]
-        return np.broadcast_to(x, (self.batch, self.n))
+        return np.broadcast_to(x, (cast(int, self.batch), self.n))  # batched: batch given
 
     @property
     def estimate(self) -> np.ndarray:
         """The DKFE (``output="dkfe"``) or the SDKFE, shape (n,) or (B, n)."""
-        return self._shape(self._dkfe if self.output == "dkfe" else self._sdkfe)
+        # the SDKFE is None only before the first step
+        return self._shape(self._dkfe if self.output == "dkfe"
+                           else cast(np.ndarray, self._sdkfe))
 
     @property
     def dkfe(self) -> np.ndarray:
@@ -737,7 +746,8 @@ class FusionCovariance:
         weights, P, _ = optimal_weights(Xi, self.L, self.n) if Xi is not None and np.all(
             np.isfinite(Xi)) else ([np.full((self.n, self.n), np.nan)] * self.L,
                                    np.full((self.n, self.n), np.nan), "")
-        return SteadyState(Xi, P, weights, rec.t, False, change)
+        # Xi is None only when max_steps < 0 (no step taken)
+        return SteadyState(cast(np.ndarray, Xi), P, weights, rec.t, False, change)
 
 
 def paper_xi_ii_steady_state(A: np.ndarray, Q: np.ndarray, Phi: np.ndarray, G: np.ndarray,
@@ -886,9 +896,10 @@ def run_lockstep(setup: DkfeSetup, steps: int, trials: int, seed: Any, *,
         states[k] = x
         for i, sink in enumerate(sinks):
             local[k, i] = sink.step(k, ys[i])
-            sel[k, i] = sink.last_payload.index
+            payload = cast(SelectedComponents, sink.last_payload)  # set by the step
+            sel[k, i] = payload.index
             if setup.delays[i] > 0:
-                pending.append((k + setup.delays[i], i, sink.last_payload))
+                pending.append((k + setup.delays[i], i, payload))
         ready = [p for p in pending if p[0] == k + 1]
         pending = [p for p in pending if p[0] != k + 1]
         centre.step(k)
@@ -1062,7 +1073,7 @@ def _fusion_agents(output: str) -> Any:
         if output == "odkfe":  # the paper's benchmark: every selection used at once
             centre = FusionCentre(setup.A, [0] * L, setup.selections, setup.x0_mean, ocov,
                                   direct=dict(enumerate(sinks)), on_missing=on_missing)
-            links = [() for _ in range(L)]
+            links: list[tuple[int, ...]] = [() for _ in range(L)]
         else:
             steady = _steady(setup)[0].weights if output == "sdkfe" else None
             direct = {i: sinks[i] for i in range(L) if setup.delays[i] == 0}

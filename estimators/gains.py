@@ -1072,7 +1072,7 @@ def design_gains(
         return design_local(P, A, C, tau1=tau1)
     if _sparse(P):
         raise GainDesignError(
-            f"method {method!r} needs the dense N x N consensus matrix (N = {P.shape[0]}): "
+            f"method {method!r} needs the dense N x N consensus matrix (N = {np.shape(P)[0]}): "
             "use [gains] method = 'local' or 'auto' for large sparse networks")
     P_arr, A_arr, C_list = check_system(P, A, C)
     if rate is not None and not (np.isfinite(rate) and rate > 0):
@@ -1122,7 +1122,7 @@ def design_gains(
             )
             note = f"{note}; {extra}" if note else extra
 
-    common = dict(
+    common: dict[str, Any] = dict(
         rate=rate,
         bisect=bisect,
         margin=margin,
@@ -1164,7 +1164,6 @@ def _lemma1_structural(P: Any, A: np.ndarray, stacked: np.ndarray) -> str:
     (P kron A, D_C-bar), checked in O(N + nnz(P)): A structurally full rank, (A, C)
     structurally observable (C: the distinct output rows, each at most n times), P
     irreducible (strongly connected, scipy.sparse.csgraph) and self-damped."""
-    import scipy.sparse as sp
     from netsim.models.network import links_from_weights, strongly_connected
     from netsim.models.observability import (
         is_structurally_full_rank,
@@ -1177,7 +1176,7 @@ def _lemma1_structural(P: Any, A: np.ndarray, stacked: np.ndarray) -> str:
     rows, counts = np.unique(sparsity_pattern(stacked), axis=0, return_counts=True)
     C_pat = np.repeat(rows, np.minimum(counts, n), axis=0)
     N = P.shape[0]
-    diag = P.diagonal() if sp.issparse(P) else np.diag(np.asarray(P))
+    diag = P.diagonal() if _sparse(P) else np.diag(np.asarray(P))
     conditions = {
         "A structurally full rank": is_structurally_full_rank(A_pat),
         "(A, C) structurally observable": is_structurally_observable(A_pat, C_pat),
@@ -1465,7 +1464,7 @@ def refine_gains(
     def unpack(x: np.ndarray) -> list[np.ndarray]:
         return [p.reshape(s) for p, s in zip(np.split(x, splits), shapes, strict=True)]
 
-    best = {"f": math.inf, "x": None}
+    best: dict[str, Any] = {"f": math.inf, "x": None}  # best value and point so far
     evals = {"n": 0}
 
     def f_and_grad(x: np.ndarray) -> tuple[float, np.ndarray]:
@@ -1513,8 +1512,11 @@ def refine_gains(
             if not best["f"] < before - 1e-9:
                 break
         if x0.size <= 60:
+            def value(z: np.ndarray) -> float:
+                return f_and_grad(z)[0]
+
             res = minimize(
-                lambda z: f_and_grad(z)[0],
+                value,
                 best["x"],
                 method="Nelder-Mead",
                 options={

@@ -61,6 +61,7 @@ def single_threaded_blas() -> Iterator[None]:
         if _open == 0:
             from threadpoolctl import threadpool_limits
 
+            _load_blas()
             _limiter = threadpool_limits(limits=1, user_api="blas")
         _open += 1
     try:
@@ -82,4 +83,13 @@ def limit_worker_threads() -> None:
     """
     from threadpoolctl import threadpool_limits
 
+    _load_blas()
     threadpool_limits(limits=1, user_api="blas")
+
+
+def _load_blas() -> None:
+    """Load the BLAS libraries netsim computes with (numpy's and scipy's own), so that
+    the limit reaches them: threadpoolctl limits only libraries already loaded (a fresh
+    ``forkserver`` or ``spawn`` worker has loaded none)."""
+    import numpy  # noqa: F401
+    import scipy.linalg  # noqa: F401

@@ -362,8 +362,19 @@ def test_blas_is_single_threaded_only_while_netsim_works():
             netsim.run("lcsys2022-heterogeneous", steps=3, trials=1, estimators=["probe"])
             after = blas()
             workers = ordered_map(in_worker, [0, 1], workers=2)
+        # a fresh worker (forkserver: a local sweep's, the claims searches') has loaded
+        # no BLAS when its initialiser runs
+        import multiprocessing
+        from concurrent.futures import ProcessPoolExecutor
+        from netsim.threads import limit_worker_threads
+
+        context = multiprocessing.get_context("forkserver")
+        with ProcessPoolExecutor(1, mp_context=context,
+                                 initializer=limit_worker_threads) as pool:
+            fresh = [p["num_threads"] for p in pool.submit(threadpool_info).result()
+                     if p["user_api"] == "blas"]
         print(json.dumps({"before": before, "inside": seen, "after": after,
-                          "workers": workers}))
+                          "workers": workers, "fresh": fresh}))
     """)
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
                          check=True, cwd=ROOT, env=_clean_env(), timeout=300)
@@ -371,3 +382,4 @@ def test_blas_is_single_threaded_only_while_netsim_works():
     assert got["before"] and got["before"] == got["after"]
     assert got["inside"] and all(n == [1] * len(got["before"]) for n in got["inside"])
     assert got["workers"] == [[1] * len(got["before"])] * 2
+    assert got["fresh"] and set(got["fresh"]) == {1}

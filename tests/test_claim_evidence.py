@@ -171,17 +171,18 @@ def test_no_counterexample_needs_its_evidence_and_undecided_its_reason():
     assert ScalarInstance(1.0, ((1.0,),), (1.0,), (0.5,)).N == 1
 
 
-def test_the_verdict_words_are_explained_in_the_readme_and_in_help(capsys):
+def test_the_verdict_words_are_explained_in_the_docs_and_in_help(capsys):
     from pathlib import Path
 
     from netsim.claims import VERDICTS
     from netsim.verdicts import VERDICT_TABLE
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
-    table = readme.split("## Verdicts", 1)[1].split("\n## ", 1)[0]
+    page = Path(__file__).resolve().parents[1] / "docs" / "concepts" / "verdicts.rst"
+    # the page's verdict table: the list-table before the first section
+    table = page.read_text(encoding="utf-8").split(".. list-table::", 1)[1].split("\n---", 1)[0]
     run_words = ("stable", "diverging", "unbounded", "undecided", "diverged at step k")
     for word in (*run_words, *VERDICTS):
-        assert f"| {word}" in table, word
+        assert f"   * - {word}" in table, word
         assert word in VERDICT_TABLE, word
     for command in ("run", "claims"):
         with pytest.raises(SystemExit):

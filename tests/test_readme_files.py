@@ -1,4 +1,5 @@
-"""Every file the README shows or the tests read from the repository is committed.
+"""Every file the README shows or links, or the tests read from the repository, is
+committed.
 
 A fresh clone has only what git tracks, and ``.gitignore`` ignores ``*.png`` and
 ``*.mcap``: a figure or fixture that exists only in a working tree would pass locally and
@@ -27,14 +28,52 @@ def _tracked() -> set[str] | None:
     return set(out.splitlines())
 
 
+#: The project's address; the README's links into the repository start with these (so
+#: they work on PyPI too), and are mapped back to repository paths here.
+PROJECT = "https://github.com/netsim-dev/netsim"
+_REPO_URL = re.compile(r"^(?:https://raw\.githubusercontent\.com/netsim-dev/netsim/main/"
+                       r"|https://github\.com/netsim-dev/netsim/(?:blob|tree)/main/)(.*)$")
+
+
+def repo_path(url: str) -> str | None:
+    """The repository path an absolute README link points at, or None for another site."""
+    m = _REPO_URL.match(url)
+    return m[1].rstrip("/") if m else None
+
+
+def test_repo_path_maps_the_project_urls():
+    assert repo_path("https://raw.githubusercontent.com/netsim-dev/netsim/main/docs/a.png") == (
+        "docs/a.png")
+    assert repo_path(f"{PROJECT}/blob/main/docs/cli.rst") == "docs/cli.rst"
+    assert repo_path(f"{PROJECT}/tree/main/docs/gallery/") == "docs/gallery"
+    assert repo_path("https://example.org/docs/a.png") is None
+
+
 def test_readme_images_exist_and_are_tracked():
     text = (ROOT / "README.md").read_text()
     images = re.findall(r"!\[[^\]]*\]\(([^)\s]+)\)", text)
     assert images, "the README shows figures"
     tracked = _tracked()
-    for path in images:
+    for url in images:
+        # absolute, so that the picture shows on PyPI as well as on GitHub
+        path = repo_path(url)
+        assert path is not None, f"{url}: not an absolute link into {PROJECT}"
         assert (ROOT / path).is_file(), path
         if tracked is not None:
+            assert path in tracked, f"{path} exists but is not committed"
+
+
+def test_readme_links_into_the_repository_exist():
+    text = (ROOT / "README.md").read_text()
+    links = re.findall(r"(?<!!)\[[^\]]*\]\(([^)\s]+)\)", text)
+    tracked = _tracked()
+    for url in links:
+        assert "://" in url or url.startswith("#"), f"{url}: relative links break on PyPI"
+        path = repo_path(url)
+        if path is None:
+            continue
+        assert (ROOT / path).exists(), path
+        if tracked is not None and (ROOT / path).is_file():
             assert path in tracked, f"{path} exists but is not committed"
 
 

@@ -16,8 +16,8 @@ scenario file). Without it, links only delay, as ``[delays]`` says.
 
 Agents are numbered from 0. A link ``[j, i]`` means agent i receives from agent j.
 Every validation failure raises :class:`ScenarioError` naming the offending key.
-See ``models/scenarios/*.toml`` for the built-in scenarios and the README for the
-full schema.
+See ``models/scenarios/*.toml`` for the built-in scenarios and ``docs/scenarios.rst``
+(the scenario reference, generated from this module) for the full schema.
 """
 
 from __future__ import annotations

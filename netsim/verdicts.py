@@ -120,7 +120,7 @@ UNDECIDED = "undecided"
 DIVERGED = "diverged"
 
 #: Every verdict word of runs and claims, in one table (``netsim run --help``,
-#: ``netsim claims --help``, the README).
+#: ``netsim claims --help``, docs/concepts/verdicts.rst).
 VERDICT_TABLE = """\
 verdicts of runs (netsim run, bench, replay)
   stable              the MSE stays bounded: by exact analysis (fixed delays: the joint

@@ -13,7 +13,7 @@ Theorem 1 search), :mod:`netsim.claims.searches` the searches of the other claim
 stated over a class of systems; :mod:`netsim.bench.claims` holds the same claims'
 checks on a ``netsim bench delay-tolerance`` report (the papers' printed numbers are in
 :mod:`netsim.papers`); :mod:`netsim.claims.findings`
-generates the README's findings from a report.
+generates the documentation's findings (``docs/findings.rst``) from a report.
 """
 
 from __future__ import annotations

@@ -85,8 +85,8 @@ class Outcome:
     reason : str or None
         For ``undecided``: why.
     headline : str or None
-        The deciding numbers without seconds; None: ``summary`` has none. The README's
-        findings are made of headlines.
+        The deciding numbers without seconds; None: ``summary`` has none. The findings
+        of docs/findings.rst are made of headlines.
     evidence : Evidence or None
         For ``no counterexample``: the counted search it rests on (required).
     """

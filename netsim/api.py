@@ -241,11 +241,15 @@ _REPR_FAMILIES = 12
 
 
 def _pandas(what: str) -> Any:
-    """Import pandas, or raise ImportError naming it and the extra that installs it."""
+    """Import pandas, or raise :class:`netsim.extras.MissingExtra` (an ImportError)
+    naming it and the extra that installs it."""
+    from netsim.extras import MissingExtra
+
     try:
         import pandas
     except ImportError:
-        raise ImportError(f"{what} needs pandas: pip install 'netsim[notebook]'") from None
+        raise MissingExtra(f"{what} needs pandas: pip install 'netsim[notebook]'",
+                           name="pandas") from None
     return pandas
 
 
@@ -415,8 +419,9 @@ class RunResult:
         >>> ax.figure.savefig("mse.png")             # doctest: +SKIP
         """
         if ax is None:
-            import matplotlib.pyplot as plt
+            from netsim.extras import require
 
+            plt = require("matplotlib.pyplot", "notebook", "RunResult.plot()")
             _, ax = plt.subplots(figsize=(7, 4))
         finite = []
         for name, s in self.summary.items():
@@ -523,11 +528,13 @@ class RunResult:
         Same file rule as :meth:`to_csv`. Returns the path written.
         """
         frame = self.to_dataframe(what)
+        from netsim.extras import MissingExtra
+
         try:
             import pyarrow  # noqa: F401
         except ImportError:
-            raise ImportError("to_parquet needs pyarrow: pip install 'netsim[notebook]'"
-                              ) from None
+            raise MissingExtra("to_parquet needs pyarrow: pip install 'netsim[notebook]'",
+                               name="pyarrow") from None
         return _write_table(frame, path, "to_parquet", force,
                             lambda f, tmp: f.to_parquet(tmp, index=False))
 

@@ -265,6 +265,13 @@ def test_missing_pandas_names_the_extra(result, monkeypatch, tmp_path):
     assert not (tmp_path / "e.csv").exists()
 
 
+def test_missing_matplotlib_names_the_extra(result, monkeypatch):
+    monkeypatch.setitem(sys.modules, "matplotlib.pyplot", None)
+    with pytest.raises(ImportError, match=r"RunResult.plot\(\) needs matplotlib.*"
+                                          r"pip install 'netsim\[notebook\]'"):
+        result.plot()
+
+
 def test_missing_pyarrow_names_the_extra(result, monkeypatch, tmp_path):
     monkeypatch.setitem(sys.modules, "pyarrow", None)
     with pytest.raises(ImportError, match=r"to_parquet needs pyarrow: .*netsim\[notebook\]"):

@@ -29,8 +29,8 @@ from pathlib import Path
 
 from netsim.models.inputfiles import file_kind
 
-__all__ = ["OutputFileError", "check_output", "same_file", "atomic_output",
-           "write_text_safely"]
+__all__ = ["OutputFileError", "check_output", "check_output_folder", "same_file",
+           "atomic_output", "safe_output", "write_text_safely"]
 
 
 class OutputFileError(ValueError):
@@ -132,18 +132,57 @@ def atomic_output(path: str | os.PathLike[str]) -> Iterator[Path]:
         raise
 
 
-def write_text_safely(path: str | os.PathLike[str], text: str, option: str) -> Path:
-    """Write ``text`` to ``path`` inside a folder the user named (``option``): never
-    through a symbolic link or onto a special file; atomically. The command owns the
-    file names it writes there (e.g. ``claims.md``), so an existing regular file of that
-    name is replaced."""
-    p = Path(path)
+def _check_owned_file(p: Path, option: str) -> None:
+    """A file a command writes inside a folder it was given: not a link, not special."""
     if p.is_symlink():
         raise OutputFileError(f"{option} {p}: is a symbolic link; netsim does not write "
                               "through links (name the target file itself)")
     if p.exists() and not stat.S_ISREG(p.stat().st_mode):
         raise OutputFileError(f"{option} {p}: is {file_kind(p.stat().st_mode)}, not a regular "
                               "file")
+
+
+def check_output_folder(folder: str | os.PathLike[str], option: str,
+                        names: Iterable[str] = ()) -> Path:
+    """Check, before any work, a folder a command writes its files into (``option``).
+
+    The folder must not be a symbolic link or a non-folder; it may be missing (the command
+    creates it). Each of ``names`` that exists in it must be a regular file, not a link.
+    The command owns those names: existing regular files of those names are replaced.
+
+    Raises
+    ------
+    OutputFileError
+        One line naming the option and the path.
+    """
+    p = Path(folder)
+    if p.is_symlink() or (p.exists() and not p.is_dir()):
+        raise OutputFileError(f"{option} {folder}: is a symbolic link or not a folder; "
+                              "netsim writes its files into a real folder")
+    if p.is_dir():
+        if not os.access(p, os.W_OK | os.X_OK):
+            raise OutputFileError(f"{option} {folder}: folder is not writable")
+        for name in names:
+            _check_owned_file(p / name, option)
+    return p
+
+
+@contextlib.contextmanager
+def safe_output(path: str | os.PathLike[str], option: str) -> Iterator[Path]:
+    """:func:`atomic_output` for a file a command owns inside a folder the user named
+    (``option``): refused (:class:`OutputFileError`) if it is a link or a special file."""
+    p = Path(path)
+    _check_owned_file(p, option)
     with atomic_output(p) as tmp:
+        yield tmp
+
+
+def write_text_safely(path: str | os.PathLike[str], text: str, option: str) -> Path:
+    """Write ``text`` to ``path`` inside a folder the user named (``option``): never
+    through a symbolic link or onto a special file; atomically. The command owns the
+    file names it writes there (e.g. ``claims.md``), so an existing regular file of that
+    name is replaced."""
+    p = Path(path)
+    with safe_output(p, option) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return p

@@ -185,3 +185,43 @@ def test_claims_never_write_their_report_through_a_link(tmp_path, capsys):
     assert main(["claims", "L-rho", "--out", str(out), "--no-progress"]) == 0
     assert (out / "claims.md").read_text().startswith("# Paper claims")
     assert victim.read_text() == "victim"
+
+
+def test_reproduce_never_writes_through_a_link(tmp_path, capsys):
+    """reproduce --out: its report and figures are checked before any work is done."""
+    out = tmp_path / "out"
+    out.mkdir()
+    victim = tmp_path / "victim.md"
+    victim.write_text("victim")
+    (out / "report.md").symlink_to(victim)
+    assert main(["reproduce", "aoi", "--out", str(out), "--no-progress"]) == 2
+    assert "symbolic link" in one_error(capsys, "reproduce")
+    assert victim.read_text() == "victim" and (out / "report.md").is_symlink()
+    assert sorted(p.name for p in out.iterdir()) == ["report.md"]
+
+
+def test_reproduce_refuses_a_linked_folder(tmp_path, capsys):
+    real = tmp_path / "real"
+    real.mkdir()
+    (tmp_path / "out").symlink_to(real)
+    assert main(["reproduce", "aoi", "--out", str(tmp_path / "out"), "--no-progress"]) == 2
+    assert "symbolic link or not a folder" in one_error(capsys, "reproduce")
+    assert list(real.iterdir()) == []
+
+
+def test_files_a_command_owns_are_written_atomically_and_never_through_links(tmp_path):
+    from netsim.outfiles import OutputFileError, safe_output
+
+    victim = tmp_path / "victim"
+    victim.write_text("victim")
+    (tmp_path / "link.csv").symlink_to(victim)
+    with pytest.raises(OutputFileError, match="symbolic link"), \
+            safe_output(tmp_path / "link.csv", "--out"):
+        pass
+    target = tmp_path / "a.csv"
+    target.write_text("old")
+    with pytest.raises(RuntimeError), safe_output(target, "--out") as tmp:
+        tmp.write_text("half")
+        raise RuntimeError("the writer failed")
+    assert target.read_text() == "old"  # the old file stays whole
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.csv", "link.csv", "victim"]

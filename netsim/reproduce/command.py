@@ -68,6 +68,7 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from netsim.cliutil import CommandError
+    from netsim.outfiles import OutputFileError
     from netsim.reproduce.items import items_for
 
     if not 1 <= args.trials <= MAX_TRIALS:
@@ -99,6 +100,8 @@ def cmd_reproduce(args: argparse.Namespace) -> int:
         result = reproduce(args.papers, out=args.out, trials=args.trials, seed=args.seed,
                            workers=args.workers, claim_budget=args.claim_budget,
                            progress=step)
+    except OutputFileError as exc:
+        raise CommandError(str(exc)) from None
     except OSError as exc:
         raise CommandError(f"--out {args.out}: {exc.strerror or exc}") from None
     finally:

@@ -118,7 +118,9 @@ class Item:
 
 
 def _write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[Any]]) -> str:
-    with path.open("w", newline="", encoding="utf-8") as f:
+    from netsim.outfiles import safe_output
+
+    with safe_output(path, "--out") as tmp, tmp.open("w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(header)
         for row in rows:
@@ -128,8 +130,10 @@ def _write_csv(path: Path, header: Sequence[str], rows: Sequence[Sequence[Any]])
 
 
 def _write_json(path: Path, data: Any) -> str:
-    path.write_text(json.dumps(json_tree(data), indent=1, allow_nan=False) + "\n",
-                    encoding="utf-8")
+    from netsim.outfiles import write_text_safely
+
+    write_text_safely(path, json.dumps(json_tree(data), indent=1, allow_nan=False) + "\n",
+                      "--out")
     return path.name
 
 

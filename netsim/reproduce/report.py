@@ -12,7 +12,8 @@ from typing import Any
 
 from netsim.reproduce.items import PAPER_TITLES, PAPERS, BuildContext, Item, items_for
 
-__all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "reproduce",
+__all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "output_names",
+           "reproduce",
            "item_claim_ids",
            "DEFAULT_TRIALS", "CLAIM_BUDGET"]
 
@@ -184,6 +185,16 @@ def _md_escape(text: str) -> str:
     return str(text).replace("|", "/").replace("\n", " ")
 
 
+def output_names(items: Sequence[Item]) -> list[str]:
+    """The file names :func:`reproduce` writes into its folder (checked before any work):
+    the report, each item's figure and its data files as most items name them (an item's
+    other data files are checked as they are written)."""
+    names = ["report.md"]
+    for item in items:
+        names += [f"{item.id}.png", f"{item.id}.csv", f"{item.id}.json"]
+    return names
+
+
 def _markdown(result: ReproduceResult) -> str:
     out = ["# netsim reproduce: the papers' figures and tables", "",
            f"{len(result.items)} items, {result.trials} Monte Carlo trials, seed "
@@ -259,11 +270,12 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
     ReproduceResult
     """
     from netsim.claims import Context
+    from netsim.outfiles import check_output_folder, safe_output, write_text_safely
 
     chosen = items_for(papers)
     if trials < 1:
         raise ValueError(f"trials must be a positive integer, got {trials}")
-    folder = Path(out)
+    folder = check_output_folder(out, "--out", output_names(chosen))
     folder.mkdir(parents=True, exist_ok=True)
     ctx = BuildContext(folder, int(trials), int(seed), int(workers))
     claim_ctx = Context(seed=int(seed), budget=None if claim_budget is None
@@ -276,7 +288,8 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
         t0 = time.perf_counter()
         built = item.build(ctx)
         png = f"{item.id}.png"
-        built.figure.savefig(folder / png, format="png")
+        with safe_output(folder / png, "--out") as tmp:
+            built.figure.savefig(tmp, format="png")
         claims, missing = claim_verdicts(item, built.bench_claims, claim_ctx, checks)
         reports.append(ItemReport(item, png, built.data_files, built.ours,
                                   list(item.differs) + built.differs, claims, missing,
@@ -285,5 +298,5 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
             progress(item.id)
     result = ReproduceResult(folder, int(trials), int(seed), reports, folder / "report.md",
                              time.perf_counter() - start, _cpu() - cpu0)
-    result.report.write_text(_markdown(result), encoding="utf-8")
+    write_text_safely(result.report, _markdown(result), "--out")
     return result

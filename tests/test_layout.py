@@ -206,26 +206,35 @@ def test_format3_layout_paths_exist_and_mean_what_they_say(traces, kind):
     assert {f"/plant/state.state[{s}]" for s in range(min(n, 4))} <= set(paths)
     # effective delay entry e is r_ij of updates[e]; sent delay l is links[l]
     effective = {p: label for p, label in labels.items() if ".effective_delay[" in p}
-    assert effective == {f"/agents/update.effective_delay[{e}]": f"r {j}->{i}"
-                         for e, (j, i) in enumerate(updates) if j != i}
+    # (entries that never hold a value are left out: test_shipped_layouts_...)
+    assert effective.items() <= {f"/agents/update.effective_delay[{e}]": f"r {j}\u2192{i}"
+                                 for e, (j, i) in enumerate(updates) if j != i}.items()
     assert len(effective) > 0
     sent = {p: label for p, label in labels.items() if p.startswith("/links/sent.")}
-    assert sent == {f"/links/sent.delay_steps[{q}]": f"{j}->{i}"
-                    for q, (j, i) in enumerate(links)}
-    assert all("-3" in title for title in _titles(layout, tabs["Delays"]))  # said
+    assert sent.items() <= {f"/links/sent.delay_steps[{q}]": f"link {j}\u2192{i}"
+                            for q, (j, i) in enumerate(links)}.items()
+    assert sent
+    # the -3 sentinel lies below the y axis: points, never joined into lines
+    for leaf in tabs["Delays"]:
+        config = layout["configById"][leaf]
+        assert config["minYValue"] > -3
+        assert not any(series["showLine"] for series in config["paths"])
     if kind == "consensus3":
         assert "Drops" not in tabs and "Age of information" not in tabs
     else:
-        assert {"/links/dropped.link[0]", "/links/dropped.reason[0]",
-                "/links/dropped.sent_step[0]"} <= set(paths)
+        drops = {p: label for p, label in labels.items() if p.startswith("/links/dropped.")}
+        assert drops and drops.items() <= {f"/links/dropped.link_reason[{q}]":
+                                           f"link {j}\u2192{i}"
+                                           for q, (j, i) in enumerate(links)}.items()
         assert any("link down" in t for t in _titles(layout, tabs["Drops"]))
         sizes = meta["freshness_sizes"]
         fresh = [i for i, size in enumerate(sizes) if size > 0]
-        assert fresh and {f"/agents/freshness.max_index[{i}]" for i in fresh} <= set(paths)
+        shown = {p for p in paths if p.startswith("/agents/freshness.max_index[")}
+        assert shown and shown <= {f"/agents/freshness.max_index[{i}]" for i in fresh}
         start = np.concatenate([[0], np.cumsum(sizes)]).astype(int)
-        for i in fresh:
-            for s in range(sizes[i]):
-                assert f"/agents/freshness.index[{start[i] + s}]" in paths
+        indexed = {p for p in paths if p.startswith("/agents/freshness.index[")}
+        assert indexed and indexed <= {f"/agents/freshness.index[{start[i] + s}]"
+                                       for i in fresh for s in range(sizes[i])}
         assert "Age of information" in tabs
 
 
@@ -321,3 +330,167 @@ def test_bad_layout_requests(args, message, tmp_path, capsys):
     assert main(args) == 2
     err = capsys.readouterr().err
     assert message in err and err.count("\n") == 1 and "Traceback" not in err
+
+
+# -- issue 30: the layouts as Lichtblick shows them, on the shipped scenarios ----------
+
+_SHIPPED = [  # (scenario, one estimator family): built-in and examples/*.toml
+    ("lcsys2022-heterogeneous", "compensated"),
+    ("aoi-example", "aoi"),
+    (str(ROOT / "examples" / "aoi-random-lossy.toml"), "aoi"),
+    (str(ROOT / "examples" / "rotation-uncompensated.toml"), "uncompensated"),
+    (str(ROOT / "examples" / "consensus-on-information.toml"), "ci-filter"),
+    (str(ROOT / "examples" / "dkfe-example2-lossy.toml"), "dkfe"),
+]
+_BACKGROUNDS = ("#ffffff", "#121217")  # the light and the dark theme
+
+
+@pytest.fixture(scope="module")
+def shipped(tmp_path_factory):
+    """Format-3 (default) traces and their layouts, written by netsim run --layout."""
+    folder = tmp_path_factory.mktemp("shipped")
+    out = {}
+    for scenario, family in _SHIPPED:
+        name = Path(scenario).stem
+        path = folder / f"{name}.mcap"
+        assert main(["run", scenario, "--trials", "1", "--steps", "15", "--estimators",
+                     family, "--trace", str(path), "--layout", "--no-progress",
+                     "--json"]) == 0, scenario
+        out[name] = path
+    return out
+
+
+def _read_independently(path: Path):
+    """(metadata records, topic -> [(log_time, decoded message)]) with the plain mcap
+    reader."""
+    with open(path, "rb") as f:
+        reader = make_reader(f, decoder_factories=[DecoderFactory()])
+        metadata = [(m.name, dict(m.metadata)) for m in reader.iter_metadata()]
+        messages: dict[str, list] = {}
+        for _s, channel, message, decoded in reader.iter_decoded_messages(
+                log_time_order=False):
+            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
+    return metadata, messages
+
+
+def _values(messages: dict, path: str) -> list[float]:
+    m = re.fullmatch(r"(/[A-Za-z0-9_/]+)\.(\w+)(?:\[(\d+)\])?", path)
+    assert m, path
+    topic, name, index = m.group(1), m.group(2), m.group(3)
+    out = []
+    for _t, decoded in messages.get(topic, []):
+        value = getattr(decoded, name)
+        if index is not None:
+            if int(index) >= len(value):
+                continue
+            value = value[int(index)]
+        out.append(float(value))
+    return out
+
+
+def _luminance(colour: str) -> float:
+    assert re.fullmatch(r"#[0-9a-fA-F]{6}", colour), colour
+    channels = [int(colour[q:q + 2], 16) / 255 for q in (1, 3, 5)]
+    linear = [c / 12.92 if c <= 0.03928 else ((c + 0.055) / 1.055) ** 2.4 for c in channels]
+    return 0.2126 * linear[0] + 0.7152 * linear[1] + 0.0722 * linear[2]
+
+
+def _contrast(a: str, b: str) -> float:
+    high, low = sorted((_luminance(a), _luminance(b)), reverse=True)
+    return (high + 0.05) / (low + 0.05)
+
+
+@pytest.mark.parametrize("name", [Path(s).stem for s, _ in _SHIPPED])
+def test_shipped_layouts_read_well_in_lichtblick(shipped, name):
+    path = shipped[name]
+    layout = json.loads(path.with_name(f"{path.stem}.layout.json").read_text())
+    _check_structure(layout)
+    metadata, messages = _read_independently(path)
+    [trace_layout] = [m for n, m in metadata if n == "trace_layout"][-1:]
+    links = [tuple(x) for x in json.loads(trace_layout["links"])]
+    panels = layout["configById"]
+    for key, config in panels.items():  # a title under Foxglove's and Lichtblick's key
+        for title_key in ("foxglovePanelTitle", "lichtblickPanelTitle"):
+            assert isinstance(config.get(title_key), str) and config[title_key], (key,
+                                                                                 title_key)
+    dropped_links = set()
+    for _t, drops in messages.get("/links/dropped", []):
+        dropped_links.update(int(x) for x in drops.link)
+    drop_series = {}
+    for key, config in panels.items():
+        if not key.startswith("Plot!"):
+            continue
+        y_min, y_max = config.get("minYValue", -math.inf), config.get("maxYValue", math.inf)
+        for series in config["paths"]:
+            value = series["value"]
+            # colours visible on both themes (not white, near-white or near-black)
+            for background in _BACKGROUNDS:
+                assert _contrast(series["color"], background) >= 2.5, (value, background)
+            # no series without data: a value the panel draws, in the trace
+            values = _values(messages, value)
+            drawn = [v for v in values if math.isfinite(v) and y_min <= v <= y_max]
+            assert drawn, f"{name}: {value} ({series['label']}) has nothing to draw"
+            # markers are not joined into lines: a line never holds an off-axis sentinel
+            if series["showLine"]:
+                assert all(math.isfinite(v) and v >= y_min for v in values), value
+            if value.startswith("/links/dropped."):
+                drop_series.setdefault(key, []).append(series)
+    # drop series: one per link, named by the link, for every link that dropped
+    per_link = []
+    for key, group in drop_series.items():
+        for series in group:
+            m = re.fullmatch(r"/links/dropped\.link_reason\[(\d+)\]", series["value"])
+            assert m, f"{key}: {series['value']} is not a per-link drop series"
+            j, i = links[int(m.group(1))]
+            assert series["label"] == f"link {j}\u2192{i}"
+            assert not series["showLine"]
+            per_link.append(int(m.group(1)))
+    assert sorted(per_link) == sorted(dropped_links)
+    # one complete drop_reasons record when the run dropped messages
+    records = [m for n, m in metadata if n == "drop_reasons"]
+    assert len(records) == (1 if dropped_links else 0), records
+    if dropped_links:
+        codes = {int(c) for _t, drops in messages["/links/dropped"] for c in drops.reason}
+        assert codes <= {int(c) for c in records[0]}
+        titles = " ".join(c["lichtblickPanelTitle"] for c in panels.values())
+        for code, text in records[0].items():  # the codes are explained in a title
+            assert f"{code} = {text}" in titles
+
+
+def test_the_aoi_example_has_per_link_drops(shipped):
+    """aoi-example: its links go down (the time-varying graph): a Drops tab."""
+    path = shipped["aoi-example"]
+    layout = json.loads(path.with_name(f"{path.stem}.layout.json").read_text())
+    tabs = {t["title"] for t in layout["configById"]["Tab!netsim"]["tabs"]}
+    assert "Drops" in tabs
+    assert any(v.startswith("/links/dropped.link_reason[") for v in layout_paths(layout))
+
+
+def test_format2_drop_series_per_link(traces):
+    """Format 2: a dropped topic per link; its series named by the link."""
+    path = traces["aoi"]
+    layout = json.loads(path.with_name(f"{path.stem}.layout.json").read_text())
+    for config in layout["configById"].values():
+        for series in config.get("paths", []):
+            m = re.fullmatch(r"/link_(\d+)_(\d+)/dropped\.\w+", series["value"])
+            if m:
+                assert series["label"] == f"link {m.group(1)}\u2192{m.group(2)}"
+                assert not series["showLine"]
+        assert config.get("lichtblickPanelTitle") == config.get("foxglovePanelTitle")
+
+
+def test_old_traces_with_two_drop_reasons_records_are_read(tmp_path):
+    """Traces of earlier versions wrote drop_reasons once per new reason (the first
+    copy partial): readers take the union."""
+    from netsim.traces.recorder import TraceRecorder
+
+    path = tmp_path / "old.mcap"
+    with TraceRecorder(path, scenario_metadata={"name": "old"}, matrices={}, family="f",
+                       trial=0, trace_format=2) as recorder:
+        recorder.drop_reasons.update({"loss": 1, "link down": 2})
+        recorder.writer.add_metadata("drop_reasons", {"1": "loss"})  # the partial copy
+    with open(path, "rb") as f:
+        names = [m.name for m in make_reader(f).iter_metadata()]
+    assert names.count("drop_reasons") == 2
+    assert read_trace(path).drop_reasons == {1: "loss", 2: "link down"}
+    assert layout_source(path).drop_reasons == {1: "loss", 2: "link down"}

@@ -29,22 +29,28 @@ update entry e = ``updates[e]``; -3 = :data:`netsim.traces.schemas3.ABSENT`):
   -1 own estimate used, -3 not reported: below the y axis, which starts at -1.5), and the
   step delay d of the message sent at k on link l (``/links/sent.delay_steps[l]``, by
   sending step; -3 nothing sent: below the y axis, which starts at -0.5);
-- **Drops** (``/links/dropped`` has messages): a ``LinkDrops`` message lists the
-  messages lost in one sample period, so the panels plot its first entries q = 0 ..
-  Q-1 (Q = number of links, at most :data:`MAX_SERIES`) as points: the link l
-  (``/links/dropped.link[q]``), the lost message's time-stamp (``.sent_step[q]``) and
-  the reason code (``.reason[q]``), at the end of the sample period of the drop (the
-  message's log_time; the drop's own time is ``.drop_time[q]``); an entry a message
-  does not have is not drawn.
-  (Slices such as ``.link[:]`` are not plottable in every Foxglove version.)
+- **Drops** (``/links/dropped`` has messages): one series per link l that dropped a
+  message, ``/links/dropped.link_reason[l]`` labelled ``link j→i``: at the end of each
+  sample period with drops, the reason code of link l's drops (0, none, lies below the
+  y axis; the codes are named in the panel title). A trace of an earlier version (no
+  ``link_reason``) gets its drops in the order they happened (``.link[q]``,
+  ``.reason[q]``), as many entries as a message holds.
 - **Age of information** (AoI traces): ``/agents/freshness.max_index[i]`` per AoI agent
   and, for the first :data:`MAX_FRESHNESS_AGENTS`, ``/agents/freshness.index[o_i + s]``
   per substate s (o_i = the sizes of the earlier agents' ``freshness_sizes``); -1 omega,
   -3 no report: below the y axis, which starts at -1.5.
 
-Series are grouped :data:`MAX_SERIES` to a panel. The layout is built from the file's
-summary (channels, metadata and, in format 2, the first message of a few topics for the
-neighbour order and dimensions), so it is cheap for a large trace; a format-2 file
+Series whose values may hold the -3 sentinel are points, never joined into lines (a
+line would run down to the sentinel below the axis). An entry that never holds a value
+to draw gets no series: a format-3 layout reads the file's estimate, update, link and
+freshness messages once (:func:`_step_presence`).
+
+Every panel has its title under both ``foxglovePanelTitle`` (Foxglove) and
+``lichtblickPanelTitle`` (Lichtblick); series colours are mid tones, readable on the
+light and the dark theme. Series are grouped :data:`MAX_SERIES` to a panel. The layout
+is built from the file's summary (channels, metadata and, in format 2, the first message
+of a few topics for the neighbour order and dimensions), plus in format 3 the one pass
+above; a format-2 file
 without a summary (its writer was killed) is read in full, a format-3 one is scanned for
 its metadata and channels without decoding messages.
 
@@ -139,6 +145,14 @@ class LayoutSource:
         Messages per topic from the file's statistics (empty when not known).
     time_origin_ns : int
         log_time of simulation time 0 (``run.time_origin_ns``; 0 when not recorded).
+    present : dict or None
+        Format 3: which array entries ever hold a value to draw, from one pass over the
+        file's messages (:func:`_step_presence`): ``agents`` (updated at least once),
+        ``updates`` (entries e ever reported), ``sends`` (links l that ever sent),
+        ``drops`` (links that dropped), ``link_reason`` (the drops carry
+        ``LinkDrops.link_reason``), ``drop_entries`` (most drops in one message),
+        ``freshness`` (agents reporting) and ``fresh_index`` (entries ever reported).
+        None: not read (every entry is laid out).
     """
 
     path: str
@@ -156,6 +170,7 @@ class LayoutSource:
     freshness_sizes: list[int] = field(default_factory=list)
     counts: dict[str, int] = field(default_factory=dict)
     time_origin_ns: int = 0
+    present: dict[str, Any] | None = None
 
     def has_messages(self, topic: str) -> bool:
         """Whether the file has the topic and, as far as its statistics say, messages on
@@ -227,7 +242,12 @@ def _step_source(where: str, metadata: dict[str, dict[str, str]], topics: Iterab
         drop_reasons = {int(c): r for c, r in metadata.get("drop_reasons", {}).items()
                         if c.isdigit()}
     origin = run.get("time_origin_ns", "0")
+    try:
+        present: dict[str, Any] | None = _step_presence(where)
+    except OSError:
+        present = None
     return LayoutSource(
+        present=present,
         path=where, format=_format_number(run, library), topics=sorted(set(topics)),
         n_states=n_states, substates={i: c for i, c in enumerate(sizes) if c > 0},
         drop_reasons=dict(drop_reasons), family=run.get("family", ""),
@@ -343,6 +363,53 @@ def _first_messages(f: Any, topics: set[str], where: str) -> dict[str, Any]:
     return first
 
 
+def _step_presence(where: str) -> dict[str, Any]:
+    """Which entries of a format-3 file's per-step arrays hold a value to draw (not NaN,
+    not :data:`ABSENT`), over all its messages (:attr:`LayoutSource.present`); a file
+    cut short is read up to the damage."""
+    import numpy as np
+
+    seen: dict[str, Any] = {}
+    drops: set[int] = set()
+    link_reason = False
+    entries = 0
+
+    def mark(key: str, values: Any) -> None:
+        values = np.asarray(values)
+        old = seen.get(key)
+        if old is None or old.shape[0] < values.shape[0]:
+            grown = np.zeros(values.shape[0], dtype=bool)
+            if old is not None:
+                grown[:old.shape[0]] = old
+            seen[key] = old = grown
+        old[:values.shape[0]] |= values
+
+    topics = {"/agents/estimate", "/agents/update", "/links/sent", "/links/dropped",
+              "/agents/freshness"}
+    with open(where, "rb") as f:
+        for topic, _, m in _decoded_messages(f, topics, where, until_damage=True):
+            if topic == "/agents/estimate":
+                mark("agents", np.asarray(m.updated, dtype=bool))
+            elif topic == "/agents/update":
+                mark("updates", np.asarray(m.effective_delay) != ABSENT)
+            elif topic == "/links/sent":
+                mark("sends", np.asarray(m.delay_steps) != ABSENT)
+            elif topic == "/links/dropped":
+                drops.update(int(x) for x in m.link)
+                entries = max(entries, len(m.link))
+                if "link_reason" in m.DESCRIPTOR.fields_by_name and len(m.link_reason):
+                    link_reason = True
+            else:
+                mark("freshness", np.asarray(m.max_index) != ABSENT)
+                mark("fresh_index", np.asarray(m.index) != ABSENT)
+    out: dict[str, Any] = {key: {int(q) for q in np.flatnonzero(mask)}
+                           for key, mask in seen.items()}
+    for key in ("agents", "updates", "sends", "freshness", "fresh_index"):
+        out.setdefault(key, set())
+    out.update(drops=drops, link_reason=link_reason, drop_entries=entries)
+    return out
+
+
 def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
     """Return what a layout needs from a trace file, reading its summary: metadata,
     channels and statistics and, in format 2, the first message of the plant, update
@@ -428,21 +495,34 @@ _Panel = tuple[str, dict[str, Any]]
 _Tabs = list[tuple[str, list[_Panel]]]
 _Panels = Callable[..., list[_Panel]]
 
-_PALETTE = ("#4e98e2", "#f5774d", "#5cd67a", "#f7df71", "#eb8fd0", "#a395e2", "#61e0e0",
-            "#e25c5c", "#b6e06e", "#fd9a3a", "#9bd0f5", "#c4c4c4")
-_TRUTH = "#ffffff"
+#: Series colours: mid tones, a contrast ratio of at least 3 against both a white and a
+#: near-black background (Foxglove's and Lichtblick's light and dark themes).
+_PALETTE = ("#1c7ed6", "#e8590c", "#2f9e44", "#c2255c", "#7048e8", "#0c8599", "#a9770a",
+            "#ae3ec9", "#5c940d", "#f03e3e", "#4c6ef5", "#d6336c")
+#: The true state (drawn thicker).
+_TRUTH = "#868e96"
+#: Panel config keys of the panel title: Foxglove's and Lichtblick's.
+TITLE_KEYS = ("foxglovePanelTitle", "lichtblickPanelTitle")
 
 
 def _series(value: str, label: str, colour: str, *, line: bool = True,
-            size: float = 1.5) -> dict[str, Any]:
+            size: float | None = None) -> dict[str, Any]:
+    """A Plot series: a line, or (``line=False``) points not joined (for values with
+    gaps or off-axis sentinels)."""
+    if size is None:
+        size = 1.5 if line else 3.0
     return {"value": value, "enabled": True, "timestampMethod": "receiveTime",
             "label": label, "color": colour, "showLine": line, "lineSize": size}
+
+
+def _arrow(j: int, i: int) -> str:
+    return f"{j}\u2192{i}"
 
 
 def _plot(title: str, paths: list[dict[str, Any]], *, y_min: float | None = None,
           y_max: float | None = None) -> dict[str, Any]:
     config: dict[str, Any] = {
-        "title": title, "foxglovePanelTitle": title, "paths": paths,
+        "title": title, **dict.fromkeys(TITLE_KEYS, title), "paths": paths,
         "showXAxisLabels": True, "showYAxisLabels": True, "showLegend": True,
         "legendDisplay": "floating", "showPlotValuesInLegend": False, "isSynced": True,
         "xAxisVal": "timestamp", "sidebarDimension": 240,
@@ -566,9 +646,10 @@ def _record_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], 
             if j == i:
                 continue
             delays.append(_series(f"{update_topic(i)}.effective_delay[{p}]",
-                                  f"r {j}->{i}", link_colour[(j, i)]))
+                                  f"r {_arrow(j, i)}", link_colour[(j, i)]))
     delay_panels = panels("Effective delay r_ij[k] (steps; -1 own estimate used)", delays)
-    delivered = [_series(f"{link_topic(j, i, 'delivered')}.delay_steps", f"{j}->{i}",
+    delivered = [_series(f"{link_topic(j, i, 'delivered')}.delay_steps",
+                         f"link {_arrow(j, i)}",
                          link_colour[(j, i)], line=False)
                  for j, i in source.links("delivered")]
     delay_panels += panels("Delivered message delay d (steps) per link", delivered, y_min=0)
@@ -577,13 +658,15 @@ def _record_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], 
 
     dropped_links = source.links("dropped")
     if dropped_links:
-        which = [_series(f"{link_topic(j, i, 'dropped')}.sequence", f"{j}->{i}",
+        which = [_series(f"{link_topic(j, i, 'dropped')}.sequence", f"link {_arrow(j, i)}",
                          link_colour[(j, i)], line=False) for j, i in dropped_links]
-        why = [_series(f"{link_topic(j, i, 'dropped')}.reason", f"{j}->{i}",
+        why = [_series(f"{link_topic(j, i, 'dropped')}.reason", f"link {_arrow(j, i)}",
                        link_colour[(j, i)], line=False) for j, i in dropped_links]
-        codes = ", ".join(f"{c} {r}" for c, r in sorted(source.drop_reasons.items()))
-        tabs.append(("Drops", panels("Dropped messages (sequence number) per link", which)
-                     + panels(f"Drop reason code ({codes or 'none'})", why, y_min=0)))
+        codes = ", ".join(f"{c} = {r}" for c, r in sorted(source.drop_reasons.items()))
+        reasons = f" ({codes})" if codes else ""
+        tabs.append(("Drops", panels("Dropped messages per link: sequence number", which)
+                     + panels(f"Drops per link: reason code{reasons}", why, y_min=0.5,
+                              y_max=max(source.drop_reasons, default=1) + 0.5)))
 
     fresh_agents = [i for i in source.agents("freshness") if freshness_topic(i) in topics]
     if fresh_agents:
@@ -600,10 +683,18 @@ def _record_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], 
 
 def _step_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], str], *,
                max_series: int, max_states: int) -> _Tabs:
-    """The format-3 tabs: indexed paths into the per-step arrays (module docstring)."""
+    """The format-3 tabs: indexed paths into the per-step arrays (module docstring); an
+    entry that never holds a value to draw (:attr:`LayoutSource.present`) gets no
+    series, and series with the :data:`ABSENT` sentinel are points, not lines."""
     n = source.n_states
+    present = source.present
+
+    def shown(key: str, entries: Iterable[int]) -> list[int]:
+        entries = list(entries)
+        return entries if present is None else [q for q in entries if q in present[key]]
+
     tabs = _error_and_state_tabs(
-        panels, colour, source.agents("estimate"),
+        panels, colour, shown("agents", source.agents("estimate")),
         error_path=lambda i: f"/agents/estimate.error_norm[{i}]",
         state_path=lambda s: f"/plant/state.state[{s}]",
         estimate_path=lambda i, s: f"/agents/estimate.estimate[{i * n + s}]",
@@ -613,52 +704,64 @@ def _step_tabs(source: LayoutSource, panels: _Panels, colour: Callable[[int], st
     link_colour = {link: colour(q) for q, link in enumerate(every_link)}
     delays: list[_Panel] = []
     if source.has_messages("/agents/update"):
-        effective = [_series(f"/agents/update.effective_delay[{e}]", f"r {j}->{i}",
-                             link_colour[(j, i)])
-                     for e, (j, i) in enumerate(source.step_updates) if j != i]
-        delays += panels(f"Effective delay r_ij[k] (steps; -1 own estimate used, "
-                         f"{ABSENT} not reported: off axis)", effective, y_min=-1.5)
+        effective = [_series(f"/agents/update.effective_delay[{e}]", f"r {_arrow(j, i)}",
+                             link_colour[(j, i)], line=False)
+                     for e in shown("updates", range(len(source.step_updates)))
+                     if (j := source.step_updates[e][0]) != (i := source.step_updates[e][1])]
+        delays += panels("Effective delay r_ij[k] per link (steps; -1 own estimate used)",
+                         effective, y_min=-1.5)
     if source.has_messages("/links/sent"):
-        sent = [_series(f"/links/sent.delay_steps[{q}]", f"{j}->{i}", link_colour[(j, i)],
-                        line=False) for q, (j, i) in enumerate(source.step_links)]
-        delays += panels(f"Delay d (steps) of the message sent at k per link ({ABSENT} "
-                         "none sent: off axis)", sent, y_min=-0.5)
+        sent = [_series(f"/links/sent.delay_steps[{q}]", f"link {_arrow(j, i)}",
+                        link_colour[(j, i)], line=False)
+                for q in shown("sends", range(len(source.step_links)))
+                for j, i in [source.step_links[q]]]
+        delays += panels("Delay d (steps) of the message sent at k, per link", sent,
+                         y_min=-0.5)
     if delays:
         tabs.append(("Delays", delays))
 
     if source.has_messages("/links/dropped") and source.step_links:
-        entries = min(len(source.step_links), max_series)
-        named = ", ".join(f"{q}: {j}->{i}" for q, (j, i) in enumerate(source.step_links[:8]))
-        if len(source.step_links) > 8:
-            named += ", ..."
-        shown = f"entries 0-{entries - 1} of each step's drops"
+        codes = ", ".join(f"{c} = {r}" for c, r in sorted(source.drop_reasons.items()))
+        reasons = f" ({codes})" if codes else ""
+        top = max(source.drop_reasons, default=1) + 0.5
+        if present is None or present["link_reason"]:
+            dropped = shown("drops", range(len(source.step_links)))
+            per_link = [_series(f"/links/dropped.link_reason[{q}]",
+                                f"link {_arrow(j, i)}", link_colour[(j, i)], line=False)
+                        for q in dropped for j, i in [source.step_links[q]]]
+            drop_panels = panels(f"Drops per link: reason code{reasons}, a point per "
+                                 "sample period with a drop", per_link, y_min=0.5,
+                                 y_max=top)
+        else:  # a trace of an earlier version: its drops in the order they happened
+            entries = min(present["drop_entries"], max_series)
 
-        def drop_series(name: str) -> list[dict[str, Any]]:
-            return [_series(f"/links/dropped.{name}[{q}]", f"drop {q}", colour(q), line=False)
-                    for q in range(entries)]
+            def drop_series(name: str) -> list[dict[str, Any]]:
+                return [_series(f"/links/dropped.{name}[{q}]", f"drop {q + 1} of the period",
+                                colour(q), line=False) for q in range(entries)]
 
-        codes = ", ".join(f"{c} {r}" for c, r in sorted(source.drop_reasons.items()))
-        tabs.append(("Drops",
-                     panels(f"Dropped messages: link l ({named}; {shown})",
-                            drop_series("link"))
-                     + panels(f"Dropped messages: sending step ({shown})",
-                              drop_series("sent_step"))
-                     + panels(f"Drop reason code ({codes or 'none'}; {shown})",
-                              drop_series("reason"))))
+            named = ", ".join(f"{q} = {_arrow(j, i)}"
+                              for q, (j, i) in enumerate(source.step_links[:8]))
+            if len(source.step_links) > 8:
+                named += ", ..."
+            drop_panels = (panels(f"Dropped messages: link ({named})", drop_series("link"))
+                           + panels(f"Dropped messages: reason code{reasons}",
+                                    drop_series("reason"), y_min=0.5, y_max=top))
+        if drop_panels:
+            tabs.append(("Drops", drop_panels))
 
-    fresh_agents = source.agents("freshness")
+    fresh_agents = shown("freshness", source.agents("freshness"))
     if fresh_agents:
         starts = [sum(source.freshness_sizes[:i]) for i in range(len(source.freshness_sizes))]
-        aoi = panels(f"Largest freshness index per agent (-1 omega, {ABSENT} no report: "
-                     "off axis)",
-                     [_series(f"/agents/freshness.max_index[{i}]", f"agent {i}", colour(i))
-                      for i in fresh_agents], y_min=-1.5)
+        aoi = panels("Largest freshness index per agent (-1 omega)",
+                     [_series(f"/agents/freshness.max_index[{i}]", f"agent {i}", colour(i),
+                              line=False) for i in fresh_agents], y_min=-1.5)
         for i in fresh_agents[:MAX_FRESHNESS_AGENTS]:
-            aoi += panels(f"Freshness index per substate, agent {i} (-1 omega, {ABSENT} no "
-                          "report: off axis)",
+            substates = [s for s in range(source.freshness_sizes[i])
+                         if present is None or starts[i] + s in present["fresh_index"]]
+            aoi += panels(f"Freshness index per substate, agent {i} (-1 omega)",
                           [_series(f"/agents/freshness.index[{starts[i] + s}]",
-                                   f"substate {s}", colour(s))
-                           for s in range(source.freshness_sizes[i])], y_min=-1.5)
+                                   f"substate {s}", colour(s), line=False)
+                           for s in substates], y_min=-1.5)
         tabs.append(("Age of information", aoi))
     return tabs
 
@@ -675,7 +778,8 @@ def _assemble(tabs: _Tabs) -> dict[str, Any]:
             config_by_id[panel_id] = config
             ids.append(panel_id)
         tab_list.append({"title": title, "layout": _tree(ids)})
-    config_by_id["Tab!netsim"] = {"activeTabIdx": 0, "tabs": tab_list}
+    config_by_id["Tab!netsim"] = {"activeTabIdx": 0, "tabs": tab_list,
+                                  **dict.fromkeys(TITLE_KEYS, "netsim trace")}
     return {
         "configById": config_by_id,
         "globalVariables": {},

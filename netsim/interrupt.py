@@ -5,12 +5,15 @@ leave its bookkeeping inconsistent. :func:`graceful_interrupts` replaces the SIG
 SIGTERM handlers for the duration of a command: the first Ctrl-C (or ``kill``) only sets
 a flag, which the kernel checks at the start of every step (:func:`check`) and turns
 into a KeyboardInterrupt there (the command then finishes its traces and exits 130); a
-second signal interrupts at once.
+second signal interrupts at once. A signal that comes after the last safe point still
+ends the block with a KeyboardInterrupt (raised when the block is left), so a command
+never swallows it.
 """
 
 from __future__ import annotations
 
 import signal
+import sys
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -53,4 +56,10 @@ def graceful_interrupts() -> Iterator[None]:
     finally:
         for sig, old in previous.items():
             signal.signal(sig, old)
+        late = _requested
         _requested = False
+        # a stop requested after the last safe point (e.g. while the last trace was being
+        # finished) is still a stop: the work is complete, but the command ends as
+        # interrupted (exit 130), never silently with exit 0
+        if late and sys.exc_info()[0] is None:
+            raise KeyboardInterrupt("interrupted by Ctrl-C after the last step")

@@ -46,3 +46,47 @@ def test_a_signal_ends_a_traced_run_with_finished_traces(tmp_path, sig):
         except ProcessLookupError:
             pass
         proc.wait(timeout=TIMEOUT)
+
+
+def test_a_signal_after_the_last_safe_point_is_not_swallowed():
+    """A stop requested after the last check (e.g. while the last trace is finished)
+    still ends the block as interrupted, never silently."""
+    from netsim import interrupt
+
+    with pytest.raises(KeyboardInterrupt, match="after the last step"), \
+            interrupt.graceful_interrupts():
+        os.kill(os.getpid(), signal.SIGINT)  # only sets the flag; no check follows
+        for _ in range(100):  # let the handler run
+            if interrupt.requested():
+                break
+            time.sleep(0.01)
+        assert interrupt.requested()
+    assert not interrupt.requested()
+    with interrupt.graceful_interrupts():  # no signal: nothing raised
+        pass
+
+
+def test_ctrl_c_while_the_last_trace_is_finished_exits_130(tmp_path, monkeypatch, capsys):
+    """Ctrl-C as the run's last trace file is being finished (after every step's safe
+    point): exit 130 with the finished, readable file, not exit 0."""
+    from netsim import runner
+    from netsim.cli import main
+
+    real = runner.run_monte_carlo
+
+    def run_then_ctrl_c(*args, **kwargs):
+        result = real(*args, **kwargs)
+        os.kill(os.getpid(), signal.SIGINT)  # after the trace is finished
+        time.sleep(0.05)
+        return result
+
+    monkeypatch.setattr(runner, "run_monte_carlo", run_then_ctrl_c)
+    trace = tmp_path / "t.mcap"
+    code = main(["run", "lcsys2022-heterogeneous", "--steps", "50", "--trials", "1",
+                 "--estimators", "compensated", "--trace", str(trace), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 130, err
+    assert "interrupted" in err and "Traceback" not in err
+    t = read_trace(trace)
+    assert not t.damaged and not t.truncated
+    assert t.status is not None and t.status["status"] == "complete", t.status

@@ -69,6 +69,7 @@ __all__ = [
     "resolve_families",
     "family_names",
     "families",
+    "family_listing",
     "family_from_object",
     "resolve_reference",
 ]
@@ -536,22 +537,42 @@ def _add_search_path(base: str | os.PathLike[str] | None) -> None:
         sys.path.append(folder)
 
 
+def _search_folders(base: str | os.PathLike[str] | None) -> list[str]:
+    """The folders a ``module:attribute`` is looked for in besides the import path: the
+    scenario's folder (``base``), then the current directory."""
+    folders = [] if base is None else [os.path.abspath(os.fspath(base))]
+    cwd = os.getcwd()
+    return folders + ([cwd] if cwd not in folders else [])
+
+
 def resolve_reference(reference: str, key: str,
                       base: str | os.PathLike[str] | None = None) -> Any:
     """Import ``module:attribute`` (dots allowed in both) or raise FamilyError.
 
-    ``base`` (a scenario file's folder) is appended to the import path first, so a
-    scenario can name a module that sits beside it.
+    The module is looked for on the import path, in ``base`` (a scenario file's folder,
+    so a scenario can name a module that sits beside it) and in the current directory
+    (so ``--estimators mymodule:MyFilter`` works beside a built-in scenario without
+    PYTHONPATH); the folders are appended to ``sys.path``, after the installed packages.
+    The error of a module found nowhere names the folders looked in.
     """
     module_name, _, attribute = reference.partition(":")
     if not module_name or not attribute:
         raise FamilyError(key, f"{reference!r} is not module:attribute")
-    _add_search_path(base)
+    folders = _search_folders(base)
+    for folder in folders:
+        _add_search_path(folder)
     try:
         module = importlib.import_module(module_name)
     except ImportError as error:
+        where = ""
+        if isinstance(error, ModuleNotFoundError) and error.name is not None and \
+                module_name.split(".")[0] == error.name.split(".")[0]:
+            named = [f"the scenario's folder {folders[0]}"] if base is not None else []
+            named += [f"the current directory {folders[-1]}"] if (
+                base is None or len(folders) > 1) else []
+            where = f" (looked in {', '.join(named)} and the Python path)"
         raise FamilyError(key, f"cannot import module {module_name!r} for {reference!r}: "
-                          f"{error}") from None
+                          f"{error}{where}") from None
     except (Exception, SystemExit) as error:  # the user's module failed while importing
         raise FamilyError(key, f"importing {module_name!r} for {reference!r} failed: "
                           f"{_failure(error)}") from error
@@ -819,3 +840,55 @@ def family_names(include_entry_points: bool = True) -> list[str]:
 def families() -> list[EstimatorFamily]:
     """The registered families (built-ins and those resolved so far)."""
     return _ordered()
+
+
+def _origin(family: EstimatorFamily) -> str:
+    """Where a family comes from, in words: its module, reference or entry point."""
+    module = getattr(family.build, "__module__", None) or "?"
+    if family.source == "builtin":
+        return f"built-in ({module})"
+    if family.source == "entry-point":
+        point = _entry_points().get(family.name)
+        value = f" = {point.value}" if point is not None else ""
+        return f"entry point {ENTRY_POINT_GROUP}: {family.name}{value}"
+    if family.source == "scenario":
+        return f"module {family.reference or family.name}"
+    return f"registered from Python ({module})"
+
+
+def family_listing(load_entry_points: bool = True) -> list[dict[str, Any]]:
+    """Every registered family and installed entry point, as plain values (``netsim
+    estimators``): ``name``, ``source`` (built-in, entry-point, module, python),
+    ``origin`` (the module, reference or entry point it comes from), ``description``,
+    ``traits`` (:meth:`EstimatorFamily.traits`) and, for an entry point that fails to
+    load, ``error`` (one line) instead of traits.
+
+    Parameters
+    ----------
+    load_entry_points : bool
+        Load installed entry points to read their traits (False: list them by name).
+    """
+    out = []
+    for family in families():
+        traits = family.traits()
+        out.append({"name": family.name,
+                    "source": {"builtin": "built-in", "scenario": "module"}.get(
+                        family.source, family.source),
+                    "origin": _origin(family), "description": family.description,
+                    "traits": traits})
+    listed = {item["name"] for item in out}
+    for name, point in _entry_points().items():
+        if name in listed:
+            continue
+        item: dict[str, Any] = {"name": name, "source": "entry-point",
+                                "origin": f"entry point {ENTRY_POINT_GROUP}: {name} = "
+                                f"{point.value}", "description": "", "traits": None}
+        if load_entry_points:
+            try:
+                family = get_family(name, "entry point")
+            except FamilyError as error:
+                item["error"] = error.detail
+            else:
+                item.update(description=family.description, traits=family.traits())
+        out.append(item)
+    return out

@@ -32,6 +32,7 @@ from netsim.cliutil import (
     gains_if_needed,
     note_kernel_fallbacks,
     scenario_warnings,
+    tau_star_text,
 )
 from netsim.extras import MissingExtra
 from netsim.models.jsonsafe import json_number as _num
@@ -75,8 +76,10 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         description=(
             "Discrete-event simulation of distributed state estimation over networks with "
             "communication delays: consensus + innovation estimators (LCSYS2022, delay-"
-            "tolerant), their delay-compensating and block-update variants, and a "
-            "centralised Kalman filter reference."
+            "tolerant) with their delay-compensating and block-update variants, the "
+            "age-of-information observer (aoi), delayed Kalman fusion (dkfe), local and "
+            "centralised Kalman filter references, and estimators of your own "
+            "('netsim estimators' lists them)."
         ),
         epilog="Run 'netsim COMMAND --help' for the options of a command.",
     )
@@ -89,7 +92,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         "run",
         help="Monte Carlo runs of every estimator in a scenario",
         description=(
-            "Run every estimator family of SCENARIO over Monte Carlo trials (in the "
+            "Run the estimator families of SCENARIO (its run.estimators, or --estimators) "
+            "over Monte Carlo trials (in the "
             "vectorised engine, or the SimPy event kernel with --engine events) and "
             "print, per estimator, the network MSE over time, a verdict (stable / "
             "diverging / unbounded / undecided / diverged at step k, by the rule of "
@@ -108,7 +112,12 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--seed", type=int, help="root seed of the trial randomness")
     run.add_argument("--tau", type=int, help="override the scenario's delay bound tau "
                      "(homogeneous, heterogeneous or time-varying delays)")
-    run.add_argument("--estimators", help="comma-separated subset of the scenario's estimators")
+    run.add_argument("--estimators", metavar="NAME,...",
+                     help="comma-separated estimator families to run instead of the "
+                     "scenario's run.estimators: any registered family ('netsim "
+                     "estimators' lists them), an installed entry point, or "
+                     "module:attribute of your own estimator (looked for in the "
+                     "scenario's folder, the current directory and the Python path)")
     run.add_argument("--trace", metavar="FILE.mcap",
                      help="record every run to MCAP: FILE.mcap for a single run, else one "
                      "file per estimator and trial, FILE.<estimator>.trial<k>.mcap")
@@ -281,7 +290,7 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     layout.add_argument("--tabs", metavar="TAB,...",
                         help="with --figure: draw only these tabs (e.g. Errors,Drops)")
     layout.add_argument("--force", action="store_true",
-                        help="overwrite an existing layout file")
+                        help="overwrite an existing layout file (and --figure PNG)")
     layout.add_argument("--json", action="store_true",
                         help="print {\"layout\": FILE.json, ...} as JSON on stdout")
 
@@ -317,6 +326,16 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     scen = sub.add_parser("scenarios", help="list the built-in scenarios",
                           description="List the built-in scenarios with their descriptions.")
     scen.add_argument("--json", action="store_true", help="print one JSON object on stdout")
+
+    est = sub.add_parser(
+        "estimators", help="list the registered estimator families",
+        description="List every estimator family a scenario's run.estimators or "
+        "--estimators can name: the built-in ones and those of installed packages "
+        "(entry-point group netsim.estimators), each with where it comes from and what "
+        "it declares (paper, gains, time-stamps, error recursion, vectorised form). A "
+        "family of your own can also be named as module:attribute; it is not listed "
+        "until a command resolves it.")
+    est.add_argument("--json", action="store_true", help="print one JSON object on stdout")
 
     fusion = sub.add_parser(
         "fusion",
@@ -729,7 +748,8 @@ def _format_run(data: dict[str, Any]) -> str:
             lines += section.get("summary_lines", [])
     if "delay_bound" in a:
         lines.append(
-            f"analytics at tau = {a['delay_bound']}: tau* (LCSYS2022 Thm 1) = {a['tau_star']}, "
+            f"analytics at tau = {a['delay_bound']}: tau* (LCSYS2022 Thm 1) = "
+            f"{tau_star_text(a['tau_star'])}, "
             f"eq. (26) bound = {_fmt(a['bound_lcsys_eq26'])}, delay-tolerant bound "
             f"rho^(1/(tau+1)) = {_fmt(a['bound_delay_tolerant'])}"
         )
@@ -925,7 +945,7 @@ def _cmd_design(args: argparse.Namespace) -> int:
         lines.append(f"designed for delays up to tau1 = {d['design_tau']}: "
                      f"rho((I-KD)(P kron A^(tau1+1))) = {_fmt(d['rho_design'])}")
     iso = f", isolated passing values {data['tau_star_isolated']}" if star.isolated else ""
-    lines.append(f"tau* (LCSYS2022 Theorem 1) = {data['tau_star']}{iso}")
+    lines.append(f"tau* (LCSYS2022 Theorem 1) = {tau_star_text(data['tau_star'])}{iso}")
     if d["message"]:
         lines.append(d["message"])
     lines.append("gains K_i (n x n, K_i = L_i (C_i C_i^T)^-1 C_i):")
@@ -978,7 +998,7 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
         f"rho(A-hat) delay-free = {_fmt(report.rho_delay_free)}, convergence-time order "
         f"1/(1-rho) = {_fmt(report.convergence_order_delay_free)}",
         f"tau* (LCSYS2022 Theorem 1: largest tau with rho((I-KD)(P kron A^(tau+1))) < 1 "
-        f"for all smaller tau) = {report.tau_star}{iso}",
+        f"for all smaller tau) = {tau_star_text(report.tau_star)}{iso}",
         "",
         "homogeneous delay tau on every link (self-loops undelayed):",
         f"{'tau':>4} {'exact comp':>11} {'eq.26 bound':>12} {'verdict':>10} {'Thm1':>6} "
@@ -1177,6 +1197,41 @@ def _cmd_scenarios(args: argparse.Namespace) -> int:
     return 0
 
 
+#: The traits ``netsim estimators`` shows, as (key, words when set).
+_TRAIT_WORDS = (("needs_gains", "gains L_i"), ("timestamps", "time-stamps"),
+                ("vectorised", "vectorised"), ("centralised", "centralised"),
+                ("delay_free", "delay-free"), ("needs_graph_sequence", "graph sequence"))
+
+
+def _cmd_estimators(args: argparse.Namespace) -> int:
+    from netsim.estimators.registry import family_listing
+
+    items = family_listing()
+    if args.json:
+        return _emit(args, {"estimators": items}, "")
+    lines = []
+    for item in items:
+        lines.append(f"{item['name']}  [{item['origin']}]")
+        if item.get("error"):
+            lines.append(f"    failed to load: {item['error']}")
+            continue
+        traits = item["traits"] or {}
+        if item["description"]:
+            lines.append(f"    {' '.join(item['description'].split())}")
+        if traits.get("paper"):
+            lines.append(f"    paper: {traits['paper']}")
+        flags = [words for key, words in _TRAIT_WORDS if traits.get(key)]
+        if not traits.get("timestamps", True):
+            flags.append("no time-stamps")
+        recursion = traits.get("error_recursion")
+        lines.append(f"    traits: {', '.join(flags) if flags else 'none declared'}; error "
+                     f"recursion: {recursion or 'none (no replay or augmented analytics)'}")
+    lines.append("A family of your own: --estimators module:attribute (or run.estimators in "
+                 "a scenario); installed packages add families through the entry-point group "
+                 "netsim.estimators.")
+    return _emit(args, {}, "\n".join(lines))
+
+
 def _cmd_fusion(args: argparse.Namespace) -> int:
     from netsim import fusion as nf
 
@@ -1290,6 +1345,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "claims": _cmd_claims,
         "reproduce": _cmd_reproduce,
         "scenarios": _cmd_scenarios,
+        "estimators": _cmd_estimators,
     }
     parser = build_parser(_command_in(sys.argv[1:] if argv is None else list(argv), handlers))
     args = parser.parse_args(argv)

@@ -20,7 +20,7 @@ from typing import Any, NoReturn
 
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
            "REPRODUCE_HELP", "OneLineParser", "TableEpilogFormatter", "analyze_with_progress",
-           "gains_if_needed",
+           "gains_if_needed", "tau_star_text", "NOT_COMPUTED",
            "note_kernel_fallbacks", "scenario_warnings"]
 
 #: ``netsim reproduce``'s one-line help, shared by the full parser and the cheap listing.
@@ -29,6 +29,27 @@ REPRODUCE_HELP = "regenerate every figure and table of the four papers, with a r
 EXIT_BAD_INPUT = 2
 EXIT_DESIGN_FAILED = 3
 EXIT_INTERRUPTED = 130
+
+
+#: What a table prints for a number that was not computed (never ``None``).
+NOT_COMPUTED = "not computed"
+
+
+def tau_star_text(tau_star: int | None, computed: bool = True) -> str:
+    """LCSYS2022 Theorem 1's tau* as table text, never ``None``.
+
+    ``tau_star`` None means the condition fails already at tau = 0 (the delay-free
+    design is not stable: :func:`netsim.models.augmented.tau_star`), so no delay is
+    tolerated; ``computed=False``: the analysis did not run.
+
+    Examples
+    --------
+    >>> tau_star_text(10), tau_star_text(None), tau_star_text(None, computed=False)
+    ('10', 'none (no delay is tolerated)', 'not computed')
+    """
+    if not computed:
+        return NOT_COMPUTED
+    return "none (no delay is tolerated)" if tau_star is None else str(tau_star)
 
 
 class CommandError(Exception):

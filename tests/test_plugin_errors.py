@@ -19,7 +19,10 @@ names (imported modules and resolved families are cached per process).
 from __future__ import annotations
 
 import json
+import os
 import pickle
+import subprocess
+import sys
 import textwrap
 from pathlib import Path
 
@@ -379,3 +382,36 @@ def test_one_class_under_two_names_is_listed_twice(capsys, on_path):
                              f"{reference},short-hold", *SMALL)
     one_line_error(code, out, err, "--estimators[1]", "'short-hold' is listed twice",
                    f"as '{reference}'")
+
+
+# -- module:attribute from the current directory (issue 30) ---------------------------
+
+
+def test_plugin_in_the_current_directory_beside_a_builtin_scenario(tmp_path):
+    """``--estimators mod:Cls`` with a built-in scenario finds mod.py in the current
+    directory without PYTHONPATH (a fresh ``netsim`` process: the console script's
+    sys.path has no current directory)."""
+    (tmp_path / "cwd_plugin_issue30.py").write_text(
+        (ROOT / "examples" / "consensus_on_information.py").read_text(encoding="utf-8"),
+        encoding="utf-8")
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+    script = "import sys; from netsim.cli import main; sys.exit(main(sys.argv[1:]))"
+    run = subprocess.run(  # -P: no current directory on sys.path, as the console script
+        [sys.executable, "-P", "-c", script, "run", "lcsys2022-homogeneous", "--estimators",
+         "compensated,cwd_plugin_issue30:ConsensusOnInformation", "--engine", "events",
+         "--steps", "20", "--trials", "1", "--no-progress", "--json"],
+        capture_output=True, text=True, cwd=tmp_path, env=env, timeout=300)
+    assert run.returncode == 0, run.stderr
+    names = list(json.loads(run.stdout)["estimators"])
+    assert names == ["compensated", "consensus-on-information"] or (
+        len(names) == 2 and names[0] == "compensated"), names
+
+
+def test_module_not_found_says_where_it_looked(capsys, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    code = main(["run", "lcsys2022-homogeneous", "--estimators", "nosuchmod_issue30:X",
+                 "--steps", "5", "--trials", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"looked in the current directory {tmp_path}" in err
+    assert "and the Python path" in err

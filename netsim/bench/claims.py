@@ -19,6 +19,7 @@ from netsim import papers as _p
 from netsim.bench.cells import find_cell as _cell
 from netsim.bench.fmt import describe_cell as _describe
 from netsim.bench.fmt import fmt_value as _f
+from netsim.cliutil import tau_star_text
 
 __all__ = ["CLAIMS", "disagreements"]
 
@@ -56,7 +57,8 @@ def _c_tau_star(data: dict[str, Any]) -> dict[str, Any]:
     scan = data["analysis"] or {}
     t = scan.get("tau_star")
     return _claim("L-tau-star", _LCSYS, f"tau* = {_p.LCSYS_TAU_STAR} (Theorem 1)",
-                  f"tau* = {t}" + (f" (isolated passing values {scan.get('tau_star_isolated')})"
+                  f"tau* = {tau_star_text(t, data['analysis'] is not None)}"
+                  + (f" (isolated passing values {scan.get('tau_star_isolated')})"
                                    if scan.get("tau_star_isolated") else "")
                   + " for our gains and instance",
                   None if t is None else t == _p.LCSYS_TAU_STAR,
@@ -233,11 +235,12 @@ def _c_theorem1_l(data: dict[str, Any]) -> dict[str, Any]:
             else:
                 bad.append(f"{setting} tau {tau}: {_describe(c)}")
     if not bad and not ok:
-        return _claim("L-theorem1", _LCSYS, f"Theorem 1: stable for tau <= tau* = {star}", "-",
+        return _claim("L-theorem1", _LCSYS, "Theorem 1: stable for tau <= tau* = "
+                      f"{tau_star_text(star, data['analysis'] is not None)}", "-",
                       None)
     return _claim("L-theorem1", _LCSYS, f"Theorem 1: compensated estimator stable for every "
-                  f"tau <= tau* = {star}", "; ".join(bad) if bad else "stable: " + ", ".join(ok),
-                  not bad)
+                  f"tau <= tau* = {tau_star_text(star)}",
+                  "; ".join(bad) if bad else "stable: " + ", ".join(ok), not bad)
 
 
 #: The bench checks by claim id: ``CLAIMS[id](report) -> dict`` (a bench row).

@@ -51,8 +51,8 @@ def add_bench_parser(subparsers: Any) -> Any:
     dt.add_argument("--delays", help="comma-separated delay settings: "
                     f"{', '.join(DELAY_SETTINGS)} (default: the preset's, else "
                     "homogeneous,heterogeneous,time-varying)")
-    dt.add_argument("--estimators", help="comma-separated estimator families: built-in ("
-                    "netsim scenarios shows them), module:attribute of your own, or an "
+    dt.add_argument("--estimators", help="comma-separated estimator families: registered "
+                    "('netsim estimators' lists them), module:attribute of your own, or an "
                     "installed entry point (default: the scenario's run.estimators)")
     dt.add_argument("--trials", type=int, help="Monte Carlo trials per cell (default: the "
                     "preset's, else the scenario's)")
@@ -89,8 +89,8 @@ def add_bench_parser(subparsers: Any) -> Any:
     sw.add_argument("--sizes", help="comma-separated numbers of agents (agent i carries "
                     "sensor i mod m of the base plant)")
     sw.add_argument("--seeds", help="comma-separated run seeds")
-    sw.add_argument("--estimators", help="comma-separated estimator families (default: "
-                    f"{', '.join(FAMILIES)})")
+    sw.add_argument("--estimators", help="comma-separated estimator families ('netsim "
+                    f"estimators' lists them; default: {', '.join(FAMILIES)})")
     sw.add_argument("--trials", type=int, default=10, help="trials per cell (default 10)")
     sw.add_argument("--steps", type=int, default=200, help="steps per trial (default 200)")
     sw.add_argument("--seed", type=int, default=0, help="root seed (default 0)")

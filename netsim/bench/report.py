@@ -8,6 +8,7 @@ from netsim.bench.cells import ROUNDOFF_WARNING
 from netsim.bench.cells import find_cell as _cell
 from netsim.bench.fmt import fmt_value as _f
 from netsim.bench.presets import DELAY_SETTINGS
+from netsim.cliutil import tau_star_text
 
 __all__ = ["format_report"]
 
@@ -34,7 +35,7 @@ def format_report(data: dict[str, Any]) -> str:
     if g:
         lines.append(f"gains: {g['method']} ({g['solver']}), rho(A-hat) delay-free = "
                      f"{_f(g['rho_delay_free'])}; tau* (LCSYS2022 Thm 1) = "
-                     f"{scan.get('tau_star')}"
+                     f"{tau_star_text(scan.get('tau_star'), data['analysis'] is not None)}"
                      + (f", isolated {scan['tau_star_isolated']}"
                         if scan.get("tau_star_isolated") else ""))
     r = data["run"]
@@ -101,12 +102,19 @@ def format_report(data: dict[str, Any]) -> str:
     lines += [head, "-" * len(head)]
     for t in data["tolerance"]:
         measured = "none" if t["measured_max"] is None else str(t["measured_max"])
+        # None: no prediction / exact analysis for the family ("-"), or none tolerated
+        predicted = ("-" if str(t.get("predicted_by", "")).startswith("no prediction")
+                     else "none" if t["predicted"] is None else str(t["predicted"]))
+        exact = ("-" if str(t.get("exact_by", "")).startswith("no exact")
+                 else "none" if t["exact_homogeneous"] is None else str(t["exact_homogeneous"]))
         lines.append(f"{t['family']:<15}{t['setting']:<20}{measured:>9}"
-                     f"{str(t['predicted']):>10}  {str(t['exact_homogeneous']):>14}  "
+                     f"{predicted:>10}  {exact:>14}  "
                      f"{t['stable_taus']} / {t['unstable_taus']}")
     lines.append("predicted: tau* of LCSYS2022 Theorem 1 (compensated, block); 'any' for the "
-                 "delay-tolerant Theorem 1 (uncompensated). exact: largest tau with every "
-                 f"smaller homogeneous tau's exact rho < 1 (scanned to {scan.get('tau_max')}).")
+                 "delay-tolerant Theorem 1 (uncompensated); none: no delay is tolerated "
+                 "(rho(A-hat) >= 1); -: no prediction for the family. exact: largest tau "
+                 "with every smaller homogeneous tau's exact rho < 1 (scanned to "
+                 f"{scan.get('tau_max')}).")
     if data["claims"]:
         lines += ["", "the papers' statements:"]
         for c in data["claims"]:

@@ -379,7 +379,9 @@ def _ours_rho(context: Context) -> tuple[float, int | None]:
 
 def check_printed_rho(context: Context) -> Outcome:
     rho, star = _ours_rho(context)
-    return Outcome(UNDECIDED, f"ours: rho(A-hat) = {rho:.4f}, tau* = {star} on our "
+    from netsim.cliutil import tau_star_text
+
+    return Outcome(UNDECIDED, f"ours: rho(A-hat) = {rho:.4f}, tau* = {tau_star_text(star)} on our "
                    "instance", {"rho_delay_free": _r(rho), "tau_star": star},
                    reason="the paper does not print A, C, P or K")
 

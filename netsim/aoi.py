@@ -104,7 +104,7 @@ def aoi_scenario_from(name: str, description: str, A: Any, C: Sequence[Any],
     )
     import networkx as nx
 
-    union = nx.DiGraph()
+    union: nx.DiGraph[int] = nx.DiGraph()
     union.add_nodes_from(range(len(Cs)))
     union.add_edges_from(topology.links())
     unknown = sorted(set(options) - set(AOI_OPTIONS))

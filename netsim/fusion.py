@@ -35,7 +35,7 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import scipy.linalg as sla
@@ -473,7 +473,8 @@ def run_fusion(example: str | dk.DkfeSetup = "dkfe-example2", steps: int = 100,
             for i in range(L):
                 per.setdefault(f"CSE {i + 1} (d={setup.delays[i]})", []).append(tr.cse[:, i])
             per.setdefault("DKFE", []).append(tr.dkfe)
-            per.setdefault("SDKFE", []).append(tr.sdkfe)
+            # steady weights given: the SDKFE is recorded
+            per.setdefault("SDKFE", []).append(cast(np.ndarray, tr.sdkfe))
             per.setdefault("ODKFE (d=0)", []).append(tr.odkfe)
             per.setdefault("centralized KF", []).append(tr.ckf)
         if not st:

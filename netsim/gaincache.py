@@ -199,7 +199,7 @@ def fingerprint(scenario: Any, request: dict[str, Any]) -> str:
         digest.update(repr(a.shape).encode())
         digest.update(a.tobytes())
 
-    weights = scenario.weights
+    weights: np.ndarray | sp.csr_array = scenario.weights  # CSR at large N
     if sp.issparse(weights):
         # CSR with sorted indices: shape, structure and values (never densified)
         W = sp.csr_array(weights)

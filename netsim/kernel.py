@@ -23,7 +23,7 @@ import inspect
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 import simpy
@@ -109,14 +109,15 @@ class AgentSpec:
     ----------
     estimator : HostedEstimator
         The update rule (knows nothing of SimPy).
-    measure : callable(list of y^i_k) -> numpy.ndarray
-        Selects this agent's measurement from all sensors' (e.g. ``lambda ys: ys[i]``).
+    measure : callable(list of y^i_k) -> numpy.ndarray or None
+        Selects this agent's measurement from all sensors' (e.g. ``lambda ys: ys[i]``);
+        None for an agent that measures nothing (a fusion centre).
     out_neighbours : sequence of int
         Agents this one sends its estimate to.
     """
 
     estimator: Any
-    measure: Callable[[Sequence[np.ndarray]], np.ndarray]
+    measure: Callable[[Sequence[np.ndarray]], np.ndarray | None]
     out_neighbours: Sequence[int] = ()
 
 
@@ -245,9 +246,10 @@ class Simulation:
         self.calendar = DeliveryCalendar(self.env)
         self._out_links: list[list[Link]] = []
         for i, spec in enumerate(self.agents):
-            links = []
+            links: list[Link] = []
             for r in spec.out_neighbours:
                 delays, model = resolve_link(delay_model, i, int(r), link_models)
+                link: Link
                 if model is not None:
                     link = ConfiguredLink(self.env, i, int(r), delays, self._deliver,
                                           self.sample_period, self.calendar)
@@ -448,7 +450,7 @@ class _Run:
 
     def monitor(self, tick: simpy.Event) -> None:
         """Record step k and test it for divergence (a callback of the tick, after the agents)."""
-        k = tick.value
+        k = cast(int, tick.value)  # the tick's value is its step
         if not self.in_place:
             self.estimates[k] = self.current
         # Within the norm bound every agent's error is within the threshold; beyond it

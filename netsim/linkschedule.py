@@ -25,6 +25,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any, cast
 
 import numpy as np
 
@@ -361,7 +362,8 @@ def build_schedule(
     for t, model in enumerate(delay_models):
         # models that draw a whole link set at once (one stream per trial, seed layout
         # 2): their links' delays as one (S, L') block
-        blocks: dict[int, tuple[DelayModel, list[int]]] = {}
+        # (a delay model with the optional draw_block, its columns)
+        blocks: dict[int, tuple[Any, list[int]]] = {}
         plain = getattr(model, "link", None) is None  # no per-link models to resolve
         if plain and hasattr(model, "draw_block") and not model.time_invariant:
             in_steps[:] = model.unit == "steps"
@@ -442,7 +444,8 @@ def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
     discarded = np.broadcast_to(np.zeros((1, 1, 1), dtype=bool), (T, L, S))
     # a delay beyond K + 1 behaves as K + 1 (the message never arrives by step K);
     # capping keeps the int32 step arithmetic below exact for any delay
-    delay = np.minimum(schedule.constant_delay.T, K + 1)  # (L, T)
+    constant = cast(np.ndarray, schedule.constant_delay)  # the caller checked: constant
+    delay = np.minimum(constant.T, K + 1)  # (L, T)
     steps = np.arange(K + 1, dtype=np.int32)[:, None, None]
     every_step = len(send) == K + 1 and bool(np.array_equal(send, np.arange(K + 1)))
     if every_step and delay.size and bool(np.all(delay == delay.flat[0])):

@@ -181,8 +181,8 @@ def read_results(path: str | os.PathLike[str], *, repair: bool = False
     try:
         text = data[:complete].decode("utf-8")
     except UnicodeDecodeError as exc:
-        line = data[:exc.start].count(b"\n") + 1
-        raise ValueError(f"results file {path}, line {line}: not UTF-8 text (byte "
+        line_no = data[:exc.start].count(b"\n") + 1
+        raise ValueError(f"results file {path}, line {line_no}: not UTF-8 text (byte "
                          f"{exc.start}: {exc.reason}); not a JSON-lines results file"
                          ) from None
     for number, line in enumerate(text.splitlines(), start=1):

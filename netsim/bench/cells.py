@@ -203,7 +203,7 @@ def _realised_growth(P: np.ndarray, A: np.ndarray, C: Sequence[np.ndarray],
     from netsim.models.augmented import closed_loop_sequence_growth
 
     edge = (P != 0) & ~np.eye(P.shape[0], dtype=bool)
-    seq = []
+    seq: list[np.ndarray] = []
     for k in range(1, D.shape[0]):
         d = D[k]
         if np.any(edge & (d == NOT_USED)):

@@ -6,7 +6,7 @@ import json
 import sys
 from collections.abc import Sequence
 from pathlib import Path
-from typing import Any
+from typing import Any, overload
 
 from netsim.bench.delay_tolerance import run_delay_tolerance
 from netsim.bench.fmt import fmt_value as _f
@@ -112,6 +112,10 @@ def _executor_options(parser: Any) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
+@overload
+def _ints(text: str, option: str) -> list[int]: ...
+@overload
+def _ints(text: str | None, option: str) -> list[int] | None: ...
 def _ints(text: str | None, option: str) -> list[int] | None:
     from netsim.cliutil import CommandError
 
@@ -146,6 +150,10 @@ def _families(option: str | None, scenario: Any) -> list[Any]:
         raise CommandError(str(exc)) from None
 
 
+@overload
+def _names(text: str, option: str, allowed: Sequence[str] | None) -> list[str]: ...
+@overload
+def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list[str] | None: ...
 def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list[str] | None:
     from netsim.cliutil import CommandError
 
@@ -326,21 +334,22 @@ def _cmd_sweep(args: Any) -> int:
     for option in ("trials", "steps"):
         if getattr(args, option) < 1:
             raise CommandError(f"--{option} must be a positive integer")
-    axes = {
+    taus, agents = _ints(args.taus, "--taus"), _ints(args.sizes, "--sizes")
+    axes: dict[str, list[Any] | None] = {
         "delays": _names(args.delays, "--delays", None),
-        "tau": _ints(args.taus, "--taus"),
+        "tau": taus,
         "topology": _names(args.topologies, "--topologies", ["cycle", "random", "geometric"]),
-        "agents": _ints(args.sizes, "--sizes"),
+        "agents": agents,
         "seed": _ints(args.seeds, "--seeds"),
     }
-    if axes["agents"] and min(axes["agents"]) < 2:
+    if agents and min(agents) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
     families = _names(args.estimators, "--estimators", None) or list(FAMILIES)
     # the results file is resumed and the CSV regenerated from it: neither needs --force,
     # but neither may be a link, an input or the other output
     _check_outputs(args.scenario, [("--out", args.out, False), ("--csv", args.csv, False)])
-    if axes["agents"]:
-        _check_sweep_sizes(args.scenario, max(axes["agents"]), max(axes["tau"] or [0]),
+    if agents:
+        _check_sweep_sizes(args.scenario, max(agents), max(taus or [0]),
                            args.trials, args.steps)
     try:
         result = run_scenario_sweep(

@@ -80,8 +80,8 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
             if c is None or not c["measured"].get("curve"):
                 continue
             curve = c["measured"]["curve"]
-            ys = np.array([np.nan if v is None else v for v in curve["mse"]], dtype=float)
-            ax2.plot(curve["steps"], ys, color=cmap(n / max(1, len(data["taus"]) - 1)),
+            mse = np.array([np.nan if v is None else v for v in curve["mse"]], dtype=float)
+            ax2.plot(curve["steps"], mse, color=cmap(n / max(1, len(data["taus"]) - 1)),
                      label=f"tau = {tau} ({c['measured']['verdict']})")
         ax2.set_yscale("log")
         ax2.set_xlabel("step k")

@@ -72,7 +72,7 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
     return out
 
 
-def run_scenario_sweep(scenario: str, *, axes: dict[str, list], trials: int, steps: int,
+def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], trials: int, steps: int,
                        families: Sequence[str], seed: int, engine: str = "auto",
                        **options: Any):
     """Grid over ``axes`` (delays, tau, topology, agents, seed) of one base scenario.

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -534,7 +534,8 @@ def naive_growth(steps: int = 40) -> dict[str, float]:
     from netsim.runner import run_monte_carlo
 
     result = run_monte_carlo(illustrative_example(steps=steps, seed=0), keep_trials=False)
-    return {name: float(result.estimators[name].report["growth_rate"])
+    # the naive baselines have a report
+    return {name: float(cast("dict[str, Any]", result.estimators[name].report)["growth_rate"])
             for name in ("naive-uniform", "naive-tree")}
 
 
@@ -572,7 +573,7 @@ def _aoi_confirm(x: Any) -> dict[str, Any]:
 
     res = run_monte_carlo(x.scenario(), families=["aoi"], keep_trials=False,
                           engine="events")
-    rep = res.estimators["aoi"].report
+    rep = cast("dict[str, Any]", res.estimators["aoi"].report)  # aoi has a report
     fresh = rep.get("freshness") or {}
     return {"converged_at": rep.get("converged_at"),
             "triggered_by": fresh.get("all_triggered_by"),
@@ -750,10 +751,10 @@ def convergence_time(M: np.ndarray, factor: float = 1e-3, seed: int = 0,
                      max_steps: int = 100_000) -> int | None:
     """Steps until ``||M^k e_0|| <= factor ||e_0||`` for a random ``e_0`` (noise-free error
     recursion e_k = M e_{k-1}); None if not within ``max_steps``."""
-    e = np.random.default_rng(seed).standard_normal(M.shape[0])
+    e = np.random.default_rng(seed).standard_normal(int(M.shape[0]))
     e0 = float(np.linalg.norm(e))
     for k in range(1, max_steps + 1):
-        e = M @ e
+        e = cast("np.ndarray", M @ e)  # numpy's stubs type this product as float
         if np.linalg.norm(e) <= factor * e0:
             return k
     return None
@@ -829,10 +830,12 @@ def lemma4_on(P: Any, A: Any, C: Any, L: Any, tau: int) -> dict[str, float]:
 def check_lemma4(context: Context) -> Outcome:
     """LCSYS2022 Lemmas 4-5, the equality case: all delays (self-loops too) equal tau."""
     inst = lcsys_instance(context)
-    rows = {t: lemma4_on(inst["P"], inst["A"], inst["C"], inst["L"], t) for t in (1, 3, 8)}
+    rows: dict[int | str, dict[str, float]] = {
+        t: lemma4_on(inst["P"], inst["A"], inst["C"], inst["L"], t) for t in (1, 3, 8)}
     found = searched(context, "L-theorem1")
     if found.instance is not None:
-        rows["search"] = lemma4_on(*found.instance.matrices(), 1)
+        P, A, C, L = found.instance.matrices()
+        rows["search"] = lemma4_on(P, A, C, L, 1)
     worst = max(abs(v["exact"] - v["bound"]) for v in rows.values())
     s = ", ".join(f"{'tau ' if k != 'search' else ''}{k}: {v['exact']:.6f} vs "
                   f"{v['bound']:.6f}" for k, v in rows.items())
@@ -853,7 +856,8 @@ def aoi_numbers_example() -> dict[str, Any]:
     from netsim.runner import run_monte_carlo
 
     res = run_monte_carlo(illustrative_example(steps=40), families=["aoi"], keep_trials=False)
-    rep, b = res.estimators["aoi"].report, res.analytics["aoi"]["bounds"]
+    rep = cast("dict[str, Any]", res.estimators["aoi"].report)  # aoi has a report
+    b = cast("dict[str, Any]", res.analytics)["aoi"]["bounds"]  # the aoi family's
     fresh = rep.get("freshness") or {}
     return {"converged_at": rep.get("converged_at"), "T": b["T"],
             "corollary_1": b["corollary_1_finite_time"],

@@ -443,7 +443,8 @@ def counted_search(claim: str, phases: list[Phase],
             progress(min(1.0, found.tried / planned))
 
     for phase, stream in zip(phases, streams, strict=False):
-        row = {"family": phase.family, "planned": phase.count, "tried": 0, "hits": 0}
+        row: dict[str, Any] = {"family": phase.family, "planned": phase.count, "tried": 0,
+                               "hits": 0}
         found.families.append(row)
         rng = np.random.default_rng(stream)
         draws = 0
@@ -645,7 +646,8 @@ def search_theorem1(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
 
         x, d = found.instance, found.details
         d["rho_delay_free"] = x.rho_delay_free()
-        d["bound_eq26"] = float(delay_bound_lcsys(*x.matrices(), d["tau"]))
+        P, A, C, L = x.matrices()
+        d["bound_eq26"] = float(delay_bound_lcsys(P, A, C, L, d["tau"]))
     return found
 
 

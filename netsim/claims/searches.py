@@ -42,7 +42,7 @@ import tomllib
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -113,7 +113,9 @@ class DelayedInstance:
         off = (P != 0) & ~np.eye(len(P), dtype=bool)
         return bool(off.any() and np.all(d[off] == d[off].max()))
 
-    def matrices(self) -> tuple[Any, ...]:
+    def matrices(
+        self,
+    ) -> tuple[np.ndarray, np.ndarray, list[np.ndarray], list[np.ndarray], np.ndarray]:
         """``(P, A, C, L, delays)``."""
         return (*self.inst.matrices(), np.array(self.delays))
 
@@ -374,8 +376,8 @@ def aoi_numbers(x: AoiInstance) -> dict[str, Any]:
     from netsim.runner import run_monte_carlo
 
     res = run_monte_carlo(x.scenario(), families=["aoi"], keep_trials=False)
-    rep = res.estimators["aoi"].report
-    b = res.analytics["aoi"]["bounds"]
+    rep = cast("dict[str, Any]", res.estimators["aoi"].report)  # aoi has a report
+    b = cast("dict[str, Any]", res.analytics)["aoi"]["bounds"]  # the aoi family's
     fresh = rep.get("freshness") or {}
     return {"converged_at": rep.get("converged_at"), "T": b["T"],
             "corollary_1": b["corollary_1_finite_time"],

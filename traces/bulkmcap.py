@@ -50,7 +50,7 @@ import zlib
 from collections.abc import Mapping
 from concurrent.futures import Future, ThreadPoolExecutor
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Any, Literal, cast
 
 import numpy as np
 import zstandard
@@ -657,7 +657,7 @@ class BulkMcapWriter:
     def __enter__(self) -> BulkMcapWriter:
         return self
 
-    def __exit__(self, *exc: Any) -> bool:
+    def __exit__(self, *exc: Any) -> Literal[False]:
         self.close()
         return False
 
@@ -706,7 +706,8 @@ class BulkMcapWriter:
         compressed_size = sum(p.nbytes if isinstance(p, (np.ndarray, memoryview)) else len(p)
                               for p in pieces)
         size = chunk.size
-        start, end = int(chunk.start_time), int(chunk.end_time)
+        # a chunk is written with at least one message: its times are set
+        start, end = int(cast(int, chunk.start_time)), int(chunk.end_time)
         body = (struct.pack("<QQQI", start, end, size, crc) + _string(self.compression)
                 + struct.pack("<Q", compressed_size))
         head = struct.pack("<BQ", OP_CHUNK, len(body) + compressed_size)

@@ -110,8 +110,10 @@ class BulkEncoder:
         self.descriptor = descriptor
         fields: list[_Field] = []
         for fd in sorted(descriptor.fields, key=lambda f: f.number):
+            # protobuf before 6 (pyproject allows >= 4.25) has FieldDescriptor.label and
+            # no is_repeated; types-protobuf 7 describes only the newer API
             repeated = (fd.is_repeated if hasattr(fd, "is_repeated")
-                        else fd.label == _FD.LABEL_REPEATED)
+                        else fd.label == _FD.LABEL_REPEATED)  # type: ignore[attr-defined]
             count: int | None = None
             if repeated:
                 if fd.name not in lengths:

@@ -38,7 +38,7 @@ import zlib
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import Any, NamedTuple, cast
 
 import numpy as np
 import zstandard
@@ -313,9 +313,10 @@ class Trace:
     def lost_messages(self) -> int | None:
         """Messages in the lost chunks (None if a count is unknown)."""
         counts = [c.messages for c in self.lost_chunks]
-        if any(n is None for n in counts):
+        known = [n for n in counts if n is not None]
+        if len(known) != len(counts):
             return None
-        return sum(counts) + self.orphaned_messages
+        return sum(known) + self.orphaned_messages
 
     # -- metadata ------------------------------------------------------------------
 
@@ -367,8 +368,9 @@ class Trace:
         None, neither (the block update has its own, see :attr:`error_recursion`)."""
         from netsim.estimators.registry import RECURSION_COMPENSATED, RECURSION_UNCOMPENSATED
 
-        return {RECURSION_COMPENSATED: True,
-                RECURSION_UNCOMPENSATED: False}.get(self.error_recursion)
+        compensated: dict[str | None, bool] = {RECURSION_COMPENSATED: True,
+                                               RECURSION_UNCOMPENSATED: False}
+        return compensated.get(self.error_recursion)
 
     @property
     def centralised(self) -> bool:
@@ -528,7 +530,7 @@ class Trace:
                 event = str(m.event)
                 accepted, reason, when = bool(m.accepted), str(m.reason), float(m.event_time)
             else:
-                event = info.event
+                event = cast(str, info.event)  # a link topic of format 2 on names its event
                 accepted = event == "delivered" and bool(m.accepted)
                 reason = ""
                 when = float(m.send_time)
@@ -539,7 +541,8 @@ class Trace:
                 elif event == "delivered":
                     when = float(m.arrival_time)
             payload = list(m.payload) if event == "sent" or info.format == 1 else []
-            out.setdefault((info.index, info.receiver), []).append(LinkEvent(
+            link = cast("tuple[int, int]", (info.index, info.receiver))  # a link topic's
+            out.setdefault(link, []).append(LinkEvent(
                 event, int(m.sender), int(m.receiver), int(m.sent_step),
                 int(m.usable_step), int(m.sequence), float(m.send_time),
                 float(m.arrival_time), int(m.delay_steps), accepted, reason, when, payload,
@@ -808,8 +811,8 @@ def _read_finished(f: Any, where: str, size: int) -> Trace:
             return _scan(f, where, size, finished=True)
         for record in reader.iter_metadata():
             collect.metadata_record(record)
-        for record in reader.iter_attachments():
-            collect.attachment(record)
+        for attachment in reader.iter_attachments():
+            collect.attachment(attachment)
         collect.schemas.update(summary.schemas)
         for channel in summary.channels.values():
             collect.channel(channel)
@@ -1115,7 +1118,8 @@ def stream_records(stream: Any, *, where: str = "", validate_crcs: bool = False,
 
 _CHUNK_FIXED = 8 + 8 + 8 + 4 + 4  # start, end, uncompressed size, crc, compression length
 _COMPRESSIONS = (b"", b"zstd", b"lz4")
-_RECORD_TYPES = {
+#: the top-level record classes (each with a read(stream) class method)
+_RECORD_TYPES: dict[int, Any] = {
     Opcode.ATTACHMENT: Attachment, Opcode.CHANNEL: Channel, Opcode.SCHEMA: Schema,
     Opcode.METADATA: Metadata, Opcode.HEADER: Header, Opcode.FOOTER: Footer,
     Opcode.MESSAGE_INDEX: MessageIndex,

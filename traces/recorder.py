@@ -75,7 +75,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 from mcap.well_known import MessageEncoding, SchemaEncoding
@@ -584,9 +584,9 @@ class TraceRecorder:
                     c["Estimate"](step=k, time=t, agent=agent, estimate=x_hat.tolist(),
                                   **fields), ns, ns, k)
         neighbours = sorted(int(j) for j in delays)
-        r = [int(delays[j]) for j in neighbours]
-        used = [float(k - 1 - d) if d >= 0 else -1.0 for d in r]
-        r = [float(d) for d in r]
+        steps = [int(delays[j]) for j in neighbours]
+        used = [float(k - 1 - d) if d >= 0 else -1.0 for d in steps]
+        r = [float(d) for d in steps]
         self._write(update_topic(agent), "EstimatorUpdate",
                     c["EstimatorUpdate"](step=k, time=t, agent=agent, neighbours=neighbours,
                                          effective_delay=r, used_timestamp=used), ns, ns, k)
@@ -708,7 +708,7 @@ class TraceRecorder:
     def __enter__(self) -> TraceRecorder:
         return self
 
-    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> bool:
+    def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> Literal[False]:
         if self.closed:
             return False
         if exc_type is None:

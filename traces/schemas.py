@@ -356,7 +356,7 @@ class FieldLayout(NamedTuple):
     repeated: bool
 
 
-_WIRE = {  # protobuf type -> (wire type, width, dtype)
+_WIRE: dict[int, tuple[int, int, str]] = {  # protobuf type -> (wire type, width, dtype)
     _FIXED64: (1, 8, "<u8"), _SFIXED64: (1, 8, "<i8"), _DOUBLE: (1, 8, "<f8"),
     _FIXED32: (5, 4, "<u4"), _SFIXED32: (5, 4, "<i4"),
 }
@@ -404,6 +404,7 @@ def parse_time_origin(text: str | int | float) -> int:
     (``1700000000``, ``1.5e9``), or ``0`` (log_time = simulation time, as format 1).
     Raises ValueError (naming the value) for anything else or a time before 1970.
     """
+    ns: int | None
     if isinstance(text, int | float):
         ns = int(round(float(text) * 1e9))
     else:
@@ -487,7 +488,9 @@ class TopicInfo(NamedTuple):
     ``receiver``, the link ``event`` (None in format 1: all events) and the format."""
 
     kind: str
-    index: int | None
+    # the field shadows tuple.index (mypy: incompatible with the base class); the name
+    # is part of the public topic API, so it stays
+    index: int | None  # type: ignore[assignment]
     receiver: int | None
     event: str | None
     format: int

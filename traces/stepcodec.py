@@ -42,7 +42,7 @@ def field_dtypes(type_name: str) -> tuple[tuple[str, int, str], ...]:
     (``<f8``) for a fixed-width field, else ``uint32``, ``sint32`` or ``bool``."""
     from google.protobuf.descriptor_pb2 import FieldDescriptorProto as F
 
-    kinds = {F.TYPE_DOUBLE: "<f8", F.TYPE_FIXED32: "<u4", F.TYPE_SFIXED32: "<i4",
+    kinds: dict[int, str] = {F.TYPE_DOUBLE: "<f8", F.TYPE_FIXED32: "<u4", F.TYPE_SFIXED32: "<i4",
              F.TYPE_UINT32: "uint32", F.TYPE_SINT32: "sint32", F.TYPE_BOOL: "bool"}
     return tuple((f.name, f.number, kinds[f.type])
                  for f in sorted(MESSAGES[type_name], key=lambda f: f.number)

@@ -1090,7 +1090,6 @@ def _cmd_plot(args: argparse.Namespace) -> int:
 
 
 def _cmd_layout(args: argparse.Namespace) -> int:
-    from pathlib import Path
 
     from netsim.traces.layout import (
         foxglove_layout,
@@ -1289,17 +1288,13 @@ def _cmd_claims(args: argparse.Namespace) -> int:
     bar = tqdm(total=len(search_names(chosen)) + len(chosen), desc="netsim claims",
                unit="job", file=sys.stderr, leave=False,
                disable=True if args.no_progress else None)
-    from netsim.outfiles import OutputFileError
+    from netsim.outfiles import OutputFileError, check_output_folder
 
-    out_folder = Path(args.out)
-    if out_folder.is_symlink() or (out_folder.exists() and not out_folder.is_dir()):
-        raise CommandError(f"--out {args.out}: is a symbolic link or not a folder; netsim "
-                           "writes its report into a real folder")
-    if out_folder.is_dir():  # the files it will write there: never through a link
-        for name in ["claims.md", *(f"{c.id}-counterexample.toml" for c in chosen)]:
-            if (out_folder / name).is_symlink():
-                raise CommandError(f"--out {out_folder / name}: is a symbolic link; netsim "
-                                   "does not write through links")
+    try:  # the files it will write there: never through a link
+        check_output_folder(args.out, "--out", ["claims.md", *(
+            f"{c.id}-counterexample.toml" for c in chosen)])
+    except OutputFileError as exc:
+        raise CommandError(str(exc)) from None
     try:
         report = run_claims(chosen, seed=args.seed, budget=args.budget, out=args.out,
                             instances=args.instances,

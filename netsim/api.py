@@ -241,9 +241,9 @@ _REPR_FAMILIES = 12
 
 
 def _pandas(what: str) -> Any:
-    """Import pandas, or raise :class:`netsim.extras.MissingExtra` (an ImportError)
+    """Import pandas, or raise :class:`netsim.models.extras.MissingExtra` (an ImportError)
     naming it and the extra that installs it."""
-    from netsim.extras import MissingExtra
+    from netsim.models.extras import MissingExtra
 
     try:
         import pandas
@@ -419,7 +419,7 @@ class RunResult:
         >>> ax.figure.savefig("mse.png")             # doctest: +SKIP
         """
         if ax is None:
-            from netsim.extras import require
+            from netsim.models.extras import require
 
             plt = require("matplotlib.pyplot", "notebook", "RunResult.plot()")
             _, ax = plt.subplots(figsize=(7, 4))
@@ -528,7 +528,7 @@ class RunResult:
         Same file rule as :meth:`to_csv`. Returns the path written.
         """
         frame = self.to_dataframe(what)
-        from netsim.extras import MissingExtra
+        from netsim.models.extras import MissingExtra
 
         try:
             import pyarrow  # noqa: F401

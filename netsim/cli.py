@@ -2,7 +2,7 @@
 
 Exit codes: 0 success (an estimator that diverged is a result, not an error);
 2 bad input (scenario, arguments; an optional dependency not installed: the message
-names the extra, netsim.extras);
+names the extra, netsim.models.extras);
 3 gain design failed; 130 interrupted.
 """
 
@@ -34,7 +34,7 @@ from netsim.cliutil import (
     scenario_warnings,
     tau_star_text,
 )
-from netsim.extras import MissingExtra
+from netsim.models.extras import MissingExtra
 from netsim.models.jsonsafe import json_number as _num
 
 # CommandError and the exit codes live in netsim.cliutil (shared with netsim.bench);
@@ -1105,7 +1105,7 @@ def _cmd_layout(args: argparse.Namespace) -> int:
     if args.figure is not None and not args.figure.lower().endswith(".png"):
         raise CommandError(f"--figure {args.figure}: the figure must be a .png file")
     if args.figure is not None:  # before the layout is written
-        from netsim.extras import require
+        from netsim.models.extras import require
 
         require("matplotlib", "plot", "--figure")
     from netsim.outfiles import OutputFileError, atomic_output, check_output
@@ -1317,7 +1317,7 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
 
 def _cmd_reproduce(args: argparse.Namespace) -> int:
-    from netsim.extras import require
+    from netsim.models.extras import require
 
     require("matplotlib", "plot", "netsim reproduce (its figures)")
     from netsim.reproduce import cmd_reproduce
@@ -1359,7 +1359,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except ResourceError as exc:  # refused before allocating (netsim.budget)
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return EXIT_BAD_INPUT
-    except MissingExtra as exc:  # an optional dependency (netsim.extras): pip install ...
+    except MissingExtra as exc:  # an optional dependency (netsim.models.extras): pip install ...
         sys.stderr.write(f"netsim {args.command}: error: {exc}\n")
         return EXIT_BAD_INPUT
     except KeyboardInterrupt:

@@ -333,7 +333,7 @@ class SchedulerUnreachable(ValueError):
 
 class _Dask:
     def __init__(self, address: Any) -> None:
-        from netsim.extras import require
+        from netsim.models.extras import require
 
         Client = require("distributed", "dask", "the Dask executor (--dask)").Client
         if isinstance(address, Client):

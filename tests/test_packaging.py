@@ -165,7 +165,7 @@ def _one_line(capsys, argv, extra):
 
 
 def test_require_names_the_extra(without):
-    from netsim.extras import MissingExtra, require
+    from netsim.models.extras import MissingExtra, require
 
     without("matplotlib")
     with pytest.raises(MissingExtra, match=r"netsim plot needs matplotlib, which is not "
@@ -194,7 +194,7 @@ def test_dask_executor_without_dask(capsys, without):
     err = _one_line(capsys, ["bench", "delay-tolerance", "lcsys2022-fig1", "--dask",
                              "tcp://127.0.0.1:1", "--no-progress"], "dask")
     assert "dask[distributed]" in err
-    from netsim.extras import MissingExtra
+    from netsim.models.extras import MissingExtra
     from netsim.sweep import _Dask
 
     with pytest.raises(MissingExtra, match=r"pip install 'netsim\[dask\]'"):

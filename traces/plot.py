@@ -30,8 +30,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
-
-from netsim.extras import missing
+from netsim.models.extras import missing
 
 try:
     from matplotlib.axes import Axes

@@ -398,9 +398,9 @@ def _cmd_sweep(args: Any) -> int:
 
 
 def _require(module: str, extra: str, needed_for: str) -> None:
-    """An optional dependency (:func:`netsim.extras.require`), else CommandError."""
+    """An optional dependency (:func:`netsim.models.extras.require`), else CommandError."""
     from netsim.cliutil import CommandError
-    from netsim.extras import MissingExtra, require
+    from netsim.models.extras import MissingExtra, require
 
     try:
         require(module, extra, needed_for)

@@ -18,7 +18,7 @@ def plot_report(data: dict[str, Any], path: str | Path) -> Path:
     """PNG: steady-state MSE vs tau per estimator (one panel per delay setting; a run
     that is not stable has no steady MSE: its last trusted MSE is marked x) and the
     focus estimator's MSE over time for each tau."""
-    from netsim.extras import require
+    from netsim.models.extras import require
 
     colormaps = require("matplotlib", "plot", "the --plot figure").colormaps
     from matplotlib.figure import Figure

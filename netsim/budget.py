@@ -58,6 +58,7 @@ __all__ = [
     "eig_cost",
     "check_run",
     "guard_run",
+    "BATCH_ELEMENTS",
     "check_gain_design",
     "analysis_cost",
     "check_analysis",
@@ -266,6 +267,14 @@ def delay_horizon(max_delay: float, steps: int) -> int:
 # -- simulations ----------------------------------------------------------------------
 
 
+#: Largest trials x links x (steps + 2) of one lockstep batch of the vectorised engine
+#: (:func:`netsim.vectorised.run_vectorised` splits the trials so). Links with random
+#: delays, losses or buffers need about 75 bytes per element at the peak (measured by
+#: benchmarks/engine_scaling.py), so a full batch takes about 0.75 GB; constant delays
+#: need far less. One trial is never split.
+BATCH_ELEMENTS = 10_000_000
+
+
 def _sizes(scenario: Any) -> tuple[int, int, int, int, int, int]:
     """(n, N, L, m_total, m_max, noise width) of a scenario."""
     plant = scenario.plant
@@ -430,8 +439,6 @@ def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,
     if keep_estimates:
         kept += 4 * K1 * N * N  # the kept trials' (K+1, N, N) effective-delay records
     if engine == "vectorised":
-        from netsim.vectorised import BATCH_ELEMENTS
-
         per = max(1, BATCH_ELEMENTS // (max(1, L) * (K1 + 1)))
         batch = min(int(trials), per)
         work = vectorised_batch_bytes(scenario, steps, batch, record_estimates=keep_estimates)
@@ -464,8 +471,8 @@ def check_run(scenario: Any, steps: int, trials: int, engines: Sequence[str], *,
     check_memory(total, trials_name, f"the run ({engine} engine, {shape})", trials)
 
 
-def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
-              families: Sequence[Any], trace: str | None = None) -> list[str]:
+def guard_run(scenario: Any, steps: int | None, trials: int | None,
+              engines: Sequence[str], trace: str | None = None) -> list[str]:
     """The command line's check of ``netsim run``: refuse what cannot fit, say what is capped.
 
     Parameters
@@ -474,10 +481,9 @@ def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
     steps, trials : int or None
         ``--steps`` / ``--trials`` (None: the scenario's ``run.steps`` / ``run.trials``,
         named so in the message).
-    engine : str
-        The ``--engine`` option.
-    families : sequence
-        The families to run (names or declared families).
+    engines : sequence of str
+        The engine (``"events"`` or ``"vectorised"``) each family will run in
+        (:func:`netsim.runner.planned_engines`).
     trace : str, optional
         The ``--trace`` path: the trace files must fit on its file system.
 
@@ -486,14 +492,9 @@ def guard_run(scenario: Any, steps: int | None, trials: int | None, engine: str,
     list of str
         Notes for stderr (e.g. delays beyond the last step, which never arrive).
     """
-    from netsim.runner import engines_for
-
     K = scenario.steps if steps is None else int(steps)
     M = scenario.trials if trials is None else int(trials)
-    try:
-        engines = list(engines_for(engine, families, scenario).values())
-    except ValueError:
-        engines = ["events", "vectorised"]  # the run itself reports the bad choice
+    engines = list(engines)
     check_run(scenario, K, M, engines, steps_name="--steps" if steps is not None
               else "run.steps", trials_name="--trials" if trials is not None
               else "run.trials")

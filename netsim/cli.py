@@ -493,9 +493,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         raise CommandError(f"scenario {args.scenario}: {exc}") from None
     from netsim.budget import guard_run
-    from netsim.runner import check_agents, choose_engine, kernel_fallbacks
+    from netsim.runner import check_agents, choose_engine, kernel_fallbacks, planned_engines
 
-    for note in guard_run(scenario, args.steps, args.trials, args.engine, declared,
+    for note in guard_run(scenario, args.steps, args.trials,
+                          planned_engines(args.engine, declared, scenario),
                           args.trace):  # before designing gains
         sys.stderr.write(f"netsim run: note: {note}\n")
     gains = gains_if_needed(scenario, declared, args.scenario)

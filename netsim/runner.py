@@ -61,6 +61,7 @@ __all__ = [
     "family_of",
     "check_agents",
     "engines_for",
+    "planned_engines",
     "kernel_fallbacks",
     "choose_engine",
     "run_trial",
@@ -236,6 +237,17 @@ def engines_for(engine: str, families: Sequence[str | EstimatorFamily],
     if engine == "events":
         return {f.name: "events" for f in declared}
     return {f.name: "vectorised" if f.vectorised else "events" for f in declared}
+
+
+def planned_engines(engine: str, families: Sequence[str | EstimatorFamily],
+                    scenario: Scenario | None = None) -> list[str]:
+    """The engines a run will use, for the budget (:func:`netsim.budget.guard_run`):
+    :func:`engines_for`'s values, or both engines when the request is invalid (the run
+    itself then reports the bad choice)."""
+    try:
+        return list(engines_for(engine, families, scenario).values())
+    except ValueError:
+        return ["events", "vectorised"]
 
 
 def kernel_fallbacks(engine: str, families: Sequence[str | EstimatorFamily],

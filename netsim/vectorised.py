@@ -64,11 +64,9 @@ __all__ = [
     "effective_delays_per_link",
 ]
 
-#: Largest trials x links x (steps + 2) of one lockstep batch. Links with random
-#: delays, losses or buffers need about 75 bytes per element at the peak (measured by
-#: benchmarks/engine_scaling.py), so a full batch takes about 0.75 GB; constant delays
-#: need far less. One trial is never split.
-BATCH_ELEMENTS = 10_000_000
+#: Largest trials x links x (steps + 2) of one lockstep batch (the budget's
+#: :data:`netsim.budget.BATCH_ELEMENTS`, where it is explained).
+BATCH_ELEMENTS = budget.BATCH_ELEMENTS
 
 
 @dataclass(frozen=True)

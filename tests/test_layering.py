@@ -81,11 +81,9 @@ def test_bench_does_not_load_the_cli(module):
 PACKAGE_DIRS = {"netsim": "netsim", "models": "netsim.models",
                 "estimators": "netsim.estimators", "traces": "netsim.traces"}
 
-#: Cycles allowed for now, each the set of modules of one strongly connected component.
-KNOWN_CYCLES = [
-    # issue 30: being removed (the lead engineer is editing these four modules)
-    {"netsim.budget", "netsim.runner", "netsim.vectorised", "netsim.vectrace"},
-]
+#: Cycles allowed for now, each the set of modules of one strongly connected component
+#: (none: the budget <-> runner <-> vectorised <-> vectrace cycle was removed in issue 30).
+KNOWN_CYCLES: list[set[str]] = []
 
 
 def _modules() -> dict[str, Path]:
@@ -161,8 +159,6 @@ def test_no_import_cycles_but_the_known_one():
     assert unexpected == [], f"import cycles: {unexpected}"
 
 
-@pytest.mark.xfail(strict=True, reason="issue 30: being removed (budget <-> runner <-> "
-                   "vectorised <-> vectrace); when this passes, empty KNOWN_CYCLES")
 def test_no_import_cycles_at_all():
     assert _cycles(import_graph()) == []
 

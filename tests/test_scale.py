@@ -353,10 +353,10 @@ def test_trace_of_a_network_too_large_for_a_dense_P_is_refused_up_front(monkeypa
 
     monkeypatch.setattr(scn, "SPARSE_MIN_AGENTS", 2)
     scenario = scn.parse_scenario(_toml(24, "cycle", "uniform", "homogeneous"))
-    budget.guard_run(scenario, 5, 1, "vectorised", ["compensated"], trace="t.mcap")
+    budget.guard_run(scenario, 5, 1, ["vectorised"], trace="t.mcap")
     monkeypatch.setattr(scn, "DENSE_WEIGHTS_MAX_AGENTS", 23)
     with pytest.raises(budget.ResourceError) as exc:
-        budget.guard_run(scenario, 5, 1, "vectorised", ["compensated"], trace="t.mcap")
+        budget.guard_run(scenario, 5, 1, ["vectorised"], trace="t.mcap")
     assert "--trace t.mcap" in str(exc.value) and "\n" not in str(exc.value)
     assert "N = 24" in str(exc.value)
     from netsim.runner import run_monte_carlo  # the Python API: refused before the run

@@ -205,9 +205,9 @@ class InspectReport:
                         else "bytes")
                 steps = ("" if c["steps"] is None
                          else f", steps {c['steps'][0]}..{c['steps'][1]}")
-                count = "" if c["messages"] is None else f", {c['messages']} messages"
+                messages = "" if c["messages"] is None else f", {c['messages']} messages"
                 lines.append(f"    lost {what} at byte {c['offset']} ({c['length']} bytes"
-                             f"{steps}{count}): {c['reason']}")
+                             f"{steps}{messages}): {c['reason']}")
             if self.orphaned_messages:
                 lines.append(f"    {self.orphaned_messages} messages on channels defined "
                              "only in a lost chunk (not decoded)")

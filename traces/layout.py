@@ -192,7 +192,8 @@ class LayoutSource:
                 return [i for i, size in enumerate(self.freshness_sizes) if size > 0]
             return []
         return sorted({info.index for t in self.topics
-                       if (info := parse_topic(t)) is not None and info.kind == kind})
+                       if (info := parse_topic(t)) is not None and info.kind == kind
+                       and info.index is not None})
 
     def links(self, event: str) -> list[tuple[int, int]]:
         """Links (sender, receiver) with a topic of ``event``; format 3: every link of
@@ -202,7 +203,8 @@ class LayoutSource:
             return list(self.step_links) if self.has_messages(f"/links/{event}") else []
         return sorted({(info.index, info.receiver) for t in self.topics
                        if (info := parse_topic(t)) is not None and info.kind == "link"
-                       and info.event == event})
+                       and info.event == event
+                       and info.index is not None and info.receiver is not None})
 
 
 def _format_number(run: dict[str, str], library: str = "") -> int:
@@ -471,7 +473,7 @@ def layout_source(path: str | os.PathLike[str]) -> LayoutSource:
     substates: dict[int, int] = {}
     for topic, msg in first.items():
         info = parse_topic(topic)
-        if info is None:
+        if info is None or info.index is None:  # (index None: the plant)
             continue
         if info.kind == "update":
             neighbours[info.index] = [int(j) for j in msg.neighbours]

@@ -255,21 +255,25 @@ def stack_matrices(matrices: Mapping[str, np.ndarray]
     out: dict[str, np.ndarray] = {}
     stacked: list[str] = []
     for name, array in arrays.items():
-        prefix = members_of.get(name)
-        if prefix is None:
+        group = members_of.get(name)
+        if group is None:
             out[name] = array
-        elif prefix not in out:  # (np.array of equal shapes: np.stack, 3x faster)
-            out[prefix] = np.array([arrays[m] for m in groups[prefix]])
-            stacked.append(prefix)
+        elif group not in out:  # (np.array of equal shapes: np.stack, 3x faster)
+            out[group] = np.array([arrays[m] for m in groups[group]])
+            stacked.append(group)
     return out, stacked
 
 
 @functools.lru_cache(maxsize=256)
-def _npy_header(descr: str, shape: tuple[int, ...]) -> bytes:
-    """The .npy header (format 1.0, C order) of an array of ``descr`` and ``shape``."""
+def _npy_header(dtype: np.dtype, shape: tuple[int, ...]) -> bytes:
+    """The .npy header (format 1.0, C order) of an array of ``dtype`` and ``shape``.
+
+    Cached by the dtype, which is hashable: its .npy descr is a list for a structured
+    dtype, which is not."""
     buffer = io.BytesIO()
     np.lib.format.write_array_header_1_0(
-        buffer, {"descr": descr, "fortran_order": False, "shape": shape})
+        buffer, {"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False,
+                 "shape": shape})
     return buffer.getvalue()
 
 
@@ -282,7 +286,7 @@ def _npy_bytes(array: np.ndarray) -> bytes:
         array = np.ascontiguousarray(array)
     if array.dtype.hasobject:
         raise ValueError("object arrays cannot be stored as .npy attachments")
-    return _npy_header(np.lib.format.dtype_to_descr(array.dtype), array.shape) + \
+    return _npy_header(array.dtype, array.shape) + \
         array.tobytes()
 
 
@@ -537,7 +541,9 @@ class TraceRecorder:
         )
         if self._steps is not None:
             self._steps.plant(k, state, measurements)
-            self._state = self._steps.current.state
+            current = self._steps.current
+            assert current is not None  # plant() opens step k
+            self._state = current.state
             self._state_step = self.last_step = k
             if due:  # the steps before k are complete: write them as a chunk
                 self.flush()

@@ -775,7 +775,7 @@ def replay_trace(trace: Trace, *, method: str = "auto",
     delays_seen = report.nonzero_delay_steps > 0
     # per step: the round-off of the state so far (ROUNDOFF_STATE_FACTOR eps max_{j<=k}
     # |x_j|), so that a large late state does not excuse early deviations
-    tol = report.effective_tolerance
+    tol: float | np.ndarray = report.effective_tolerance
     if report.error_scale > 0:
         running = np.maximum.accumulate(np.max(np.abs(run.X), axis=1))
         floor = ROUNDOFF_STATE_FACTOR * float(np.finfo(float).eps) * running
@@ -821,7 +821,9 @@ def _run_dense(rows: list[np.ndarray | None], e0: np.ndarray, eta: np.ndarray, N
     E = np.zeros(Nn * (tau + 1))
     E[:Nn] = e0.ravel()
     for k in range(1, K + 1):
-        top = rows[k] @ E + eta[k].ravel()
+        F = rows[k]
+        assert F is not None  # rows[0] is the only None
+        top = F @ E + eta[k].ravel()
         if tau > 0:
             E[Nn:] = E[:-Nn].copy()
         E[:Nn] = top

@@ -179,7 +179,7 @@ def _prepare(type_name: str, rows: int, columns: Mapping[str, Column]
     unknown = set(columns) - {name for name, _, _ in fields}
     if unknown:
         raise ValueError(f"{type_name}: no repeated fields {sorted(unknown)}")
-    parts = []  # (number, dtype, values, counts (rows,) or None, count or None)
+    parts: list[tuple[Any, ...]] = []  # (number, dtype, values, counts or None, count or None)
     uniform = True
     for name, number, kind in fields:
         column = columns.get(name)

@@ -522,20 +522,20 @@ class _Expander:
         stored: dict[int, list[int]] = {}  # payload width -> rows storing payloads
         payloads: dict[int, np.ndarray] = {}
         for r, m in enumerate(msgs):
-            width = len(m.delay_steps)
-            a = _floats(m.arrival_time)
-            if a.shape[0] == width:
-                arrival[r, :width] = a
-            elif a.shape[0] == 0:  # every message arrives at (k + 1 + d) Ts
-                arrival[r, :width] = (step[r] + 1 + delay[r, :width]).astype(float) * self.ts
+            row_len = len(m.delay_steps)
+            given = _floats(m.arrival_time)
+            if given.shape[0] == row_len:
+                arrival[r, :row_len] = given
+            elif given.shape[0] == 0:  # every message arrives at (k + 1 + d) Ts
+                arrival[r, :row_len] = (step[r] + 1 + delay[r, :row_len]).astype(float) * self.ts
             else:
-                arrival[r, :width] = np.nan
+                arrival[r, :row_len] = np.nan
                 self.skip("arrival times", int((delay[r] != ABSENT).sum()))
             if len(m.payload):
                 p = _floats(m.payload)
-                if width and p.shape[0] % width == 0:
-                    stored.setdefault(p.shape[0] // width, []).append(r)
-                    payloads[r] = p.reshape(width, p.shape[0] // width)
+                if row_len and p.shape[0] % row_len == 0:
+                    stored.setdefault(p.shape[0] // row_len, []).append(r)
+                    payloads[r] = p.reshape(row_len, p.shape[0] // row_len)
                 else:
                     self.skip("payloads", int((delay[r] != ABSENT).sum()))
         sent = delay != ABSENT

@@ -146,10 +146,11 @@ class _Step:
     __slots__ = ("k", "time", "state", "measurements", "estimates", "updates", "freshness",
                  "sends")
 
-    def __init__(self, k: int, time: float) -> None:
+    def __init__(self, k: int, time: float, state: np.ndarray,
+                 measurements: list[np.ndarray]) -> None:
         self.k, self.time = k, time
-        self.state: np.ndarray | None = None
-        self.measurements: list[np.ndarray] | None = None
+        self.state = state
+        self.measurements = measurements
         self.estimates: dict[int, tuple[np.ndarray, float]] = {}
         self.updates: dict[int, int] = {}  # update entry -> r
         self.freshness: dict[int, tuple[list[int], list[int], list[int], int]] = {}
@@ -214,9 +215,9 @@ class StepLog:
     def plant(self, k: int, state: np.ndarray, measurements: Any) -> None:
         if self.current is not None:
             self._finish(self.current)
-        step = self.current = _Step(k, k * self.ts)
-        step.state = np.array(state, dtype=float).ravel()
-        step.measurements = [np.asarray(y, dtype=float).ravel() for y in measurements]
+        step = self.current = _Step(
+            k, k * self.ts, np.array(state, dtype=float).ravel(),
+            [np.asarray(y, dtype=float).ravel() for y in measurements])
         if self.n_states is None:
             self.n_states = step.state.shape[0]
             self.sensor_widths = [y.shape[0] for y in step.measurements]
@@ -407,11 +408,11 @@ class StepLog:
         deliveries = [self.deliveries.pop(b, []) for b in buckets]
         if any(deliveries):
             rows = [b for b, d in zip(buckets, deliveries, strict=True) if d]
-            events = [sorted(d) for d in deliveries if d]  # (link, sent step) order
-            counts = np.array([len(d) for d in events], dtype=np.int64)
+            delivered = [sorted(d) for d in deliveries if d]  # (link, sent step) order
+            counts = np.array([len(d) for d in delivered], dtype=np.int64)
             kk = np.array(rows, dtype=np.int64)
             self.out.emit("LinkDeliveries", kk, kk * self.ts, {"accepted": Column(
-                np.array([e[2] for d in events for e in d], dtype=bool), counts)})
+                np.array([e[2] for d in delivered for e in d], dtype=bool), counts)})
 
 
 def arrival_column(k: np.ndarray, delay: np.ndarray, arrival: np.ndarray, ts: float

@@ -51,7 +51,7 @@ import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -98,7 +98,14 @@ def parse_address(text: str) -> tuple[str, int]:
     return host, int(port)
 
 
-class _Listener:
+if TYPE_CHECKING:  # (foxglove-sdk is an optional extra: imported when a view starts)
+    from foxglove.websocket import ServerListener as _ListenerBase
+    from foxglove.websocket import WebSocketServer
+else:
+    _ListenerBase = object
+
+
+class _Listener(_ListenerBase):
     """The server's listener: which channels some viewer subscribed to."""
 
     def __init__(self, view: LiveView) -> None:
@@ -152,12 +159,13 @@ class LiveView:
         self._shift = 0  # ns added to the log times of the current run
         self._last_enqueued = -1  # largest shifted log_time handed to the queue
         self._runs = 0
-        self._server = foxglove.start_server(
+        server = foxglove.start_server(
             name=name, host=host, port=port, capabilities=[Capability.Time],
             server_listener=_Listener(self), message_backlog_size=BACKLOG)
+        self._server: WebSocketServer | None = server  # None: stopped
         self.host = host
         #: The port served (the actual one when 0 was asked for).
-        self.port = int(self._server.port)
+        self.port = int(server.port)
         self._thread = threading.Thread(target=self._pace, name="netsim-live", daemon=True)
         self._thread.start()
 
@@ -222,6 +230,8 @@ class LiveView:
         return not self._stop.wait(max(0.0, seconds))
 
     def _pace(self) -> None:
+        server = self._server
+        assert server is not None  # (started before this thread)
         try:
             while not self._first_viewer.wait(0.2):
                 if self._stop.is_set():
@@ -245,8 +255,8 @@ class LiveView:
                 cid = int(channel.id())
                 with self._lock:
                     since = self._advertised.get(cid)
-                    waiting = cid not in self._subscribed_ids and since is not None
-                if waiting:  # a channel new to the viewer: a moment to subscribe
+                    waiting = cid not in self._subscribed_ids
+                if waiting and since is not None:  # new to the viewer: time to subscribe
                     until = since + self.grace
                     while time.monotonic() < until:
                         with self._lock:
@@ -262,7 +272,7 @@ class LiveView:
                 self.counts[topic] = self.counts.get(topic, 0) + 1
                 if log_time > last_time:
                     last_time = log_time
-                    self._server.broadcast_time(log_time)
+                    server.broadcast_time(log_time)
         except BaseException as exc:  # noqa: BLE001 - reported by finish()
             self.error = exc
         finally:

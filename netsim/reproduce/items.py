@@ -312,17 +312,17 @@ def _build_aoi_fig2(ctx: BuildContext) -> ItemResult:
     titles = {"naive-uniform": "(left) consensus weights uniform over neighbours",
               "naive-tree": "(right) weights along the tree rooted at node 1",
               "aoi": "freshness-index observer (Sec. 4; not in Fig. 2)"}
-    k = np.arange(AOI_STEPS + 1)
+    steps = np.arange(AOI_STEPS + 1)
     # (family, freshness observer?) per panel: left, right, ours
     panels = (("naive-uniform", False), ("naive-tree", False), ("aoi", True))
     for ax, (name, freshness) in zip(axes, panels, strict=True):
         e = runs[name].errors[0]
         for i in range(e.shape[1]):
             if freshness:
-                ax.plot(k, e[:, i], "o-", ms=3, lw=1.1, label=f"node {i + 1}")
+                ax.plot(steps, e[:, i], "o-", ms=3, lw=1.1, label=f"node {i + 1}")
             else:
                 ok = np.isfinite(e[:, i]) & (e[:, i] > 0)
-                ax.plot(k[ok], e[ok, i], "o-", ms=3, lw=1.1, label=f"node {i + 1}")
+                ax.plot(steps[ok], e[ok, i], "o-", ms=3, lw=1.1, label=f"node {i + 1}")
         if not freshness:
             ax.set_yscale("log")
             ax.set_title(f"{titles[name]}\ngrowth {_fmt(runs[name].growth_rate)} per step",
@@ -414,12 +414,12 @@ def _build_fig34(ctx: BuildContext, item_id: str, gammas: Sequence[float], label
                         ("gamma11", "t", "trace_Xi11_exact", "mse_cse_monte_carlo"), rows)]
     fig = _figure(figsize=(6.8, 4.6))
     ax = fig.subplots()
-    t = np.arange(DKFE_EX1_STEPS + 1)
+    tt = np.arange(DKFE_EX1_STEPS + 1)
     cmap = {g: f"C{i}" for i, g in enumerate(gammas)}
     for g in gammas:
-        ax.plot(t, _positive(d["exact"][g]), color=cmap[g], lw=1.5,
+        ax.plot(tt, _positive(d["exact"][g]), color=cmap[g], lw=1.5,
                 label=rf"$\gamma_{{11}}$ = {g:.1f}")
-        ax.plot(t[::5], _positive(d["monte_carlo"][g])[::5], "o", color=cmap[g], ms=3,
+        ax.plot(tt[::5], _positive(d["monte_carlo"][g])[::5], "o", color=cmap[g], ms=3,
                 mfc="none")
     ax.set_yscale("log")
     ax.set_xlabel("t")
@@ -537,12 +537,12 @@ def _build_fig7(ctx: BuildContext) -> ItemResult:
                                                     "norm2_Omega_2"), rows)]
     fig = _figure(figsize=(12, 4.0))
     axes = fig.subplots(1, 3)
-    t = np.arange(DKFE_EX2_STEPS + 1)
+    tt = np.arange(DKFE_EX2_STEPS + 1)
     labels = {"P": r"$\|P^i(t)\|_2$", "Omega_1": r"$\|\Omega^i_1(t)\|_2$",
               "Omega_2": r"$\|\Omega^i_2(t)\|_2$"}
     for ax, key in zip(axes, ("P", "Omega_1", "Omega_2"), strict=True):
         for j, c in enumerate(curves):
-            ax.plot(t, c[key], lw=1.4, ls="-" if j == 0 else "--",
+            ax.plot(tt, c[key], lw=1.4, ls="-" if j == 0 else "--",
                     label=f"i = {j + 1}: P_0 = {FIG7_INITIAL[j]:g} I")
         ax.set_xlabel("t")
         ax.set_ylabel(labels[key])
@@ -588,7 +588,7 @@ def _build_example2(ctx: BuildContext) -> ItemResult:
 
     data, _ = ctx.cached("example2", example2)
     files = [_write_json(ctx.out / "dkfe-example2.json", data)]
-    rows = []
+    rows: list[tuple[str, int | str, int | str, Any, Any]] = []  # (scalars: no row, column)
     for i, (ours, paper) in enumerate(zip(data["weights"], data["paper_weights_eq94"],
                                           strict=True)):
         for r in range(len(ours)):

@@ -13,8 +13,9 @@ import json
 import math
 import os
 import sys
-from collections.abc import Sequence
+from collections.abc import Collection, Sequence
 from contextlib import nullcontext
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -49,7 +50,7 @@ __all__ = ["main", "build_parser", "CommandError", "EXIT_BAD_INPUT", "EXIT_DESIG
 _BENCH_HELP = "benchmarks: delay tolerance of each estimator vs the papers' bounds; sweeps"
 
 
-def _command_in(argv: Sequence[str], commands: Sequence[str]) -> str | None:
+def _command_in(argv: Sequence[str], commands: Collection[str]) -> str | None:
     """The subcommand argparse will pick from ``argv``: its first token if that is one
     of ``commands`` (the top level has no option but ``-h``); ``""`` for no command or
     ``-h``/``--help``; None otherwise (anything unusual: build everything)."""
@@ -475,8 +476,18 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     from netsim.aoi import apply_aoi_arguments
 
+    from netsim.budget import check_counts
+
+    def precheck(counts: Any) -> None:
+        """Refuse from the counts alone what cannot fit, before the network is built."""
+        if args.tau is not None:
+            counts = replace(counts, max_delay=int(args.tau))
+        check_counts(counts, args.steps, args.trials,
+                     ["events", "vectorised"] if args.engine == "auto" else [args.engine],
+                     steps_name="--steps" if args.steps is not None else "run.steps")
+
     try:
-        scenario = resolve_scenario(args.scenario)
+        scenario = resolve_scenario(args.scenario, precheck)
         if args.tau is not None:
             scenario = scenario.with_tau(args.tau)
         scenario = _apply_noise(args, scenario)
@@ -716,14 +727,15 @@ def _trace_max_delay(paths: Sequence[str]) -> int | None:
 def _format_delays(s: dict[str, Any], bound: dict[str, Any] | None) -> str:
     d = s["delays"]
     text = f"delays: {d['model']}, tau = {d['tau']}; bound {d['bound']}"
-    kind = (bound or {}).get("kind", "bound")
+    b = bound or {}
+    kind = b.get("kind", "bound")
     if kind == "quantile":
-        text += (f" (the {bound['quantile']:.1%} quantile of the links' unbounded delay "
+        text += (f" (the {b['quantile']:.1%} quantile of the links' unbounded delay "
                  "distributions; delays beyond it occur)")
     elif kind == "links.bound":
         text += " (links.bound)"
-    if (bound or {}).get("realised_max") is not None:
-        text += f"; realised max step delay {bound['realised_max']} (traces)"
+    if b.get("realised_max") is not None:
+        text += f"; realised max step delay {b['realised_max']} (traces)"
     return text
 
 
@@ -1296,12 +1308,17 @@ def _cmd_claims(args: argparse.Namespace) -> int:
             f"{c.id}-counterexample.toml" for c in chosen)])
     except OutputFileError as exc:
         raise CommandError(str(exc)) from None
+    def claim_done(_: str) -> None:
+        bar.update(1)
+
+    def search_done(name: str) -> None:
+        bar.set_postfix_str(name)
+        bar.update(1)
+
     try:
         report = run_claims(chosen, seed=args.seed, budget=args.budget, out=args.out,
-                            instances=args.instances,
-                            progress=lambda _: bar.update(1),
-                            search_progress=lambda name: (bar.set_postfix_str(name),
-                                                          bar.update(1)))
+                            instances=args.instances, progress=claim_done,
+                            search_progress=search_done)
     except OSError as exc:
         raise CommandError(f"--out {args.out}: {exc.strerror or exc}") from None
     except OutputFileError as exc:

@@ -15,7 +15,6 @@ import os
 import sys
 from collections.abc import Collection, Sequence
 from contextlib import nullcontext
-from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -476,18 +475,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     from netsim.aoi import apply_aoi_arguments
 
-    from netsim.budget import check_counts
-
-    def precheck(counts: Any) -> None:
-        """Refuse from the counts alone what cannot fit, before the network is built."""
-        if args.tau is not None:
-            counts = replace(counts, max_delay=int(args.tau))
-        check_counts(counts, args.steps, args.trials,
-                     ["events", "vectorised"] if args.engine == "auto" else [args.engine],
-                     steps_name="--steps" if args.steps is not None else "run.steps")
-
     try:
-        scenario = resolve_scenario(args.scenario, precheck)
+        scenario = resolve_scenario(args.scenario)
         if args.tau is not None:
             scenario = scenario.with_tau(args.tau)
         scenario = _apply_noise(args, scenario)
@@ -1308,6 +1297,7 @@ def _cmd_claims(args: argparse.Namespace) -> int:
             f"{c.id}-counterexample.toml" for c in chosen)])
     except OutputFileError as exc:
         raise CommandError(str(exc)) from None
+
     def claim_done(_: str) -> None:
         bar.update(1)
 

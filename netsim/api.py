@@ -23,7 +23,7 @@ import os
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -44,6 +44,14 @@ from netsim.estimators.registry import (
 from netsim.models.scenario import Scenario, ScenarioError, parse_scenario, resolve_scenario
 from netsim.models.seeding import child_sequence
 from netsim.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # (imported where used: pandas is optional, the others load on demand)
+    import pandas as pd
+
+    from netsim.analysis import AnalysisReport
+    from netsim.kernel import TrialResult
+    from netsim.traces.analysis import TraceAnalysis
+    from netsim.traces.reader import Trace
 
 __all__ = [
     "Estimator",
@@ -442,7 +450,7 @@ class RunResult:
 
     # -- tables -------------------------------------------------------------------
 
-    def to_dataframe(self, what: str = "errors") -> Any:
+    def to_dataframe(self, what: str = "errors") -> pd.DataFrame:
         """One tidy (long) pandas table of the run's arrays.
 
         Parameters
@@ -581,6 +589,7 @@ def _table(what: str, fam: FamilyRun, ts: float) -> dict[str, np.ndarray]:
 def _stack(name: str, trials: list[Any], summary: Any) -> FamilyRun:
     delays = [t.effective_delays for t in trials]
     drops = [getattr(t, "drops", None) for t in trials]
+    recorded = [d for d in drops if d is not None]
     return FamilyRun(
         family=name,
         states=np.stack([t.states for t in trials]),
@@ -590,7 +599,7 @@ def _stack(name: str, trials: list[Any], summary: Any) -> FamilyRun:
                           else None),
         diverged_at=[t.diverged_at for t in trials],
         summary=summary,
-        drops=(drops if drops and all(d is not None for d in drops) else None),
+        drops=(recorded if drops and len(recorded) == len(drops) else None),
     )
 
 
@@ -660,7 +669,7 @@ def run(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any], *,
 @single_threaded_blas()
 def run_one(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any],
             estimator: str | EstimatorFamily, *, trial: int = 0, seed: int | None = None,
-            steps: int | None = None, observer: Any = None) -> Any:
+            steps: int | None = None, observer: Any = None) -> TrialResult:
     """Run one trial of one estimator family in the SimPy event kernel.
 
     The trial's randomness is the same as trial ``trial`` of :func:`run` with the same
@@ -691,12 +700,15 @@ def run_one(scenario: Scenario | str | os.PathLike[str] | Mapping[str, Any],
 
 
 @single_threaded_blas()
-def analyze(scenario: Scenario | str | os.PathLike[str], tau_max: int = 30) -> Any:
+def analyze(scenario: Scenario | str | os.PathLike[str], tau_max: int = 30
+            ) -> AnalysisReport | TraceAnalysis:
     """Exact spectral radii of the augmented closed loop beside the papers' bounds.
 
     ``scenario``: a Scenario or what :func:`load_scenario` takes; a path ending in
     ``.mcap`` analyses a trace instead (:func:`netsim.traces.analysis.analyze_trace`).
-    Returns the report object (``to_dict()``, ``format_text()`` where available).
+    Returns the report: a :class:`netsim.analysis.AnalysisReport`, or for a trace a
+    :class:`netsim.traces.analysis.TraceAnalysis` (``to_dict()``, ``format_text()``
+    where available).
 
     Examples
     --------
@@ -716,7 +728,7 @@ def analyze(scenario: Scenario | str | os.PathLike[str], tau_max: int = 30) -> A
     return analyze_scenario(scenario, design_gains(scenario), tau_max)
 
 
-def read_trace(path: str | os.PathLike[str]) -> Any:
+def read_trace(path: str | os.PathLike[str]) -> Trace:
     """Read an MCAP trace written by netsim (:class:`netsim.traces.reader.Trace`).
 
     Formats 1, 2 and 3 are read alike (a format-3 file is shown as its format-2 view;

@@ -55,6 +55,7 @@ def require(module: str, extra: str, needed_for: str) -> ModuleType:
 
     Examples
     --------
+    >>> from netsim.models.extras import require
     >>> require("json", "plot", "an example").__name__
     'json'
     """

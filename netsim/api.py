@@ -99,13 +99,17 @@ def load_scenario(source: str | os.PathLike[str] | Mapping[str, Any]) -> Scenari
     >>> scenario.with_tau(8).delay_bound      # a copy with another delay bound
     8
 
-    A dict with the TOML's structure works too; a wrong key is named:
+    A dict with the TOML's structure works too; a wrong key is named (``key``), with
+    the closest allowed key when there is one:
 
-    >>> netsim.load_scenario({"name": "x", "plant": {"A": [[1.0]], "C": [[[1.0]]]},
-    ...                       "network": {"P": [[1.0]]}, "run": {"stepz": 3}})
-    Traceback (most recent call last):
-    ...
-    netsim.models.scenario.ScenarioError: run.stepz: unknown key; allowed: ...
+    >>> try:
+    ...     netsim.load_scenario({"name": "x", "plant": {"A": [[1.0]], "C": [[[1.0]]]},
+    ...                           "network": {"P": [[1.0]]}, "run": {"stepz": 3}})
+    ... except netsim.ScenarioError as error:
+    ...     print(error.key)
+    ...     print(str(error).split(";")[0])
+    run.stepz
+    run.stepz: unknown key (did you mean 'steps'?)
     """
     if isinstance(source, Mapping):
         scenario = parse_scenario(dict(source), source="")

@@ -1,12 +1,15 @@
-"""Live view: serve a run to Foxglove or Lichtblick while it runs (``netsim run --live``).
+"""Live view: serve a run to a Foxglove WebSocket viewer while it runs (``netsim run --live``).
 
-``netsim run SCENARIO --live [ADDR]`` starts a Foxglove WebSocket server (protocol
-``foxglove.websocket.v1``, the official ``foxglove-sdk`` package, optional extra
-``live``: ``pip install 'netsim[live]'``) on ADDR (default ``127.0.0.1:8765``) and
-serves every message the run's trace holds: the same topics, the same protobuf schemas
-(the trace's own ``FileDescriptorSet``) and the same log times, so the layout of the
-trace (``netsim layout``) fits the live view as well. In Foxglove or Lichtblick: *Open
-connection* > *Foxglove WebSocket* > ``ws://ADDR``.
+``netsim run SCENARIO --live [ADDR]`` starts a Foxglove WebSocket server (the official
+``foxglove-sdk`` package, optional extra ``live``: ``pip install 'netsim[live]'``) on
+ADDR (default ``127.0.0.1:8765``) and serves every message the run's trace holds: the
+same topics, the same protobuf schemas (the trace's own ``FileDescriptorSet``) and the
+same log times, so the layout of the trace (``netsim layout``) fits the live view as
+well. In the Foxglove app: *Open connection* > *Foxglove WebSocket* > ``ws://ADDR``.
+foxglove-sdk 0.30 accepts only the WebSocket subprotocol ``foxglove.sdk.v1`` (the
+Foxglove WebSocket protocol, formerly named ``foxglove.websocket.v1``): a viewer must
+offer that name (one that offers only ``foxglove.websocket.v1`` is refused in the
+handshake).
 
 How it works
 ------------

@@ -38,9 +38,13 @@ def test_the_site_builds_without_warnings_and_its_doctests_pass(tmp_path):
     assert html.returncode == 0, html.stdout[-3000:] + html.stderr[-5000:]
     assert "WARNING" not in html.stderr and "ERROR" not in html.stderr, html.stderr[-5000:]
     for page in ("index", "getting-started", "cli", "scenarios", "api", "findings",
-                 "concepts/architecture", "estimators/compensated",
-                 "auto_examples/plot_delay_sweep"):
+                 "concepts/architecture", "estimators/compensated", "install", "notebook",
+                 "live", "auto_examples/plot_delay_sweep", "auto_examples/plot_notebook",
+                 "auto_examples/plot_estimator_listing"):
         assert (tmp_path / "html" / f"{page}.html").is_file(), page
+    notebook = (tmp_path / "html" / "auto_examples" / "plot_notebook.html").read_text(
+        encoding="utf-8")
+    assert "<b>RunResult</b>" in notebook  # the executed example shows _repr_html_
     cli = (tmp_path / "html" / "cli.html").read_text(encoding="utf-8")
     assert "cmdoption-netsim-run-steps" in cli  # generated from the parser
     doctest = _sphinx("doctest", tmp_path, "-D", "plot_gallery=0")

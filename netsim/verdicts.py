@@ -57,7 +57,7 @@ import math
 import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -396,7 +396,10 @@ def beyond_horizon(marks: Sequence[int | str], horizon: int | None) -> list[str]
     return [str(m) for m in marks if int(m) >= int(horizon)]
 
 
-def trusted_values(values: dict[str, float | None], horizon: int | None) -> dict[str, float | None]:
+_V = TypeVar("_V")
+
+
+def trusted_values(values: dict[str, _V], horizon: int | None) -> dict[str, _V | None]:
     """``values`` (keyed by step) with None at every step at or after ``horizon``."""
     bad = set(beyond_horizon(list(values), horizon))
     return {k: (None if k in bad else v) for k, v in values.items()}

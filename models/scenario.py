@@ -27,7 +27,7 @@ import math
 import os
 import tomllib
 import warnings
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from importlib import resources
@@ -72,6 +72,7 @@ from netsim.models.network import (
     check_sparse_consensus_matrix,
     directed_cycle,
     geometric,
+    geometric_link_estimate,
     geometric_links,
     graph_from_weights,
     lazy_metropolis_weights,
@@ -111,6 +112,8 @@ __all__ = [
     "read_scenario_data",
     "builtin_scenarios",
     "resolve_scenario",
+    "ScenarioCounts",
+    "scenario_counts",
 ]
 
 #: The estimators a scenario runs when it lists none under ``run.estimators`` (names
@@ -1187,8 +1190,107 @@ def _parse_gains(table: dict[str, Any], plant: LinearPlant) -> GainSpec:
     return GainSpec(method, K, tau1, refine_from)
 
 
-def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
+@dataclass(frozen=True)
+class ScenarioCounts:
+    """The sizes of a scenario, read from its table before any network is built.
+
+    What a budget needs to refuse a scenario that cannot fit before building it
+    (:func:`parse_scenario`'s ``precheck``): building a million-agent network alone
+    takes seconds and gigabytes.
+
+    Attributes
+    ----------
+    n_states : int
+        n, the plant's states.
+    n_agents : int
+        N.
+    links : int
+        L, the network's directed links: exact for ``cycle`` and ``edges``, the expected
+        count for ``random`` and ``geometric`` (:func:`geometric_link_estimate`).
+    measurements : int
+        The sum of the sensors' m_i.
+    max_measurements : int
+        The largest m_i.
+    noise_width : int
+        Width of one step's noise vector (:attr:`LinearPlant.noise_width`).
+    steps, trials : int
+        ``run.steps`` and ``run.trials``.
+    max_delay : int
+        ``delays.tau``, the delay bound in steps.
+    """
+
+    n_states: int
+    n_agents: int
+    links: int
+    measurements: int
+    max_measurements: int
+    noise_width: int
+    steps: int
+    trials: int
+    max_delay: int
+
+
+def _link_estimate(table: dict[str, Any], agents: int) -> int | None:
+    """The links of a ``[network]`` table, counted or estimated without building them
+    (None where only the build can say, e.g. a matrix ``P``)."""
+    topology = table.get("topology")
+    seed = _int(table.get("seed", DEFAULTS["network.seed"]), "network.seed", 0)
+    if "P" in table or agents < 2:
+        return None
+    if topology == "cycle":
+        return agents
+    if topology == "random":
+        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
+                       "network.edge_probability")
+        return agents + int(round(min(max(prob, 0.0), 1.0) * agents * (agents - 1)))
+    if topology == "geometric":
+        radius = table.get("radius")
+        if radius is not None:
+            radius = _number(radius, "network.radius")
+            if radius <= 0:
+                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+        return geometric_link_estimate(agents, radius, seed)[0]
+    if topology == "edges" and isinstance(table.get("edges"), list):
+        return len(table["edges"])
+    return None
+
+
+def scenario_counts(data: dict[str, Any], plant: LinearPlant) -> ScenarioCounts | None:
+    """:class:`ScenarioCounts` of a parsed TOML document whose plant is parsed (None when
+    the links cannot be counted without building the network, e.g. a ``[topology]``)."""
+    if "topology" in data or not isinstance(data.get("network"), dict):
+        return None
+    table = data["network"]
+    agents = _int(table.get("agents", plant.n_sensors), "network.agents", 2)
+    links = _link_estimate(table, agents)
+    if links is None:
+        return None
+    run = data.get("run", {}) if isinstance(data.get("run"), dict) else {}
+    delays = data.get("delays", {}) if isinstance(data.get("delays"), dict) else {}
+    ms = [int(c.shape[0]) for c in plant.C] or [0]
+    return ScenarioCounts(
+        n_states=int(plant.n_states), n_agents=agents, links=links, measurements=sum(ms),
+        max_measurements=max(ms), noise_width=int(plant.noise_width),
+        steps=_int(run.get("steps", DEFAULTS["run.steps"]), "run.steps", 1),
+        trials=_int(run.get("trials", DEFAULTS["run.trials"]), "run.trials", 1),
+        max_delay=_int(delays.get("tau", DEFAULTS["delays.tau"]), "delays.tau",
+                       maximum=MAX_DELAY_STEPS))
+
+
+def parse_scenario(data: dict[str, Any], source: str = "",
+                   precheck: Callable[[ScenarioCounts], None] | None = None) -> Scenario:
     """Validate a parsed TOML document and build the :class:`Scenario`.
+
+    Parameters
+    ----------
+    data : dict
+        The TOML document.
+    source : str
+        Where it came from (a path, or ``builtin:NAME``).
+    precheck : callable, optional
+        Called with the scenario's :class:`ScenarioCounts` after the plant is parsed and
+        before the network is built (not called when the links cannot be counted without
+        building it); it may raise to refuse the scenario, e.g. a memory budget.
 
     Raises
     ------
@@ -1202,6 +1304,10 @@ def parse_scenario(data: dict[str, Any], source: str = "") -> Scenario:
     description = data.get("description", "")
     run = _section(data, "run", required=False)
     plant = _parse_plant(_section(data, "plant"))
+    if precheck is not None:
+        counts = scenario_counts(data, plant)
+        if counts is not None:
+            precheck(counts)
     topology = None
     if "topology" in data:
         topology = _parse_topology(_section(data, "topology"), plant.n_sensors)
@@ -1406,8 +1512,9 @@ def _parse_options(value: Any) -> dict[str, dict[str, Any]]:
     return out
 
 
-def load_scenario(path: str | Path) -> Scenario:
-    """Read and validate a scenario TOML file.
+def load_scenario(path: str | Path,
+                  precheck: Callable[[ScenarioCounts], None] | None = None) -> Scenario:
+    """Read and validate a scenario TOML file (``precheck``: see :func:`parse_scenario`).
 
     Raises
     ------
@@ -1415,7 +1522,7 @@ def load_scenario(path: str | Path) -> Scenario:
         If the file cannot be read, is not valid TOML, or fails validation.
     """
     path = Path(path)
-    return parse_scenario(read_scenario_data(path), str(path))
+    return parse_scenario(read_scenario_data(path), str(path), precheck)
 
 
 def read_scenario_data(path: str | Path) -> dict[str, Any]:
@@ -1471,17 +1578,19 @@ def builtin_scenarios() -> dict[str, Path]:
     }
 
 
-def resolve_scenario(name_or_path: str) -> Scenario:
-    """Load a built-in scenario by name, or a scenario file by path."""
+def resolve_scenario(name_or_path: str,
+                     precheck: Callable[[ScenarioCounts], None] | None = None) -> Scenario:
+    """Load a built-in scenario by name, or a scenario file by path (``precheck``: see
+    :func:`parse_scenario`)."""
     builtins = builtin_scenarios()
     if not name_or_path.strip():
         raise ScenarioError("", "empty scenario name; give a built-in name or a TOML file path")
     if name_or_path in builtins:
-        scenario = load_scenario(builtins[name_or_path])
+        scenario = load_scenario(builtins[name_or_path], precheck)
         return replace(scenario, source=f"builtin:{name_or_path}")
     path = Path(name_or_path)
     if path.suffix == ".toml" or path.exists():
-        return load_scenario(path)
+        return load_scenario(path, precheck)
     close = difflib.get_close_matches(name_or_path, list(builtins), n=1)
     hint = f" (did you mean '{close[0]}'?)" if close else ""
     raise ScenarioError(

@@ -58,7 +58,12 @@ __all__ = [
     "eig_cost",
     "check_run",
     "guard_run",
+    "check_counts",
     "BATCH_ELEMENTS",
+    "KERNEL_LINK_BYTES",
+    "KERNEL_AGENT_STEP_BYTES_PER_STATE",
+    "NETWORK_BUILD_BYTES_PER_LINK",
+    "NETWORK_HELD_BYTES_PER_LINK",
     "check_gain_design",
     "analysis_cost",
     "check_analysis",
@@ -275,8 +280,20 @@ def delay_horizon(max_delay: float, steps: int) -> int:
 BATCH_ELEMENTS = 10_000_000
 
 
+def _is_counts(scenario: Any) -> bool:
+    """Whether ``scenario`` is only its counts (before the network is built)."""
+    from netsim.models.scenario import ScenarioCounts
+
+    return isinstance(scenario, ScenarioCounts)
+
+
 def _sizes(scenario: Any) -> tuple[int, int, int, int, int, int]:
-    """(n, N, L, m_total, m_max, noise width) of a scenario."""
+    """(n, N, L, m_total, m_max, noise width) of a scenario (or of its
+    :class:`~netsim.models.scenario.ScenarioCounts`)."""
+    if _is_counts(scenario):
+        c = scenario
+        return (c.n_states, c.n_agents, c.links, c.measurements, c.max_measurements,
+                c.noise_width)
     plant = scenario.plant
     n = int(plant.n_states)
     N = int(scenario.n_agents)
@@ -288,6 +305,8 @@ def _sizes(scenario: Any) -> tuple[int, int, int, int, int, int]:
 
 
 def _constant_links(scenario: Any) -> bool:
+    if _is_counts(scenario):
+        return True  # unknown before the build: the lightest case (a lower bound)
     try:
         model = scenario.delay_model(0)
     except Exception:  # noqa: BLE001 - only an estimate: assume the general path
@@ -301,6 +320,8 @@ def _one_delay(scenario: Any) -> bool:
     """Plain fixed delays with no per-link entry (homogeneous, or model none)."""
     from netsim.models.delays import FixedDelays
 
+    if _is_counts(scenario):
+        return True  # unknown before the build: the lightest case (a lower bound)
     try:
         model = scenario.delay_model(0)
     except Exception:  # noqa: BLE001 - only an estimate
@@ -308,13 +329,37 @@ def _one_delay(scenario: Any) -> bool:
     return type(model) is FixedDelays and not model.delays
 
 
-def kernel_trial_bytes(scenario: Any, steps: int, *, record_delays: bool = False) -> int:
-    """Peak bytes of one event-kernel trial: noise, states, measurements, estimates
-    (K+1, N, n), squared errors and, if recorded, effective delays (K+1, N, N)."""
-    n, N, _, m, _, width = _sizes(scenario)
+#: Bytes the event kernel holds per link for a whole trial (its link object, buffer,
+#: delay and loss streams, scheduled events): measured 4.3-4.5 kB per link with
+#: tracemalloc at N = 240 and 480 (2,094 and 5,312 links, geometric networks).
+KERNEL_LINK_BYTES = 4500
+#: Bytes the event kernel adds per agent and step, per state of the plant plus one:
+#: measured about 290 bytes per agent-step at n = 6 (48 x 7 = 336 counted).
+KERNEL_AGENT_STEP_BYTES_PER_STATE = 48
+#: Peak bytes per link of building a sparse network (points, k-d tree pairs, sort, CSR
+#: weights, the connectivity check): measured 98-99 with tracemalloc at N = 20,000 and
+#: 100,000 geometric agents.
+NETWORK_BUILD_BYTES_PER_LINK = 100
+#: Bytes per link a built sparse network keeps for the run (link arrays, CSR weights):
+#: measured 19 (the process's resident set after loading a 14.6-million-link network).
+NETWORK_HELD_BYTES_PER_LINK = 24
+
+
+def _kernel_bytes(n: int, N: int, L: int, m: int, width: int, steps: int,
+                  record_delays: bool) -> int:
     K1 = int(steps) + 1
-    per_step = 8 * (width + n + m + N * n + N) + (4 * N * N if record_delays else 0)
-    return K1 * per_step
+    per_step = (8 * (width + n + m) + KERNEL_AGENT_STEP_BYTES_PER_STATE * (n + 1) * N
+                + (4 * N * N if record_delays else 0))
+    return KERNEL_LINK_BYTES * L + K1 * per_step
+
+
+def kernel_trial_bytes(scenario: Any, steps: int, *, record_delays: bool = False) -> int:
+    """Peak bytes of one event-kernel trial: its links (:data:`KERNEL_LINK_BYTES` each)
+    and per step the noise, states, measurements and every agent's estimate, error and
+    bookkeeping (:data:`KERNEL_AGENT_STEP_BYTES_PER_STATE`), with, if recorded, the
+    effective delays (K+1, N, N)."""
+    n, N, L, m, _, width = _sizes(scenario)
+    return _kernel_bytes(n, N, L, m, width, steps, record_delays)
 
 
 def vectorised_batch_bytes(scenario: Any, steps: int, trials: int, *,
@@ -331,7 +376,11 @@ def vectorised_batch_bytes(scenario: Any, steps: int, trials: int, *,
     K1 = int(steps) + 1
     T = int(trials)
     if horizon is None:
-        horizon = delay_horizon(max(scenario.max_delay, scenario.delay_bound + 1), steps)
+        if _is_counts(scenario):
+            longest = scenario.max_delay + 1
+        else:
+            longest = max(scenario.max_delay, scenario.delay_bound + 1)
+        horizon = delay_horizon(longest, steps)
     per_message = 16 if _constant_links(scenario) else 75
     if per_message == 16 and _one_delay(scenario):
         # one delay on every link: the schedule is broadcast views, and so is the
@@ -422,6 +471,47 @@ def check_trace_size(scenario: Any, trace: str | os.PathLike[str],
                 f"({format_bytes(8 * N * N)} at N = {N}); traces go up to "
                 f"{DENSE_WEIGHTS_MAX_AGENTS:,} agents; run this network without --trace",
                 "--trace", 8 * N * N, 8 * DENSE_WEIGHTS_MAX_AGENTS ** 2)
+
+
+def check_counts(counts: Any, steps: int | None, trials: int | None,
+                 engines: Sequence[str], *, steps_name: str = "run.steps",
+                 trials_name: str = "run.trials") -> None:
+    """Refuse, before the network is built, a run that cannot fit in memory.
+
+    From a scenario's counts (:class:`netsim.models.scenario.ScenarioCounts`) alone:
+    building the network (:data:`NETWORK_BUILD_BYTES_PER_LINK`), then the run as
+    :func:`check_run` counts it in the lightest of ``engines``, its links taken at their
+    lightest (one constant delay). A lower bound of what the run needs, so nothing that
+    fits is refused; :func:`guard_run` checks the built scenario exactly afterwards.
+
+    Parameters
+    ----------
+    counts : ScenarioCounts
+    steps, trials : int or None
+        ``--steps`` / ``--trials`` (None: the counts' ``run.steps`` / ``run.trials``).
+    engines : sequence of str
+        The engines the run may use (``"events"``, ``"vectorised"``).
+    steps_name, trials_name : str
+        The options to name (``--steps`` or ``run.steps``, ...).
+
+    Raises
+    ------
+    ResourceError
+        One line, naming the option, N and the estimated links.
+    """
+    K = counts.steps if steps is None else int(steps)
+    M = counts.trials if trials is None else int(trials)
+    n, N, L = counts.n_states, counts.n_agents, counts.links
+    what = (f"N = {N:,} agents, about {L:,} links, n = {n} states; estimated from the "
+            "scenario's counts before building the network")
+    check_memory(NETWORK_BUILD_BYTES_PER_LINK * L, "network.agents",
+                 f"building the network ({what})", N)
+    total, one, engine = min(
+        (*run_bytes(counts, K, M, e), e) for e in (set(engines) or {"events", "vectorised"}))
+    held = NETWORK_HELD_BYTES_PER_LINK * L  # the network stays while the run goes
+    check_memory(held + one, steps_name, f"one trial ({engine} engine, {what})", K)
+    check_memory(held + total, trials_name, f"the run ({engine} engine, {K} steps x {M} "
+                 f"trials, {what})", M)
 
 
 def run_bytes(scenario: Any, steps: int, trials: int, engine: str, *,

@@ -15,6 +15,7 @@ import os
 import sys
 from collections.abc import Collection, Sequence
 from contextlib import nullcontext
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -474,9 +475,19 @@ def _cmd_run(args: argparse.Namespace) -> int:
     if args.seed is not None and args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
     from netsim.aoi import apply_aoi_arguments
+    from netsim.budget import check_counts
+
+    def precheck(counts: Any) -> None:
+        """Refuse from the counts alone what cannot fit, before the network is built."""
+        if args.tau is not None:
+            counts = replace(counts, max_delay=int(args.tau))
+        check_counts(counts, args.steps, args.trials,
+                     ["events", "vectorised"] if args.engine == "auto" else [args.engine],
+                     steps_name="--steps" if args.steps is not None else "run.steps",
+                     trials_name="--trials" if args.trials is not None else "run.trials")
 
     try:
-        scenario = resolve_scenario(args.scenario)
+        scenario = resolve_scenario(args.scenario, precheck)
         if args.tau is not None:
             scenario = scenario.with_tau(args.tau)
         scenario = _apply_noise(args, scenario)

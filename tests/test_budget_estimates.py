@@ -59,3 +59,42 @@ def test_the_vectorised_run_estimate_bounds_the_measured_peak(scenario, steps, t
     m = json.loads(proc.stdout.strip().splitlines()[-1])
     assert m["growth"] > 20e6  # the run is big enough to measure
     assert m["growth"] <= m["estimate"] <= PESSIMISM * m["growth"], m
+
+
+KERNEL_SCRIPT = """
+import json, math, sys, tracemalloc
+from netsim import budget
+from netsim.models.scenario import parse_scenario, read_scenario_data
+from netsim.runner import run_monte_carlo, scenario_gains
+N, steps = int(sys.argv[1]), int(sys.argv[2])
+d = read_scenario_data(sys.argv[3])
+d["plant"]["sensors"] = N
+d["network"]["agents"] = N
+d["network"]["radius"] = math.sqrt(10 / (math.pi * N))
+d["gains"]["method"] = "local"
+sc = parse_scenario(d)
+g = scenario_gains(sc)
+run_monte_carlo(sc, steps=3, trials=1, families=["compensated"], gains=g, engine="events")
+tracemalloc.start()
+run_monte_carlo(sc, steps=steps, trials=1, families=["compensated"], gains=g,
+                engine="events")
+_, peak = tracemalloc.get_traced_memory()
+print(json.dumps({"growth": peak, "links": len(sc.links),
+                  "estimate": budget.run_bytes(sc, steps, 1, "events")[0]}))
+"""
+
+
+@pytest.mark.parametrize("agents, steps", [(240, 160), (480, 40)])
+def test_the_event_kernel_estimate_bounds_the_measured_peak(agents, steps, cache):
+    """The kernel's estimate counts its links (about 4.5 kB each) and its per agent-step
+    bookkeeping: a geometric network of a few thousand links, measured."""
+    from pathlib import Path
+
+    example = Path(__file__).resolve().parents[1] / "examples" / "geometric-100k.toml"
+    proc = subprocess.run([sys.executable, "-c", KERNEL_SCRIPT, str(agents), str(steps),
+                           str(example)], capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "NETSIM_CACHE_DIR": cache})
+    assert proc.returncode == 0, proc.stderr
+    m = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert m["links"] > 2000 and m["growth"] > 5e6, m
+    assert m["growth"] <= m["estimate"] <= PESSIMISM * m["growth"], m

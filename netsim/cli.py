@@ -489,7 +489,11 @@ def _cmd_run(args: argparse.Namespace) -> int:
     try:
         scenario = resolve_scenario(args.scenario, precheck)
         if args.tau is not None:
-            scenario = scenario.with_tau(args.tau)
+            try:
+                scenario = scenario.with_tau(args.tau)
+            except ScenarioError as exc:
+                raise CommandError(f"--tau {args.tau}: {str(exc).removeprefix('delays.tau: ')}"
+                                   ) from None
         scenario = _apply_noise(args, scenario)
         scenario = apply_aoi_arguments(args, scenario)
     except ScenarioError as exc:

@@ -15,6 +15,7 @@ from __future__ import annotations
 import base64
 import copy
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -250,3 +251,151 @@ def test_the_bases_run(worker):
         raw = to_toml(data).encode()
         reply = worker.run(["run", "scenario.toml", "--no-progress"], {"scenario.toml": raw})
         assert reply["code"] == 0 and reply["escaped"] is None, (name, reply)
+
+
+# -- the attack cases of issue 29, each under the same limits -------------------------------
+
+
+def _snapshot(folder: Path) -> dict[str, Any]:
+    """Every entry under ``folder``: a link's target, a special file's kind, a regular
+    file's bytes (so that a test can say no file changed)."""
+    import stat as st_
+
+    seen: dict[str, Any] = {}
+    for path in sorted(folder.rglob("*")):
+        mode = path.lstat().st_mode
+        rel = str(path.relative_to(folder))
+        if st_.S_ISLNK(mode):
+            seen[rel] = ("link", str(path.readlink()))
+        elif st_.S_ISREG(mode):
+            seen[rel] = ("file", path.read_bytes())
+        elif st_.S_ISDIR(mode):
+            seen[rel] = ("dir",)
+        else:
+            seen[rel] = ("special", st_.S_IFMT(mode))
+    return seen
+
+
+def _nested_key(depth: int) -> str:
+    return "a = 1\n" + ".".join(["k"] * depth) + " = 1\n"
+
+
+def _nested_inline(depth: int) -> str:
+    return "x = " + "{a = " * depth + "1" + "}" * depth + "\n"
+
+
+ATTACKS: dict[str, tuple[list[str], str]] = {
+    # name: (argv, the words the one line must have); {d} is the case's folder
+    "sweep --out equal to --csv": (
+        ["bench", "sweep", "lcsys2022-heterogeneous", "--sizes", "4", "--out", "{d}/r.jsonl",
+         "--csv", "{d}/r.jsonl"], "another output"),
+    "run --trace through a symlink": (
+        ["run", "lcsys2022-heterogeneous", "--steps", "5", "--trials", "1", "--trace",
+         "{d}/t.mcap", "--force", "--no-progress"], "symbolic link"),
+    "layout -o through a symlink": (
+        ["layout", "{d}/trace.mcap", "-o", "{d}/t.json", "--force"], "symbolic link"),
+    "plot -o onto an existing file": (
+        ["plot", "{d}/trace.mcap", "-o", "{d}/old.png"], "exists"),
+    "run --trace onto its own scenario": (
+        ["run", "{d}/s.toml", "--trace", "{d}/s.toml", "--force", "--estimators",
+         "compensated", "--trials", "1", "--no-progress"], "input"),
+    "run /dev/zero": (["run", "/dev/zero", "--no-progress"], "/dev/zero"),
+    "empirical latency file /dev/zero": (
+        ["run", "{d}/zero-latency.toml", "--no-progress"], "/dev/zero"),
+    "bench sweep --out /dev/full": (
+        ["bench", "sweep", "lcsys2022-heterogeneous", "--sizes", "4", "--out", "/dev/full"],
+        "/dev/full"),
+    "a FIFO as the scenario": (["run", "{d}/fifo.toml", "--no-progress"], "fifo"),
+    "a FIFO as a latency trace": (["run", "{d}/fifo-latency.toml", "--no-progress"], "fifo"),
+    "fusion run --trials 1e9": (
+        ["fusion", "run", "dkfe-example1", "--trials", "1000000000"], "--trials"),
+    "bench sweep --sizes 1e9": (
+        ["bench", "sweep", "lcsys2022-heterogeneous", "--sizes", "1000000000", "--out",
+         "{d}/big.jsonl"], "--sizes"),
+    "1,000,000 agents": (["run", "{d}/million.toml", "--no-progress"], "1,000,000 agents"),
+    "a key nested 20,000 deep": (["run", "{d}/deep-key.toml", "--no-progress"], "deep"),
+    "5,000 nested inline tables": (["run", "{d}/deep-inline.toml", "--no-progress"],
+                                   "deep"),
+    "a 36 MB scenario": (["run", "{d}/huge.toml", "--no-progress"], "MiB"),
+    "--tau 1e20": (["run", "lcsys2022-heterogeneous", "--tau", str(10 ** 20),
+                    "--no-progress"], "--tau"),
+    "delays.tau = 2^63": (["run", "{d}/tau63.toml", "--no-progress"], "delays.tau"),
+    "--estimators os:system": (["run", "lcsys2022-heterogeneous", "--estimators",
+                                "os:system", "--no-progress"], "os:system"),
+    "--estimators builtins:print": (["run", "lcsys2022-heterogeneous", "--estimators",
+                                     "builtins:print", "--no-progress"], "builtins:print"),
+    "--estimators json:loads": (["run", "lcsys2022-heterogeneous", "--estimators",
+                                 "json:loads", "--no-progress"], "json:loads"),
+    "sweep --out into a missing folder": (
+        ["bench", "sweep", "lcsys2022-heterogeneous", "--sizes", "4", "--out",
+         "{d}/missing/r.jsonl"], "does not exist"),
+    "analyze --tau-max 1e18": (["analyze", "lcsys2022-homogeneous", "--tau-max",
+                                str(10 ** 18)], "--tau-max"),
+}
+
+
+@pytest.fixture(scope="module")
+def attack_trace(worker, tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("attack-trace")
+    trace = folder / "trace.mcap"
+    reply = worker.run(["run", "lcsys2022-heterogeneous", "--steps", "10", "--trials", "1",
+                        "--estimators", "compensated", "--trace", str(trace),
+                        "--no-progress"], {})
+    assert reply["code"] == 0, reply
+    return trace
+
+
+def _attack_folder(d: Path, trace: Path) -> None:
+    """The files the attacks name: victims behind links, special files, huge inputs."""
+    import shutil
+
+    (d / "victim.txt").write_text("victim")
+    (d / "old.png").write_bytes(b"\x89PNG an earlier plot")
+    (d / "t.mcap").symlink_to(d / "victim.txt")
+    (d / "t.json").symlink_to(d / "victim.txt")
+    shutil.copy(trace, d / "trace.mcap")
+    lcsys = copy.deepcopy(BASES["lcsys"])
+    (d / "s.toml").write_text(to_toml(lcsys))
+    for name, source in (("zero-latency.toml", "/dev/zero"),
+                         ("fifo-latency.toml", str(d / "fifo"))):
+        data = copy.deepcopy(lcsys)
+        data["links"] = {"delay": {"distribution": "empirical", "file": source}}
+        (d / name).write_text(to_toml(data))
+    os.mkfifo(d / "fifo")
+    os.mkfifo(d / "fifo.toml")
+    text = (ROOT / "examples" / "geometric-100k.toml").read_text()
+    (d / "million.toml").write_text(
+        text.replace("sensors = 100000", "sensors = 1000000")
+        .replace("agents = 100000", "agents = 1000000")
+        .replace("radius = 0.005641895835477563", "radius = 0.0017841241161527712"))
+    (d / "deep-key.toml").write_text(_nested_key(20_000))
+    (d / "deep-inline.toml").write_text(_nested_inline(5_000))
+    with open(d / "huge.toml", "w") as f:
+        f.write(to_toml(lcsys))
+        line = "# " + "x" * 1022 + "\n"
+        f.write(line * (36 * 1024))
+    tau63 = copy.deepcopy(lcsys)
+    tau63.setdefault("delays", {})["tau"] = 2 ** 63
+    (d / "tau63.toml").write_text(to_toml(tau63))
+
+
+@pytest.mark.parametrize("name", list(ATTACKS))
+def test_the_attack_cases_are_refused_in_one_line_and_change_no_file(
+        name, worker, attack_trace, tmp_path):
+    """Each case of issue 29, in the fuzz worker (4 GB address space, CPU-time limit):
+    exit 2 with one line that names what is wrong, no traceback, and no file changed."""
+    _attack_folder(tmp_path, attack_trace)
+    before = _snapshot(tmp_path)
+    argv_template, words = ATTACKS[name]
+    argv = [a.replace("{d}", str(tmp_path)) for a in argv_template]
+    reply = worker.run(argv, {})
+    assert reply["escaped"] is None, reply["escaped"]
+    err = reply["stderr"]
+    assert "Traceback" not in err, err
+    assert reply["cpu_seconds"] < TIME_LIMIT_S, reply
+    assert reply["code"] == 2, (reply["code"], err)
+    lines = [line for line in err.splitlines()
+             if not line.startswith(("netsim run: note:", "netsim run: warning:"))]
+    assert len(lines) == 1, err
+    assert words.lower() in lines[0].lower(), lines[0]
+    assert _snapshot(tmp_path) == before, "a file changed"

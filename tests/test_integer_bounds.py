@@ -25,7 +25,7 @@ def test_a_tau_beyond_the_largest_delay_is_one_line(capsys, tmp_path):
     assert main(["run", "lcsys2022-heterogeneous", "--tau", str(10 ** 20), "--steps", "5",
                  "--trials", "1", "--no-progress"]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and "delays.tau" in err[0] and str(MAX_DELAY_STEPS) in err[0]
+    assert len(err) == 1 and "--tau" in err[0] and str(MAX_DELAY_STEPS) in err[0]
     s = tmp_path / "s.toml"
     s.write_text('name = "big"\n[plant]\nA = [[0.5]]\nC = [[[1.0]], [[1.0]]]\nQ = 0.1\n'
                  'R = 0.1\n[network]\ntopology = "cycle"\nagents = 2\n[delays]\n'

@@ -40,7 +40,13 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-__all__ = ["Estimator", "ContractError", "missing_methods", "check_estimator"]
+__all__ = ["Estimator", "ContractError", "EstimatorFailure", "missing_methods",
+           "check_estimator"]
+
+
+class EstimatorFailure(RuntimeError):
+    """An estimator raised while a simulation ran it (one line: which estimator, which
+    agent, which step, and what it raised; the original exception is its cause)."""
 
 
 @runtime_checkable

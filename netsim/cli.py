@@ -467,6 +467,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         return run_live(args, _cmd_run)
     from tqdm import tqdm
 
+    from netsim.estimators.contract import EstimatorFailure
     from netsim.models.scenario import ScenarioError, resolve_scenario
     from netsim.runner import TraceWriteError, run_monte_carlo
 
@@ -565,6 +566,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise CommandError(f"cannot write trace {args.trace}: "
                            f"{exc.strerror or exc}") from None
+    except EstimatorFailure as exc:  # a plugin's step() raised: name it, one line
+        raise CommandError(str(exc)) from None
     except ValueError as exc:
         # e.g. a trace-driven link asked for more messages than its trace recorded
         raise CommandError(f"scenario {args.scenario}: {exc}") from None

@@ -30,6 +30,7 @@ import simpy
 
 from netsim import interrupt
 from netsim.deliveries import DeliveryCalendar
+from netsim.estimators.contract import EstimatorFailure
 from netsim.links import ConfiguredLink, Link, Message, resolve_link, sender_function
 from netsim.models.delays import DelayModel
 from netsim.models.plant import LinearPlant
@@ -378,6 +379,7 @@ class _Run:
         self.measurements: Sequence[np.ndarray] = ()
         self.done = self.env.event()
         self.diverged_at: int | None = None
+        self.failure: EstimatorFailure | None = None  # set when an estimator raised
         # The divergence test (see ``monitor`` and ``diverged``).
         self.threshold_sq = squared_threshold(sim.divergence_threshold)
         self.state_norms = np.sqrt(np.einsum("ki,ki->k", self.states, self.states)).tolist()
@@ -422,14 +424,23 @@ class _Run:
         current = self.current
         while True:
             k = yield self.tick
-            if own_rows is not None:
-                row = next(own_rows)
-                estimate = update(k, measure(self.measurements), row)
-                if estimate is not row:
-                    row[...] = estimate
-            else:
-                estimate = update(k, measure(self.measurements))
-                current[i] = estimate
+            try:
+                if own_rows is not None:
+                    row = next(own_rows)
+                    estimate = update(k, measure(self.measurements), row)
+                    if estimate is not row:
+                        row[...] = estimate
+                else:
+                    estimate = update(k, measure(self.measurements))
+                    current[i] = estimate
+            except Exception as exc:  # the estimator's own failure: say whose, and where
+                kind = type(estimator)
+                failure = EstimatorFailure(
+                    f"estimator {kind.__module__}.{kind.__qualname__} of agent {i} failed "
+                    f"in step() at step {k}: {type(exc).__name__}: {exc}")
+                if self.failure is None:  # the first agent's error is the one reported
+                    self.failure = failure
+                raise failure from exc
             if reports:
                 self.report_update(i, k, estimate,
                                    estimator.last_delays if has_delays else None)
@@ -451,6 +462,8 @@ class _Run:
     def monitor(self, tick: simpy.Event) -> None:
         """Record step k and test it for divergence (a callback of the tick, after the agents)."""
         k = cast(int, tick.value)  # the tick's value is its step
+        if self.failure is not None:  # an agent's step raised: stop with its error
+            raise self.failure
         if not self.in_place:
             self.estimates[k] = self.current
         # Within the norm bound every agent's error is within the threshold; beyond it

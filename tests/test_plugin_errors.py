@@ -415,3 +415,27 @@ def test_module_not_found_says_where_it_looked(capsys, tmp_path, monkeypatch):
     assert code == 2 and err.count("\n") == 1, err
     assert f"looked in the current directory {tmp_path}" in err
     assert "and the Python path" in err
+
+
+def test_a_plugin_whose_step_raises_is_named_in_one_line(tmp_path, monkeypatch, capsys):
+    """The estimator's own exception, not a numpy error from the kernel's bookkeeping."""
+    (tmp_path / "badstep_issue29.py").write_text(
+        "import numpy as np\n"
+        "class Bad:\n"
+        "    def __init__(self, setup):\n"
+        "        self.x = np.zeros(setup.A.shape[0])\n"
+        "    def message_arrived(self, sender, sent_step, payload):\n"
+        "        return True\n"
+        "    def step(self, k, y):\n"
+        "        if k == 2:\n"
+        "            raise ZeroDivisionError('plugin bug')\n"
+        "        return self.x\n"
+        "    def estimate(self):\n"
+        "        return self.x\n")
+    monkeypatch.chdir(tmp_path)
+    code = main(["run", "lcsys2022-heterogeneous", "--estimators", "badstep_issue29:Bad",
+                 "--steps", "5", "--trials", "1", "--no-progress"])
+    err = [line for line in capsys.readouterr().err.splitlines() if "note:" not in line]
+    assert code == 2 and len(err) == 1, err
+    assert err[0] == ("netsim run: error: estimator badstep_issue29.Bad of agent 0 failed "
+                      "in step() at step 2: ZeroDivisionError: plugin bug")

@@ -159,10 +159,11 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         add_aoi_arguments(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     run.add_argument("--live", nargs="?", const="127.0.0.1:8765", metavar="ADDR",
-                     help="serve the run to Foxglove or Lichtblick over the Foxglove WebSocket "
-                     "protocol at ADDR (default 127.0.0.1:8765; needs pip install "
-                     "'netsim[live]'): the trace's topics and schemas, paced in simulation "
-                     "time; waits for a viewer, then serves until Ctrl-C (see netsim.live)")
+                     help="serve the run to Foxglove (or any viewer that speaks the "
+                     "foxglove.sdk.v1 WebSocket subprotocol) at ADDR (default "
+                     "127.0.0.1:8765; needs pip install 'netsim[live]'): the trace's "
+                     "topics and schemas, paced in simulation time; waits for a viewer, "
+                     "then serves until Ctrl-C (see netsim.live)")
     run.add_argument("--speed", type=float, default=1.0, metavar="X",
                      help="with --live: simulation seconds per wall-clock second (default 1; "
                      "0 or inf: as fast as possible)")

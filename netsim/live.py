@@ -414,8 +414,9 @@ def run_live(args: argparse.Namespace, command: Callable[[argparse.Namespace], i
     scratch = None
     try:
         sys.stderr.write(
-            f"netsim run: live view on ws://{host}:{view.port} (Foxglove or Lichtblick: "
-            "Open connection > Foxglove WebSocket); waiting for a viewer to connect\n")
+            f"netsim run: live view on ws://{host}:{view.port} (in Foxglove: Open "
+            "connection > Foxglove WebSocket; subprotocol foxglove.sdk.v1); waiting for a "
+            "viewer to connect\n")
         sys.stderr.flush()
         if args.trace is None:
             scratch = tempfile.mkdtemp(prefix="netsim-live-")

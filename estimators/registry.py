@@ -80,6 +80,7 @@ BUILTIN_MODULES = (
     "netsim.estimators.kalman",
     "netsim.estimators.aoi",
     "netsim.estimators.fusion",
+    "netsim.estimators.baselines",
 )
 #: The augmented error recursions a family may declare (``error_recursion``): with
 #: A^(r+1) compensation, LCSYS2022 eq. (9); with A, the delay-tolerant paper's eq. (11);

@@ -85,7 +85,8 @@ def test_every_builtin_family_declares_itself_in_its_own_module():
     builtin = [f for f in families() if f.source == "builtin"]
     assert {f.name for f in builtin} == {
         "compensated", "uncompensated", "block", "centralized-kf", "local-kf",
-        "aoi", "naive-uniform", "naive-tree", "dkfe", "sdkfe", "odkfe"}
+        "aoi", "naive-uniform", "naive-tree", "dkfe", "sdkfe", "odkfe",
+        "kcf", "ci", "diffkf"}
     for family in builtin:
         assert _declaring_module(family).exists(), family.name
         assert family.description and family.paper, family.name

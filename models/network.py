@@ -222,8 +222,8 @@ def _grown_past_isolation(r: float, tree: cKDTree, positions: np.ndarray) -> flo
     """
     if len(positions) < 2:
         return r
-    nearest, _ = tree.query(positions, k=2, workers=-1)
-    needed = float(nearest[:, 1].max())
+    nearest, _ = tree.query(positions, k=2, workers=-1)  # (an array: many points, k = 2)
+    needed = float(np.asarray(nearest)[:, 1].max())
     while r < needed:
         r *= 1.1
     return r

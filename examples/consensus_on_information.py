@@ -30,6 +30,13 @@ steps, x <- A x, P <- A P A^T + Q) before the consensus step; before anything ha
 arrived from j, agent i uses its own corrected pair in j's place (DESIGN.md). The
 paper's stability theorem (collective observability, strong connectivity) is for its
 own timing; netsim shows what the delays do to it.
+
+netsim now ships the same paper's algorithm as the built-in family ``ci``
+(:class:`netsim.estimators.baselines.ConsensusOnInformationFilter`, ``--estimators ci``),
+with the paper's timing kept exact: the neighbours' *corrected* pairs of step k are
+fused at step k + 1 (one consensus step per sample), then predicted and corrected with
+the new measurement. This file stays what it was written as, an example of a user's
+plugin (it runs as ``ci-filter``), with its own adaptation described above.
 """
 
 from __future__ import annotations

@@ -494,8 +494,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
             try:
                 scenario = scenario.with_tau(args.tau)
             except ScenarioError as exc:
-                raise CommandError(f"--tau {args.tau}: {str(exc).removeprefix('delays.tau: ')}"
-                                   ) from None
+                raise CommandError(f"--tau {args.tau}: {exc}") from None
         scenario = _apply_noise(args, scenario)
         scenario = apply_aoi_arguments(args, scenario)
     except ScenarioError as exc:

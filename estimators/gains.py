@@ -82,12 +82,14 @@ __all__ = [
     "DEFAULT_REFINE_MAX_ITER",
     "DEFAULT_SOLVERS",
     "DEFAULT_TOLERANCE",
+    "BOUND_STATUS",
     "LARGE_LMI_STATES",
     "LOCAL_AUTO_MIN_STATES",
     "LOCAL_DEFAULT_GAMMA",
     "LOCAL_GAMMAS",
     "LOCAL_SEARCH_MAX_STATES",
     "METHODS",
+    "certificate_text",
     "design_local",
     "GainDesign",
     "GainDesignError",
@@ -133,6 +135,10 @@ LOCAL_GAMMAS: tuple[float, ...] = (0.2, 0.4, 0.6, 0.8)
 LOCAL_SEARCH_MAX_STATES: int = 12_000
 #: The local design's ``gamma`` above :data:`LOCAL_SEARCH_MAX_STATES`.
 LOCAL_DEFAULT_GAMMA: float = 0.6
+#: ``status`` prefix of a local design certified by the weighted-norm upper bound
+#: (:func:`netsim.models.augmented.delay_free_rho_bound`) instead of the exact radius;
+#: the basis follows (``"weighted-norm-bound-eigenvectors"``).
+BOUND_STATUS: str = "weighted-norm-bound"
 #: Default SCS options (cvxpy's default ``max_iters`` of 100000 can run for hours).
 SCS_DEFAULT_OPTIONS: dict[str, Any] = {"max_iters": 20000}
 #: SCS options of the CCL steps: 1e-4 halves the time per step against the default
@@ -168,7 +174,9 @@ class GainDesign:
         ``K_i C_i^T = L_i``.
     rho : float
         ``rho(A-hat)`` of the *delay-free* closed loop, LCSYS2022 eq. (12),
-        recomputed with numpy from ``L`` (also for delay-bound designs).
+        recomputed with numpy from ``L`` (also for delay-bound designs); an upper bound
+        on it when ``status`` starts with :data:`BOUND_STATUS` (see
+        ``certificate_weights`` and :func:`certificate_text`).
     certified_rate : float or None
         The rate ``alpha`` certified for the design matrix (``rho_design < alpha``),
         or None.
@@ -194,6 +202,14 @@ class GainDesign:
         ``design_tau == 0``.
     iterations : int
         SDP solves (LMI, CCL) or optimiser iterations (refinement).
+    certificate_weights : tuple of numpy.ndarray
+        For ``status`` starting with :data:`BOUND_STATUS` (the local design above
+        :data:`LOCAL_SEARCH_MAX_STATES`): the positive ``(N, n)`` weights ``w`` of the
+        weighted infinity norm whose value is ``rho`` (and, for ``design_tau > 0``, a
+        second one for ``rho_design``); then ``rho`` and ``rho_design`` are rigorous
+        *upper bounds* (:func:`netsim.models.augmented.delay_free_rho_bound`), which
+        :func:`netsim.models.augmented.weighted_norm_bound` reproduces in one step.
+        Empty otherwise.
     """
 
     L: tuple[np.ndarray, ...]
@@ -208,6 +224,7 @@ class GainDesign:
     design_tau: int = 0
     rho_design: float | None = None
     iterations: int = 0
+    certificate_weights: tuple[np.ndarray, ...] = ()
 
     def __post_init__(self) -> None:
         if self.rho_design is None:
@@ -1292,23 +1309,54 @@ def design_local(
         L = [g * unit[id(Ci)][0] for Ci in C_list]
         return float(delay_free_spectral_radius(P, Amat, C_list, L, method=method))
 
-    if gamma is not None:
-        g, rho = float(gamma), rho_of(float(gamma), A_arr)
-        how = "given"
-    elif Nn <= LOCAL_SEARCH_MAX_STATES:
-        tried = [(rho_of(g, A_arr), g) for g in LOCAL_GAMMAS]
-        rho, g = min(tried)
-        how = f"best rho of gamma in {list(LOCAL_GAMMAS)}"
-    else:
-        g, rho = LOCAL_DEFAULT_GAMMA, rho_of(LOCAL_DEFAULT_GAMMA, A_arr)
+    weights: tuple[np.ndarray, ...] = ()
+    bound_note = ""
+    if gamma is None and Nn > LOCAL_SEARCH_MAX_STATES:
+        g = LOCAL_DEFAULT_GAMMA
         how = f"default (no search above N n = {LOCAL_SEARCH_MAX_STATES})"
-    rho_design = rho if tau == 0 else rho_of(g, _design_matrix(A_arr, tau))
+    else:
+        g = float(gamma) if gamma is not None else LOCAL_DEFAULT_GAMMA
+        how = "given"
+    if not dense_rho and Nn > LOCAL_SEARCH_MAX_STATES:
+        # large: the linear-work upper bound first, the exact (ARPACK) radius only if it
+        # does not certify
+        from netsim.models.augmented import delay_free_rho_bound
+
+        L_g = [g * unit[id(Ci)][0] for Ci in C_list]
+        bounds = [delay_free_rho_bound(P, A_arr, C_list, L_g)]
+        if tau and bounds[0].bound < 1.0:
+            bounds.append(delay_free_rho_bound(P, _design_matrix(A_arr, tau), C_list, L_g,
+                                               bases=(bounds[0].basis,)))
+        if all(b.bound < 1.0 for b in bounds):
+            rho = bounds[0].bound
+            rho_design = bounds[-1].bound
+            weights = tuple(b.weights for b in bounds)
+            rho_method = f"{BOUND_STATUS}-{bounds[0].basis}"
+        else:
+            bound_note = (f"the weighted-norm bound does not certify (rho(A-hat) <= "
+                          f"{bounds[-1].bound:.6g} is not below 1), so ")
+    if not weights:
+        if gamma is None and Nn <= LOCAL_SEARCH_MAX_STATES:
+            tried = [(rho_of(gg, A_arr), gg) for gg in LOCAL_GAMMAS]
+            rho, g = min(tried)
+            how = f"best rho of gamma in {list(LOCAL_GAMMAS)}"
+        else:
+            rho = rho_of(g, A_arr)
+        rho_design = rho if tau == 0 else rho_of(g, _design_matrix(A_arr, tau))
     L = tuple(g * unit[id(Ci)][0] for Ci in C_list)
     K = tuple(g * unit[id(Ci)][1] for Ci in C_list)
     certified = bool(rho < 1 and rho_design < 1)
+    if weights:
+        radius = (f"delay-free rho(A-hat) <= {rho:.6f} (rigorous upper bound: the weighted "
+                  f"infinity norm ||T^-1 A-hat T||_inf, T = (I kron S) diag(w), S the "
+                  f"{bounds[0].basis} basis, w from {bounds[0].iterations} power steps)"
+                  f"{'' if tau == 0 else f', rho_design (A^{tau + 1}) <= {rho_design:.6f}'}")
+    else:
+        radius = (f"{bound_note}exact delay-free rho(A-hat) = {rho:.6f} by the {rho_method} "
+                  f"spectral radius"
+                  f"{'' if tau == 0 else f', rho_design (A^{tau + 1}) = {rho_design:.6f}'}")
     message = (f"local design L_i = gamma C_i^T (C_i C_i^T)^+, gamma = {g:g} ({how}); "
-               f"exact delay-free rho(A-hat) = {rho:.6f} by the {rho_method} spectral radius"
-               f"{'' if tau == 0 else f', rho_design (A^{tau + 1}) = {rho_design:.6f}'}; "
+               f"{radius}; "
                f"{'certified (rho < 1)' if certified else 'NOT certified (rho >= 1)'}; "
                f"observability checks: {', '.join(checks)}")
     if note:
@@ -1316,7 +1364,40 @@ def design_local(
     return GainDesign(L=L, K=K, rho=rho, certified_rate=None, certified=certified,
                       method=_METHOD_LOCAL, solver="none", status=rho_method,
                       message=message, design_tau=tau, rho_design=rho_design,
-                      iterations=0)
+                      iterations=0, certificate_weights=weights)
+
+
+def certificate_text(certified: bool, status: str, rho: float | None) -> str:
+    """What a design's certificate says, in one phrase (the ``gains:`` line of ``netsim run``).
+
+    ``"certified by weighted-norm-bound-eigenvectors: rho(A-hat) <= 0.974776"`` (an
+    upper bound, :func:`netsim.models.augmented.delay_free_rho_bound`), ``"certified
+    by structured-arpack: rho(A-hat) = 0.968800 (ARPACK)"``, ``"... (dense
+    eigenvalues)"``, or ``"NOT certified: rho(A-hat) = ..."``.
+
+    Parameters
+    ----------
+    certified : bool
+        :attr:`GainDesign.certified`.
+    status : str
+        :attr:`GainDesign.status` (how the certificate was obtained).
+    rho : float or None
+        :attr:`GainDesign.rho`.
+
+    Returns
+    -------
+    str
+    """
+    value = "-" if rho is None else f"{rho:.6f}"
+    if str(status).startswith(BOUND_STATUS):
+        relation = f"rho(A-hat) <= {value}"
+    elif status == "structured-arpack":
+        relation = f"rho(A-hat) = {value} (ARPACK)"
+    elif status == "dense-eigvals":
+        relation = f"rho(A-hat) = {value} (dense eigenvalues)"
+    else:
+        relation = f"rho(A-hat) = {value}"
+    return f"certified by {status}: {relation}" if certified else f"NOT certified: {relation}"
 
 
 # ---------------------------------------------------------------------------

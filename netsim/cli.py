@@ -757,10 +757,11 @@ def _format_run(data: dict[str, Any]) -> str:
     ]
     g = data["gains"]
     if g is not None:
-        cert = "certified" if g["certified"] else "NOT certified"
+        from netsim.estimators.gains import certificate_text
+
         lines.append(
-            f"gains: {g['method']} ({g['solver']}, {g['status']}, {cert}); "
-            f"rho(A-hat) delay-free = {_fmt(g['rho_delay_free'])}"
+            f"gains: {g['method']} ({g['solver']}); delay-free "
+            f"{certificate_text(g['certified'], g['status'], g['rho_delay_free'])}"
         )
     a = data.get("analytics") or {}
     for section in a.values():  # the families' own analytics (their papers' bounds)

@@ -35,6 +35,14 @@ in this order:
    computation is dense is screened by the structured (ARPACK) radius at
    :data:`SCREEN_RTOL` and recomputed densely only if the screen disagrees.
 
+A local design certified by the weighted-norm upper bound (``status``
+``"weighted-norm-bound-<basis>"``, :func:`netsim.models.augmented.delay_free_rho_bound`)
+stores its certificate, the positive weights ``w`` (array ``W``, shape (1 or 2, N, n),
+in the digest): at any ``N n`` the bound ``||T^-1 A-hat T||_inf`` is recomputed from
+them in one step linear in the links (:func:`netsim.models.augmented.weighted_norm_bound`,
+about 1 s at N = 100,000) and must equal the stored ``rho`` (and ``rho_design``) to
+:data:`RHO_RTOL` and be below 1 if certified; the basis must be a known one.
+
 The certificate checks (``rho < 1``, the rate) use the stored values once they match
 the recomputed ones, so a design certified at ``rho = 1 - 1e-15`` is not rejected
 for rounding. Above :data:`VERIFY_RHO_MAX_STATES` (the local design's range, and every
@@ -72,7 +80,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from netsim.estimators.gains import GainDesign
+from netsim.estimators.gains import BOUND_STATUS, GainDesign
 from netsim.models.scenario import ScenarioWarning
 
 __all__ = [
@@ -224,7 +232,7 @@ def _canonical(scalars: dict[str, Any]) -> str:
 
 
 def entry_digest(key: str, K_all: np.ndarray, L_all: np.ndarray,
-                 scalars: dict[str, Any]) -> str:
+                 scalars: dict[str, Any], W_all: np.ndarray | None = None) -> str:
     """SHA-256 of an entry's contents: its fingerprint, the stored arrays' shapes and
     bytes, and its scalar fields (canonical JSON).
 
@@ -238,6 +246,9 @@ def entry_digest(key: str, K_all: np.ndarray, L_all: np.ndarray,
         The L_i side by side, as stored.
     scalars : dict
         The GainDesign's scalar fields (``rho``, ``certified``, ...), as stored.
+    W_all : numpy.ndarray, optional
+        The certificate weights (``GainDesign.certificate_weights`` stacked, shape
+        (1 or 2, N, n)), when the design has them; entries without them digest as before.
 
     Returns
     -------
@@ -245,7 +256,8 @@ def entry_digest(key: str, K_all: np.ndarray, L_all: np.ndarray,
         64 hex digits.
     """
     digest = hashlib.sha256(f"netsim-gain-entry-{LAYOUT};{key};".encode())
-    for name, array in (("K", K_all), ("L", L_all)):
+    arrays = [("K", K_all), ("L", L_all)] + ([] if W_all is None else [("W", W_all)])
+    for name, array in arrays:
         a = np.ascontiguousarray(array)
         digest.update(f"{name}:{a.dtype.str}:{a.shape};".encode())
         digest.update(a.tobytes())
@@ -258,7 +270,7 @@ def _one_line(text: Any, limit: int = 160) -> str:
     return line if len(line) <= limit else line[:limit - 3] + "..."
 
 
-def _read(path: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
+def _read(path: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray, np.ndarray | None]:
     """The meta dictionary and the raw K and L arrays of the file at ``path`` (a regular
     file only: a named pipe would block, a device would be read without end)."""
     import stat
@@ -276,13 +288,14 @@ def _read(path: Path) -> tuple[dict[str, Any], np.ndarray, np.ndarray]:
             meta = json.loads(str(data["meta"][()]))
             K_all = np.array(data["K"])
             L_all = np.array(data["L"])
+            W_all = np.array(data["W"]) if "W" in data.files else None
     except FileNotFoundError:
         raise
     except Exception as exc:  # any failure to read is a damaged entry
         raise EntryError(f"cannot be read ({type(exc).__name__}: {_one_line(exc)})") from None
     if not isinstance(meta, dict):
         raise EntryError("cannot be read (its metadata is not a table)")
-    return meta, K_all, L_all
+    return meta, K_all, L_all, W_all
 
 
 def _closed_loop_rho(kind: str, P: Any, A: np.ndarray, C: Sequence[np.ndarray],
@@ -364,6 +377,9 @@ def verify_design(design: GainDesign, scenario: Any,
     N = len(C)
     K_all, L_all = _arrays(design) if arrays is None else arrays
     _check_kl(K_all, L_all, C)
+    if design.method == _LOCAL and str(design.status).startswith(BOUND_STATUS):
+        _check_bound(design, scenario)
+        return
     if N * n > VERIFY_RHO_MAX_STATES:
         return
     if design.method == _LOCAL:
@@ -395,6 +411,48 @@ def verify_design(design: GainDesign, scenario: Any,
                                      and rho_design < float(rate)):
             raise EntryError(f"claims the certified rate {rate!r} but rho_design = "
                              f"{rho_design:.6g} is not below it")
+
+
+def _check_bound(design: GainDesign, scenario: Any) -> None:
+    """A design certified by the weighted-norm upper bound: recompute the bound from the
+    stored weights, at any ``N n`` (one step, linear in the links,
+    :func:`netsim.models.augmented.weighted_norm_bound`); it must equal the stored
+    ``rho`` (and ``rho_design`` with ``A^(design_tau+1)``) to :data:`RHO_RTOL`, and both
+    must be below 1 if the design claims to be certified."""
+    from netsim.models.augmented import BOUND_BASES, weighted_norm_bound
+
+    basis = str(design.status)[len(BOUND_STATUS) + 1:]
+    if basis not in BOUND_BASES:
+        raise EntryError(f"stored status {design.status!r} names no known basis")
+    tau = design.design_tau
+    if not isinstance(tau, int) or isinstance(tau, bool) or tau < 0:
+        raise EntryError(f"stored design_tau is not a non-negative integer ({tau!r})")
+    weights = design.certificate_weights
+    if len(weights) != (2 if tau else 1):
+        raise EntryError(f"{len(weights)} certificate weight array(s) stored, not "
+                         f"{2 if tau else 1} for design_tau = {tau}")
+    P, C = scenario.weights, scenario.plant.C
+    A = np.asarray(scenario.plant.A, dtype=float)
+    with np.errstate(over="ignore", invalid="ignore"):
+        A_design = np.linalg.matrix_power(A, tau + 1)
+    checks = [("rho", design.rho, A, weights[0])]
+    if tau:
+        checks.append(("rho_design", design.rho_design, A_design, weights[1]))
+    elif not _close(float(design.rho_design), float(design.rho), RHO_RTOL):  # type: ignore[arg-type]
+        raise EntryError(f"stored rho_design = {design.rho_design!r} differs from "
+                         f"rho = {design.rho!r} for design_tau = 0")
+    for what, stored, A_k, W in checks:
+        if not isinstance(stored, (int, float)) or isinstance(stored, bool):
+            raise EntryError(f"stored {what} is not a number ({stored!r})")
+        value = weighted_norm_bound(P, A_k, C, design.L, W, basis)
+        if not _close(value, float(stored), RHO_RTOL):
+            raise EntryError(f"stored {what} <= {float(stored):.6g} but the stored gains "
+                             f"and certificate weights give the bound {value:.6g}")
+        if design.certified is True and not float(stored) < 1.0:
+            raise EntryError(f"claims to be certified but the bound {what} <= "
+                             f"{float(stored):.6g} is not below 1")
+    if design.certified is not True and design.certified is not False:
+        raise EntryError(f"stored 'certified' is not a boolean ({design.certified!r})")
 
 
 def _check_kl(K_all: np.ndarray, L_all: np.ndarray, C: Sequence[np.ndarray]) -> None:
@@ -467,7 +525,7 @@ def read_entry(path: Path, key: str, scenario: Any,
         If the entry cannot be read, was made for another key or layout, or fails a
         check; the message (one line) says which.
     """
-    meta, K_all, L_all = _read(path)
+    meta, K_all, L_all, W_all = _read(path)
     if meta.get("layout") != LAYOUT:
         raise EntryError(f"layout {meta.get('layout')!r}, not {LAYOUT}")
     if meta.get("fingerprint") != key:
@@ -481,11 +539,16 @@ def read_entry(path: Path, key: str, scenario: Any,
                          f"{(len(sizes), n, n)}, {(n, sum(sizes))}")
     if not (np.all(np.isfinite(K_all)) and np.all(np.isfinite(L_all))):
         raise EntryError("non-finite gains")
+    if W_all is not None and (W_all.dtype != np.float64 or W_all.ndim != 3
+                              or W_all.shape[1:] != (len(sizes), n)
+                              or W_all.shape[0] not in (1, 2)):
+        raise EntryError(f"certificate weights of dtype {W_all.dtype}, shape {W_all.shape}, "
+                         f"not float64 (1 or 2, {len(sizes)}, {n})")
     try:
         scalars = {name: meta[name] for name in _SCALARS}
     except KeyError as exc:
         raise EntryError(f"no field {exc}") from None
-    if meta.get("digest") != entry_digest(key, K_all, L_all, scalars):
+    if meta.get("digest") != entry_digest(key, K_all, L_all, scalars, W_all):
         raise EntryError("digest mismatch (the stored contents changed after writing)")
     K = tuple(K_all)
     if sizes and min(sizes) == max(sizes):  # the same m for all: views, no split loop
@@ -493,7 +556,8 @@ def read_entry(path: Path, key: str, scenario: Any,
     else:
         L = tuple(np.split(L_all, np.cumsum(sizes)[:-1], axis=1)) if sizes else ()
     try:
-        design = GainDesign(L=L, K=K, **scalars)
+        design = GainDesign(L=L, K=K, **scalars,
+                            certificate_weights=() if W_all is None else tuple(W_all))
     except (TypeError, ValueError) as exc:
         raise EntryError(f"not a design ({_one_line(exc)})") from None
     if request is not None:
@@ -556,6 +620,14 @@ def _arrays(design: GainDesign) -> tuple[np.ndarray, np.ndarray]:
     return K_all, L_all
 
 
+def _weights(design: GainDesign) -> np.ndarray | None:
+    """The certificate weights stacked, shape (1 or 2, N, n), or None."""
+    weights = getattr(design, "certificate_weights", ())
+    if not weights:
+        return None
+    return np.ascontiguousarray(np.stack([np.asarray(w, dtype=np.float64) for w in weights]))
+
+
 def store(path: Path, key: str, design: GainDesign) -> None:
     """Write ``design`` to ``path`` atomically, with its fingerprint and digest.
 
@@ -574,10 +646,13 @@ def store(path: Path, key: str, design: GainDesign) -> None:
     # the scalars as they read back (JSON round trip), so the digest is the reader's
     scalars = json.loads(_canonical({name: getattr(design, name) for name in _SCALARS}))
     K_all, L_all = _arrays(design)
+    W_all = _weights(design)
     meta = {"fingerprint": key, "layout": LAYOUT, **scalars,
-            "digest": entry_digest(key, K_all, L_all, scalars)}
+            "digest": entry_digest(key, K_all, L_all, scalars, W_all)}
     buffer = io.BytesIO()
-    np.savez(buffer, meta=np.array(json.dumps(meta, default=float)), K=K_all, L=L_all)
+    extra = {} if W_all is None else {"W": W_all}
+    np.savez(buffer, meta=np.array(json.dumps(meta, default=float)), K=K_all, L=L_all,
+             **extra)
     tmp = None
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

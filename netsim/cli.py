@@ -394,6 +394,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         add_reproduce_parser(sub)
     elif only == "":  # the listing only: netsim.reproduce imports the claims and plots
         sub.add_parser("reproduce", help=REPRODUCE_HELP)
+    from netsim.calibrate import add_calibrate_parser
+
+    add_calibrate_parser(sub)
     for name, command in sub.choices.items():
         _add_no_cache(name, command)
     return parser
@@ -1343,6 +1346,12 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return cmd_bench(args)
 
 
+def _cmd_calibrate(args: argparse.Namespace) -> int:
+    from netsim.calibrate import cmd_calibrate
+
+    return cmd_calibrate(args)
+
+
 def _cmd_reproduce(args: argparse.Namespace) -> int:
     from netsim.models.extras import require
 
@@ -1366,6 +1375,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "bench": _cmd_bench,
         "claims": _cmd_claims,
         "reproduce": _cmd_reproduce,
+        "calibrate": _cmd_calibrate,
         "scenarios": _cmd_scenarios,
         "estimators": _cmd_estimators,
     }

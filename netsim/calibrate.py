@@ -659,7 +659,7 @@ def scenario_toml(result: CalibrationResult, name: str = "lcsys2022-calibrated")
     if inst is None:
         raise ValueError("the search evaluated no instance")
     shown = "; ".join(
-        f"{t['name']} {t['printed']} -> {t['achieved'] if isinstance(t['achieved'], int) else round(t['achieved'], 4)}"  # noqa: E501
+        f"{t['name']} {t['printed']} -> {_fmt(t['achieved'])}"
         for t in result.targets)
     status = ("matches every printed number" if result.verdict == "matched"
               else f"does NOT match every printed number ({result.verdict})")

@@ -749,7 +749,7 @@ def run_monte_carlo(
     steps: int | None = None,
     trials: int | None = None,
     seed: int | None = None,
-    families: Sequence[str] | None = None,
+    families: Sequence[str | EstimatorFamily] | None = None,
     progress: Callable[[int], None] | None = None,
     gains: GainDesign | None = None,
     trace: str | None = None,
@@ -765,8 +765,8 @@ def run_monte_carlo(
     scenario : Scenario
     steps, trials, seed : int, optional
         Override the scenario's run settings.
-    families : sequence of str, optional
-        Subset of the scenario's estimators.
+    families : sequence of str or EstimatorFamily, optional
+        Families to run (default: the scenario's estimators).
     progress : callable(int), optional
         Called with 1 after every finished trial (e.g. a tqdm ``update``).
     gains : GainDesign, optional

@@ -488,7 +488,8 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             (np.concatenate([own_weight, terms.weight]),
              (np.concatenate([np.arange(N), terms.i]), np.arange(N + E))), shape=(N, N + E))
         # ring rows fit int32 below 2^31 (halves the index arrays)
-        index_type = np.int32 if depth * N * T < 2**31 - 1 else np.int64
+        index_type: type[np.signedinteger[Any]] = (
+            np.int32 if depth * N * T < 2**31 - 1 else np.int64)
         trials = np.arange(T, dtype=index_type)[None, :]
         no_link = terms.link < 0
         any_no_link = bool(no_link.any())
@@ -728,7 +729,7 @@ def run_batch(
     n = plant.n_states
     wanted = set(range(T)) if record_delays is True else set(record_delays or ())
     ends = np.where(outputs.diverged_at >= 0, outputs.diverged_at, K)
-    if schedule is not None:
+    if schedule is not None and selection is not None:  # (both or neither)
         all_counts = schedule.counts(ends)
         all_discarded = selection.discarded_by(schedule, ends)
     results = []
@@ -751,7 +752,7 @@ def run_batch(
         discarded = 0
         delays = None
         drops = None
-        if schedule is not None:
+        if schedule is not None and selection is not None:
             counts = all_counts[t]
             discarded = int(all_discarded[t])
             if t in wanted:

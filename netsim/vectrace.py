@@ -149,7 +149,7 @@ def _replay(batch: VectorisedBatch, trial: int, scenario: Scenario, family: str,
     n_agents = estimates.shape[1]
     updated = set(int(k) for k in batch.updated)
 
-    if schedule is None:  # centralised filter: one agent, no links
+    if schedule is None or selection is None:  # centralised filter: one agent, no links
         for k in range(end + 1):
             if check:
                 interrupt.check()
@@ -397,7 +397,7 @@ def write_trial(batch: VectorisedBatch, trial: int, scenario: Scenario, family: 
                           "error": error, "squared_error": sq, "error_norm": norm},
                          {"estimate": n, "error": n}))
     update_topics = [update_topic(i) for i in range(n_agents)]
-    if schedule is None:  # centralised filter: no links, no delays
+    if schedule is None or selection is None:  # centralised filter: no links, no delays
         groups.append(_Group("EstimatorUpdate", update_topics, ii, kk.astype(float), ns_kk,
                              ns_kk, u_kk, {"step": kk, "time": t_kk, "agent": ii},
                              _NO_DELAYS))
@@ -475,8 +475,8 @@ def _link_groups(groups: list[_Group], recorder: Any, schedule: Any, selection: 
     # every (link, message) as flat arrays, message major (by send step, then link: the
     # kernel's order of the sent messages; the other groups sort with (link, message)
     # among their keys, so their order does not depend on this one)
-    qq, ll = np.meshgrid(np.arange(n_sends), np.arange(L), indexing="ij")
-    ll, qq = ll.ravel(), qq.ravel()
+    qq_grid, ll_grid = np.meshgrid(np.arange(n_sends), np.arange(L), indexing="ij")
+    ll, qq = ll_grid.ravel(), qq_grid.ravel()
 
     def flat(a: np.ndarray) -> np.ndarray:
         return a.T.ravel()  # (L, S) -> message major
@@ -688,7 +688,7 @@ def write_trial_steps(batch: VectorisedBatch, trial: int, scenario: Scenario, fa
     sends_arrival = np.empty((R, L))  # filled only when arrivals are not at steps
     deliveries = drops = None
     in_steps = True
-    if schedule is not None:
+    if schedule is not None and selection is not None:  # (both or neither)
         link_index = {link: q for q, link in enumerate(links)}
         send = np.asarray(schedule.send_steps)
         n_sends = int(np.searchsorted(send, end, side="right"))
@@ -790,6 +790,7 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
         recorder.max_delay_steps = max(recorder.max_delay_steps, longest)
     if lossless:
         return deliveries, drops, in_steps
+    assert fate is not None  # (None only when lossless)
     # drops, message major (m = q L + l): at sending, drop-oldest victims (at the
     # cancelling send), superseded (at arrival)
     m = np.flatnonzero((fate != DELIVERED).T.ravel())
@@ -797,7 +798,11 @@ def _step_link_events(recorder: Any, schedule: Any, selection: Any, t: int, n_se
         return deliveries, drops, in_steps
     q, l_ = m // L, m % L
     ss = send[q]
-    a = (ss + 1 + delay[l_, q] if in_steps else ss + wait[l_, q]).astype(float)
+    if in_steps:
+        a = (ss + 1 + delay[l_, q]).astype(float)
+    else:
+        assert wait is not None  # (arrivals off the steps come from the wait times)
+        a = (ss + wait[l_, q]).astype(float)
     drop_at = np.asarray(schedule.drop_time[t, :, :n_sends])[l_, q]
     kept, when, reason = _dropped_messages(recorder, schedule, fate[l_, q], ss, a, drop_at,
                                            q, l_, end)
@@ -908,6 +913,7 @@ def _write_step_windows(recorder: Any, out: Any, tables: list[tuple[str, np.ndar
                     part[name] = Column(col.values[lo:hi])
                 else:
                     s = start[name]
+                    assert s is not None  # (the offsets of every ragged column)
                     part[name] = Column(col.values[s[lo]:s[hi]], col.counts[lo:hi])
             out.emit(type_name, rows[lo:hi], rows[lo:hi] * ts, part)
         recorder.last_step = min(end, edges[w + 1] - 1)

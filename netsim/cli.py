@@ -67,8 +67,8 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     only : str, optional
         None (default): the whole parser. A command name: a parser that parses that
         command exactly as the whole one does; the other commands may lack options
-        whose definitions import heavy modules (the run options of :mod:`netsim.aoi`,
-        the bench subcommands). ``""``: enough for the top-level ``--help`` (every
+        whose definitions import heavy modules (the bench and reproduce
+        subcommands). ``""``: enough for the top-level ``--help`` (every
         command listed). :func:`main` passes what its arguments need, which keeps
         ``netsim --help`` and ``netsim run`` from importing what they do not use.
     """
@@ -153,10 +153,9 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
     run.add_argument("--measurement-noise", type=float, default=None, metavar="VAR",
                      help="measurement noise variance (every R_i = VAR I)")
     run.add_argument("--json", action="store_true", help="print one JSON object on stdout")
-    if only in (None, "run"):
-        from netsim.aoi import add_aoi_arguments
+    from netsim.aoiargs import add_aoi_arguments
 
-        add_aoi_arguments(run)
+    add_aoi_arguments(run)
     run.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
     run.add_argument("--live", nargs="?", const="127.0.0.1:8765", metavar="ADDR",
                      help="serve the run to Foxglove (or any viewer that speaks the "
@@ -479,7 +478,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
     _positive(args.trials, "--trials")
     if args.seed is not None and args.seed < 0:
         raise CommandError(f"--seed must be a non-negative integer, got {args.seed}")
-    from netsim.aoi import apply_aoi_arguments
+    from netsim.aoiargs import apply_aoi_arguments
     from netsim.budget import check_counts
 
     def precheck(counts: Any) -> None:
@@ -505,7 +504,7 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"{where}: {exc}") from None
     declared = _families(scenario, args.estimators)
     families = tuple(f.name for f in declared)
-    from netsim.aoi import check_aoi_arguments
+    from netsim.aoiargs import check_aoi_arguments
 
     try:
         check_aoi_arguments(args, declared)

@@ -44,6 +44,7 @@ import math
 import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -152,7 +153,7 @@ def _homogeneous(P: np.ndarray, tau: int) -> np.ndarray:
     return np.where((P != 0) & ~np.eye(P.shape[0], dtype=bool), tau, 0)
 
 
-def unpack(x: Sequence[float]) -> Instance:
+def unpack(x: Sequence[float] | np.ndarray) -> Instance:
     """Map a parameter vector (length :data:`N_PARAMS`) to an instance.
 
     The stated properties hold by construction: ``A`` is block lower triangular with
@@ -267,7 +268,7 @@ def properties(inst: Instance) -> dict[str, Any]:
     n, N = A.shape[0], P.shape[0]
     rho_A = float(np.max(np.abs(np.linalg.eigvals(A))))
     det = float(np.linalg.det(A))
-    graph = nx.DiGraph()
+    graph: nx.DiGraph[int] = nx.DiGraph()
     graph.add_nodes_from(range(n))
     graph.add_edges_from((j, i) for i, j in zip(*np.nonzero(A), strict=True))
     comps = sorted(sorted(c) for c in nx.strongly_connected_components(graph))
@@ -334,7 +335,7 @@ def _targets(m: dict[str, Any], reading: str) -> list[dict[str, Any]]:
     return rows
 
 
-def _residuals(report: Any, reading: str, exact: tuple[float, float] | None) -> np.ndarray:
+def _residuals(report: Any, reading: str, exact: tuple[float, ...] | None) -> np.ndarray:
     v = np.asarray(report.values, dtype=float)
     v = np.where(np.isfinite(v), v, 1e6)
     f = v ** (1.0 / (np.arange(v.size) + 1.0)) if reading == "as-printed" else v
@@ -489,15 +490,16 @@ def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
     cheap_best: tuple[float, np.ndarray] | None = None
     stopped = None
     cut = False  # a stage was stopped by its share of the budget, not by convergence
-    tight = {"method": "trf", "ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12}
+    tight: dict[str, Any] = {"method": "trf", "ftol": 1e-12, "xtol": 1e-12, "gtol": 1e-12}
     try:
         for child in np.random.SeedSequence(seed).spawn(starts):
             x0 = _start(np.random.default_rng(child))
             end = min(obj.evaluations + per_start, evaluations)
             cap = _Objective(reading, min(obj.evaluations + stage1, end), obj.tick,
                              evaluations=obj.evaluations)
+            x1: np.ndarray | None
             try:
-                sol = least_squares(lambda x, c=cap: c(x, False), x0,
+                sol = least_squares(partial(cap, exact=False), x0,
                                     max_nfev=10 * stage1, **tight)
                 x1, cost = sol.x, float(sol.fun @ sol.fun)
             except _Stop:  # its share is spent: continue from its best point
@@ -510,7 +512,7 @@ def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
                 stage2 = _Objective(reading, end, obj.tick, evaluations=obj.evaluations,
                                     best=obj.best)
                 try:
-                    least_squares(lambda x, c=stage2: c(x, True), x1,
+                    least_squares(partial(stage2, exact=True), x1,
                                   max_nfev=10 * per_start, **tight)
                 except _Stop:
                     cut = cut or stage2.found is None
@@ -525,6 +527,7 @@ def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
         stopped = str(stop)
     if obj.best is None and cheap_best is not None:
         obj.best = cheap_best
+    x: np.ndarray | None
     if obj.found is not None:
         x, verdict = obj.found, "matched"
     else:
@@ -756,7 +759,8 @@ def _chosen(results: Sequence[CalibrationResult]) -> CalibrationResult | None:
     """The result written to ``--out``: the first matched, else the first with an instance."""
     with_inst = [r for r in results if r.instance is not None]
     matched = [r for r in with_inst if r.verdict == "matched"]
-    return (matched or with_inst or [None])[0]
+    first = matched or with_inst
+    return first[0] if first else None
 
 
 def add_calibrate_parser(sub: Any) -> argparse.ArgumentParser:
@@ -816,7 +820,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                                str_keys=True)))
     else:
         sys.stdout.write(report_text(results, notes))
-        if written:
+        if written and chosen is not None:  # (written: chosen was)
             sys.stdout.write(f"wrote {written} (reading {chosen.reading}, "
                              f"{chosen.verdict})\n")
     return 0

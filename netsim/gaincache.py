@@ -435,7 +435,9 @@ def _check_bound(design: GainDesign, scenario: Any) -> None:
     A = np.asarray(scenario.plant.A, dtype=float)
     with np.errstate(over="ignore", invalid="ignore"):
         A_design = np.linalg.matrix_power(A, tau + 1)
-    checks = [("rho", design.rho, A, weights[0])]
+    # (the stored numbers as read back: checked below)
+    checks: list[tuple[str, object, np.ndarray, np.ndarray]] = [
+        ("rho", design.rho, A, weights[0])]
     if tau:
         checks.append(("rho_design", design.rho_design, A_design, weights[1]))
     elif not _close(float(design.rho_design), float(design.rho), RHO_RTOL):  # type: ignore[arg-type]
@@ -650,7 +652,7 @@ def store(path: Path, key: str, design: GainDesign) -> None:
     meta = {"fingerprint": key, "layout": LAYOUT, **scalars,
             "digest": entry_digest(key, K_all, L_all, scalars, W_all)}
     buffer = io.BytesIO()
-    extra = {} if W_all is None else {"W": W_all}
+    extra: dict[str, Any] = {} if W_all is None else {"W": W_all}
     np.savez(buffer, meta=np.array(json.dumps(meta, default=float)), K=K_all, L=L_all,
              **extra)
     tmp = None

@@ -72,24 +72,16 @@ def run_mypy(*extra: str) -> subprocess.CompletedProcess[str]:
     return subprocess.CompletedProcess(proc.args, proc.returncode, out, "")
 
 
-#: Issue 30's goal is 0. Until the last modules are annotated this is a ratchet: the
-#: count may only go down (lower it with each fix; 0 makes the test the full check).
-ALLOWED_ERRORS = 51
-
-
 def _error_count(report: str) -> int:
     return sum(1 for line in report.splitlines() if ": error:" in line)
 
 
 def test_mypy_clean() -> None:
     proc = run_mypy()
+    assert "Success" in proc.stdout or "Found" in proc.stdout, proc.stdout  # mypy ran
     errors = _error_count(proc.stdout)
-    if ALLOWED_ERRORS == 0:
-        assert proc.returncode == 0 and "Success: no issues found" in proc.stdout, proc.stdout
-    else:
-        assert "Found" in proc.stdout or "Success" in proc.stdout, proc.stdout  # mypy ran
-        assert errors <= ALLOWED_ERRORS, (
-            f"mypy: {errors} errors, more than the {ALLOWED_ERRORS} allowed:\n{proc.stdout}")
+    assert proc.returncode == 0 and errors == 0 and "Success: no issues found" in proc.stdout, (
+        f"mypy: {errors} errors (issue 30: none allowed):\n{proc.stdout}")
 
 
 if __name__ == "__main__":

@@ -34,6 +34,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+from netsim.taskoptions import getenv
+
 __all__ = [
     "ResourceError",
     "SAFETY",
@@ -177,7 +179,7 @@ def memory_limit() -> tuple[int, str]:
         ``SAFETY`` times the smallest of the free RAM, the room left under
         RLIMIT_AS / RLIMIT_DATA and the cgroup's room; or ``NETSIM_MEMORY_LIMIT``.
     """
-    env = os.environ.get("NETSIM_MEMORY_LIMIT")
+    env = getenv("NETSIM_MEMORY_LIMIT")  # a sweep's task carries the client's
     if env:
         try:
             return _parse_size(env), "NETSIM_MEMORY_LIMIT"
@@ -202,7 +204,7 @@ def memory_limit() -> tuple[int, str]:
 
 def time_limit() -> float:
     """Seconds of estimated dense linear algebra a request may take."""
-    env = os.environ.get("NETSIM_TIME_LIMIT")
+    env = getenv("NETSIM_TIME_LIMIT")  # a sweep's task carries the client's
     if env:
         try:
             value = float(env)

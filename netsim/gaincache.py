@@ -165,7 +165,9 @@ def cache_dir() -> Path | None:
     """The cache folder, or None when caching is off."""
     if _OFF[-1]:
         return None
-    value = os.environ.get("NETSIM_CACHE_DIR")
+    from netsim.taskoptions import getenv
+
+    value = getenv("NETSIM_CACHE_DIR")  # a sweep's task carries the client's setting
     if value is not None:
         return None if value.strip().lower() in ("", "off", "0", "none") else Path(value)
     base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"),

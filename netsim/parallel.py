@@ -83,7 +83,9 @@ def env_workers() -> int | None:
     ValueError
         If it is set to anything but a positive integer (one line naming it).
     """
-    env = os.environ.get(WORKERS_ENV, "").strip()
+    from netsim.taskoptions import getenv
+
+    env = (getenv(WORKERS_ENV) or "").strip()  # a sweep's task sets it to 1
     if not env:
         return None
     try:

@@ -24,6 +24,22 @@ so an interrupted sweep (Ctrl-C, a killed worker, a lost cluster) keeps every ce
 that finished and resumes where it stopped. A partial last line (the writer was
 killed mid-line) is cut off.
 
+Real clusters (issue 34). A Dask worker is a process started before the sweep, often on
+another machine, in another folder, with another environment. So
+
+* every worker's netsim version is checked before anything is submitted
+  (:func:`check_worker_versions`; a mismatch is :class:`WorkerVersionMismatch`, one line
+  naming the worker and both versions), and again by every task (a worker that joined
+  later);
+* the options a cell reads from the environment (``--no-cache``, ``NETSIM_CACHE_DIR``,
+  the memory and time limits) travel in every task (:mod:`netsim.taskoptions`), and
+  every task runs with one BLAS thread;
+* code that exists only beside the client (a ``module:attribute`` estimator in a file)
+  travels by value inside the context (:class:`ByValue`, cloudpickle);
+* ``prepare`` builds the context on the client from the cells still to compute, so
+  work shared by many cells (the gain designs of ``netsim bench sweep``) is done once,
+  there, and sent with the cells.
+
 Determinism. A cell's randomness comes only from its parameters and the root seed:
 ``seed`` is :func:`cell_seed` (``netsim.models.seeding.child_sequence(root_seed, "sweep",
 <key digits>)``), and ``fn`` may also derive streams from the root seed and the
@@ -37,6 +53,8 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import importlib
+import io
 import itertools
 import json
 import multiprocessing
@@ -53,9 +71,13 @@ import numpy as np
 
 from netsim.models.jsonsafe import json_default, json_tree
 from netsim.models.seeding import child_sequence
+from netsim.taskoptions import applied, snapshot
 from netsim.threads import single_threaded_blas
 
 __all__ = [
+    "ByValue",
+    "WorkerVersionMismatch",
+    "check_worker_versions",
     "csv_columns",
     "DEFAULT_WORKERS",
     "EXECUTORS",
@@ -69,6 +91,8 @@ __all__ = [
     "flatten",
     "write_csv",
     "demo_cell",
+    "environment_cell",
+    "version_mismatches",
 ]
 
 #: Workers of the local process pool by default (this project's machines have 2 cores).
@@ -289,19 +313,36 @@ def _worker_name() -> str:
 
 
 def _run_cell(fn: Callable[..., dict[str, Any]], params: dict[str, Any],
-              seed: np.random.SeedSequence, context: Any) -> tuple[dict[str, Any], float, str]:
+              seed: np.random.SeedSequence, context: Any,
+              options: Mapping[str, str] | None = None
+              ) -> tuple[dict[str, Any], float, str]:
     start = time.perf_counter()
-    with single_threaded_blas():  # in every executor's worker, serial or not
+    # in every executor's worker, serial or not: one BLAS thread, the client's options
+    with single_threaded_blas(), applied(options):
         result = fn(params, seed, context)
     # normalise to plain JSON types here, so every executor returns the same thing
     result = json.loads(_canonical(json_tree(result, str_keys=True)))
     return result, time.perf_counter() - start, _worker_name()
 
 
+def _dask_cell(fn: Callable[..., dict[str, Any]], params: dict[str, Any],
+               seed: np.random.SeedSequence, context: Any, options: Mapping[str, str],
+               version: str) -> tuple[dict[str, Any], float, str]:
+    """A cell on a Dask worker: refused if the worker's netsim is not the client's."""
+    import netsim
+
+    if netsim.__version__ != version:
+        raise WorkerVersionMismatch(f"worker {_worker_name()} runs netsim "
+                                    f"{netsim.__version__}, this client netsim {version}; "
+                                    "install the same netsim on every worker")
+    return _run_cell(fn, params, seed, context, options)
+
+
 def _serial(todo: list[tuple[str, dict[str, Any]]], fn: Callable, seeds: dict[str, Any],
-            context: Any) -> Iterator[tuple[str, tuple[dict[str, Any], float, str]]]:
+            context: Any, options: Mapping[str, str] | None = None
+            ) -> Iterator[tuple[str, tuple[dict[str, Any], float, str]]]:
     for key, params in todo:
-        yield key, _run_cell(fn, params, seeds[key], context)
+        yield key, _run_cell(fn, params, seeds[key], context, options)
 
 
 class _Local:
@@ -311,10 +352,10 @@ class _Local:
         self.pool = ProcessPoolExecutor(
             max_workers=workers, mp_context=multiprocessing.get_context("forkserver"))
 
-    def run(self, todo, fn, seeds, context):
+    def run(self, todo, fn, seeds, context, options=None):
         from concurrent.futures import as_completed
 
-        futures = {self.pool.submit(_run_cell, fn, params, seeds[key], context): key
+        futures = {self.pool.submit(_run_cell, fn, params, seeds[key], context, options): key
                    for key, params in todo}
         for future in as_completed(futures):
             yield futures[future], future.result()
@@ -329,6 +370,145 @@ DASK_CONNECT_TIMEOUT_S = 5
 
 class SchedulerUnreachable(ValueError):
     """The Dask scheduler at the given address did not answer (bad input: exit 2)."""
+
+
+class WorkerVersionMismatch(ValueError):
+    """A Dask worker runs another netsim than the client (bad input: exit 2)."""
+
+
+def version_mismatches(found: Mapping[str, Any], expected: str,
+                       names: Mapping[str, Any] | None = None) -> str | None:
+    """The one-line complaint about workers whose netsim is not ``expected``, or None.
+
+    Parameters
+    ----------
+    found : mapping of worker address to str or exception
+        What each worker answered (``Client.run(..., on_error="return")``): its netsim
+        version, or the exception it raised (netsim not importable).
+    expected : str
+        The client's ``netsim.__version__``.
+    names : mapping of worker address to name, optional
+        The workers' names (``dask worker --name``), shown beside their addresses.
+
+    Returns
+    -------
+    str or None
+        ``worker NAME (ADDRESS) runs netsim X, this client netsim Y; ...`` for the first
+        mismatch (by address), with ``(and k more)``; None if every worker matches.
+    """
+    names = names or {}
+    bad = []
+    for address in sorted(found):
+        answer = found[address]
+        name = names.get(address)
+        who = f"worker {name} ({address})" if name not in (None, "", address) else \
+            f"worker {address}"
+        if isinstance(answer, BaseException):
+            reason = str(answer).split("\n")[0] or type(answer).__name__
+            bad.append(f"{who} cannot import netsim ({type(answer).__name__}: {reason}), "
+                       f"this client runs netsim {expected}")
+        elif str(answer) != expected:
+            bad.append(f"{who} runs netsim {answer}, this client netsim {expected}")
+    if not bad:
+        return None
+    more = f" (and {len(bad) - 1} more)" if len(bad) > 1 else ""
+    return f"{bad[0]}{more}; install the same netsim on every worker"
+
+
+def check_worker_versions(client: Any, what: str = "--dask") -> None:
+    """Raise :class:`WorkerVersionMismatch` unless every worker runs this netsim.
+
+    Parameters
+    ----------
+    client : distributed.Client
+        Connected; its workers are asked now (a worker joining later is refused by its
+        first task).
+    what : str
+        Prefix of the message (the option that named the cluster).
+
+    Raises
+    ------
+    WorkerVersionMismatch
+        One line naming the first worker that differs and both versions.
+    """
+    import netsim
+
+    # a lambda travels by value (cloudpickle): it runs on a worker whose netsim differs
+    found = client.run(lambda: importlib.import_module("netsim").__version__,
+                       on_error="return")
+    info = client.scheduler_info().get("workers", {})
+    names = {address: w.get("name") for address, w in info.items()}
+    message = version_mismatches(found, netsim.__version__, names)
+    if message is not None:
+        raise WorkerVersionMismatch(f"{what}: {message}")
+
+
+_LOADED: dict[str, Any] = {}
+
+
+def _load_by_value(blob: bytes | None, fallback: Any) -> ByValue:
+    """Unpickle a :class:`ByValue` (once per process and contents)."""
+    if blob is None:
+        return ByValue(fallback)
+    digest = hashlib.sha256(blob).hexdigest()
+    value = _LOADED.get(digest)
+    if value is None:
+        import pickle
+
+        value = _LOADED[digest] = pickle.loads(blob)  # noqa: S301 - our own client's bytes
+    return ByValue(value)
+
+
+class ByValue:
+    """An object that travels to other processes with the code of some modules.
+
+    A ``module:attribute`` estimator lives in a file beside the scenario or in the
+    client's folder; a worker on another machine has no such file. Pickled, a ByValue
+    holds its object cloudpickled with ``modules`` registered by value
+    (:func:`cloudpickle.register_pickle_by_value`): the classes and functions of those
+    modules travel as code, everything else by reference. Without cloudpickle (it comes
+    with the ``dask`` extra) it travels as ``fallback``, which the receiver must resolve
+    itself (by name, as before).
+
+    Parameters
+    ----------
+    value : object
+        What to ship.
+    modules : sequence of module
+        Modules whose code goes with it.
+    fallback : object, optional
+        What arrives when cloudpickle is missing.
+    """
+
+    def __init__(self, value: Any, modules: Sequence[Any] = (), fallback: Any = None) -> None:
+        self.value = value
+        self.modules = tuple(modules)
+        self.fallback = fallback
+        self._blob: bytes | None = None
+
+    def blob(self) -> bytes | None:
+        """The cloudpickled value (None without cloudpickle); computed once."""
+        if self._blob is None:
+            try:
+                import cloudpickle
+            except ImportError:
+                return None
+            added = []
+            try:
+                for module in self.modules:
+                    if module.__name__ not in cloudpickle.list_registry_pickle_by_value():
+                        cloudpickle.register_pickle_by_value(module)
+                        added.append(module)
+                buffer = io.BytesIO()
+                cloudpickle.dump(self.value, buffer)
+                self._blob = buffer.getvalue()
+            finally:
+                for module in added:
+                    cloudpickle.unregister_pickle_by_value(module)
+        return self._blob
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return (_load_by_value, (self.blob(), self.fallback))
 
 
 class _Dask:
@@ -349,14 +529,24 @@ class _Dask:
                                            f"scheduler at {address} ({reason})") from None
             self.client, self.own = client, True
         self.futures: list[Any] = []
+        try:
+            check_worker_versions(self.client, f"--dask {address}"
+                                  if not isinstance(address, Client) else "--dask")
+        except BaseException:
+            self.close(cancel=True)
+            raise
 
-    def run(self, todo, fn, seeds, context):
+    def run(self, todo, fn, seeds, context, options=None):
         from distributed import as_completed
 
+        import netsim
+
         shared = self.client.scatter(context, broadcast=True) if context is not None else None
+        version = netsim.__version__
         futures = {}
         for key, params in todo:
-            future = self.client.submit(_run_cell, fn, params, seeds[key], shared,
+            future = self.client.submit(_dask_cell, fn, params, seeds[key], shared,
+                                        options, version,
                                         key=f"netsim-cell-{key}-{time.time_ns()}", pure=False)
             futures[future] = key
         self.futures = list(futures)
@@ -389,6 +579,7 @@ def run_sweep(
     description: str = "sweep",
     on_row: Callable[[dict[str, Any]], None] | None = None,
     stop_after: int | None = None,
+    prepare: Callable[[list[dict[str, Any]]], Any] | None = None,
 ) -> SweepResult:
     """Run every cell not already in ``results``; return all rows in cell order.
 
@@ -423,11 +614,23 @@ def run_sweep(
         Called in this process after each new row is saved.
     stop_after : int, optional
         Test hook: stop (as if interrupted) after this many new rows were saved.
+    prepare : callable(list of params) -> context, optional
+        Called once, in this process, with the parameters of the cells still to compute
+        (after the results file is read; not called when none is left); what it returns
+        is the ``context`` (``context`` is then ignored). Work that many cells share
+        (e.g. gain designs) is done here once and sent with the cells.
+
+    Every cell runs with one BLAS thread and with this process's options
+    (:func:`netsim.taskoptions.snapshot`: ``--no-cache``, ``NETSIM_CACHE_DIR``, the
+    memory and time limits), whatever the worker's environment. With Dask, every
+    worker's netsim version must be this process's (:func:`check_worker_versions`).
 
     Raises
     ------
     SweepInterrupted
         On KeyboardInterrupt or ``stop_after``: the finished rows are saved.
+    SchedulerUnreachable, WorkerVersionMismatch
+        The Dask scheduler does not answer, or a worker runs another netsim.
     """
     if dask_address is not None:
         executor = "dask"
@@ -472,13 +675,16 @@ def run_sweep(
     cancelled = False
     try:
         if todo:
+            if prepare is not None:
+                context = prepare([p for _, p in todo])
+            options = snapshot()
             if executor == "serial":
-                stream_ = _serial(todo, fn, seeds, context)
+                stream_ = _serial(todo, fn, seeds, context, options)
             elif executor == "local":
                 runner = _Local(min(int(workers), len(todo)))
-                stream_ = runner.run(todo, fn, seeds, context)
+                stream_ = runner.run(todo, fn, seeds, context, options)
             else:
-                stream_ = runner.run(todo, fn, seeds, context)
+                stream_ = runner.run(todo, fn, seeds, context, options)
             params_of = dict(todo)
             for key, (result, elapsed, worker) in stream_:
                 row = {"key": key, "params": params_of[key], "result": result,
@@ -515,6 +721,28 @@ def run_sweep(
                        str(csv_path) if csv_path else None, executor,
                        1 if executor == "serial" else int(workers),
                        time.perf_counter() - started)
+
+
+def environment_cell(params: dict[str, Any], seed: np.random.SeedSequence, context: Any
+                     ) -> dict[str, Any]:
+    """What a cell sees where it runs (a probe of a cluster, used by the tests): the gain
+    cache folder (None: off), the memory and time limits and their sources, the worker
+    count of :mod:`netsim.parallel`, the BLAS threads and the netsim version."""
+    import netsim
+    from netsim import budget, gaincache, parallel
+
+    try:
+        from threadpoolctl import threadpool_info
+
+        blas = sorted({p["num_threads"] for p in threadpool_info() if p["user_api"] == "blas"})
+    except ImportError:  # pragma: no cover - a dependency
+        blas = []
+    cache = gaincache.cache_dir()
+    limit, source = budget.memory_limit()
+    return {"cache_dir": None if cache is None else str(cache), "memory_limit": limit,
+            "memory_limit_source": source, "time_limit": budget.time_limit(),
+            "workers": parallel.env_workers(), "blas_threads": blas,
+            "netsim": netsim.__version__}
 
 
 def demo_cell(params: dict[str, Any], seed: np.random.SeedSequence, context: Any

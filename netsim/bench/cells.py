@@ -299,7 +299,11 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
 
     setting, tau = params["setting"], int(params["tau"])
     # a plugin is resolved by its reference (module:attribute, entry point) in workers
-    family = family_of(params.get("family_ref") or params["family"], scenario)
+    # (or shipped by value in context["plugins"]: a worker elsewhere lacks its file)
+    ref = params.get("family_ref") or params["family"]
+    shipped = context.get("plugins")
+    shipped = (shipped.value if shipped is not None else None) or {}
+    family = shipped[ref] if ref in shipped else family_of(ref, scenario)
     trials, steps, root = int(params["trials"]), int(params["steps"]), int(params["seed"])
     variant = delay_variant(scenario, setting, tau)
     time_varying = not variant.delay_model(0).time_invariant

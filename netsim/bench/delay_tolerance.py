@@ -92,6 +92,7 @@ def run_delay_tolerance(
     ``engine`` (``auto``, ``vectorised`` or ``events``) runs each cell's trials; it is
     part of the cell's key in a results file, so a resumed run never mixes engines.
     """
+    from netsim.bench.scenario_sweep import plugin_code
     from netsim.runner import choose_engine, engines_for, family_of, scenario_gains
     from netsim.sweep import run_sweep
 
@@ -115,7 +116,8 @@ def run_delay_tolerance(
     sweep = run_sweep(
         delay_tolerance_cell, todo, root_seed=seed, sweep="delay-tolerance",
         results=results, executor=executor, workers=workers, dask_address=dask_address,
-        context={"scenario": scenario, "gains": gains}, progress=progress,
+        context={"scenario": scenario, "gains": gains,
+                 "plugins": plugin_code(declared)}, progress=progress,
         description=f"bench {preset.name if preset else scenario.name}", stop_after=stop_after,
     )
     by_params = {json.dumps(row["params"], sort_keys=True): row for row in sweep.rows}

@@ -2,17 +2,109 @@
 
 from __future__ import annotations
 
+import sys
 from collections.abc import Sequence
 from dataclasses import replace
+from functools import partial
 from typing import Any
 
 from netsim.bench.variants import scenario_data, scenario_fingerprint, sweep_variant
 from netsim.models.scenario import DelaySpec
 
-__all__ = ["run_scenario_sweep", "scenario_sweep_cell"]
+__all__ = ["design_sweep_gains", "plugin_code", "run_scenario_sweep", "scenario_sweep_cell"]
 
 
 _GAIN_CACHE: dict[str, Any] = {}
+
+
+def _gain_key(scenario: Any) -> str:
+    """The variant's key in the gain table: its fingerprint with the delays left out
+    (the design does not depend on them)."""
+    return scenario_fingerprint(replace(scenario, delays=DelaySpec()))
+
+
+def _cell_families(context: dict[str, Any], scenario: Any) -> list[Any]:
+    """The families a cell runs: the keys of ``context["families"]`` (those the scenario
+    lists, else all), each the object shipped in ``context["plugins"]`` (a plugin's code,
+    by value) if there is one, else resolved here by its key."""
+    from netsim.runner import family_of
+
+    keys = [f for f in context["families"] if f in scenario.estimators] or \
+        list(context["families"])
+    shipped = context.get("plugins")
+    shipped = (shipped.value if shipped is not None else None) or {}
+    return [shipped[f] if f in shipped else family_of(f, scenario) for f in keys]
+
+
+def design_sweep_gains(context: dict[str, Any], cells: Sequence[dict[str, Any]]
+                       ) -> dict[str, Any]:
+    """Design the gains of every variant among ``cells`` once, in this process.
+
+    Parameters
+    ----------
+    context : dict
+        The sweep's context (``data``, ``source``, ``families``, ``plugins``).
+    cells : sequence of dict
+        The parameters of the cells to compute.
+
+    Returns
+    -------
+    dict
+        ``context`` with ``"gains"``: the design of each variant by :func:`_gain_key`
+        (a :class:`netsim.estimators.gains.GainDesign`, or the cell's error text when the
+        design fails), for the variants whose families need gains. A cell whose variant
+        cannot be built is left out (the cell reports its own scenario error).
+    """
+    from netsim.estimators.gains import GainDesignError
+    from netsim.models.scenario import ScenarioError
+    from netsim.runner import scenario_gains
+    from netsim.threads import single_threaded_blas
+
+    table: dict[str, Any] = {}
+    with single_threaded_blas():
+        for params in cells:
+            try:
+                scenario = sweep_variant(context["data"], context["source"], params)
+            except ScenarioError:
+                continue
+            if not any(f.needs_gains for f in _cell_families(context, scenario)):
+                continue
+            key = _gain_key(scenario)
+            if key in table:
+                continue
+            try:
+                table[key] = scenario_gains(scenario)
+            except (GainDesignError, ValueError) as exc:
+                table[key] = f"gain design failed: {exc}"
+    return {**context, "gains": table}
+
+
+def plugin_code(families: Sequence[Any]) -> Any:
+    """The ``module:attribute`` families among ``families``, with their modules' code.
+
+    A worker on another machine has no copy of a user's module file, so the families
+    travel by value (:class:`netsim.sweep.ByValue`) keyed by their reference; built-in
+    and installed (entry-point) families travel by name as before.
+
+    Parameters
+    ----------
+    families : sequence of EstimatorFamily
+        The resolved families of a sweep.
+
+    Returns
+    -------
+    netsim.sweep.ByValue or None
+        ``{family.key: family}`` of the plugins, None when there is none.
+    """
+    from netsim.sweep import ByValue
+
+    plugins = {f.key: f for f in families if f.source == "scenario"}
+    if not plugins:
+        return None
+    modules = [sys.modules[name] for name in
+               sorted({(f.reference or "").partition(":")[0] for f in plugins.values()})
+               if name in sys.modules and name.split(".")[0] != "netsim"]
+    return ByValue(plugins, modules)
 
 
 def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, Any]
@@ -20,7 +112,10 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
     """One cell of ``netsim bench sweep``: a Monte Carlo run of a scenario variant.
 
     ``context``: ``{"data": TOML dict, "source": str, "families": [...], "trials": M,
-    "steps": K}``. Gains are designed per variant (cached per worker process).
+    "steps": K}``, and from :func:`run_scenario_sweep` also ``"plugins"`` (the plugin
+    families' code, :class:`netsim.sweep.ByValue`) and ``"gains"`` (every variant's
+    design, made once on the client by :func:`design_sweep_gains`). A context without
+    ``"gains"`` designs them here (cached per worker process).
     """
     from netsim.estimators.gains import GainDesignError
     from netsim.models.scenario import ScenarioError
@@ -30,20 +125,23 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
         scenario = sweep_variant(context["data"], context["source"], params)
     except ScenarioError as exc:
         return {"error": f"scenario: {exc}"}
-    from netsim.runner import family_of
-
-    # the families by the keys that resolve them here (a plugin by its reference)
-    families = [f for f in context["families"] if f in scenario.estimators] or \
-        list(context["families"])
+    # the families by the keys that resolve them here (a plugin by its shipped code)
+    families = _cell_families(context, scenario)
     gains = None
-    if any(family_of(f, scenario).needs_gains for f in families):
-        fp = scenario_fingerprint(replace(scenario, delays=DelaySpec()))
-        gains = _GAIN_CACHE.get(fp)
-        if gains is None:
-            try:
-                gains = _GAIN_CACHE[fp] = scenario_gains(scenario)
-            except (GainDesignError, ValueError) as exc:
-                return {"error": f"gain design failed: {exc}"}
+    if any(f.needs_gains for f in families):
+        fp = _gain_key(scenario)
+        table = context.get("gains")
+        if table is not None and fp in table:
+            gains = table[fp]
+            if isinstance(gains, str):
+                return {"error": gains}
+        else:
+            gains = _GAIN_CACHE.get(fp)
+            if gains is None:
+                try:
+                    gains = _GAIN_CACHE[fp] = scenario_gains(scenario)
+                except (GainDesignError, ValueError) as exc:
+                    return {"error": f"gain design failed: {exc}"}
     result = run_monte_carlo(scenario, steps=context["steps"], trials=context["trials"],
                              seed=scenario.seed, families=families, gains=gains,
                              engine=params.get("_engine", "events"))
@@ -101,5 +199,6 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], tria
     cells = [{**c, "_scenario": context["fingerprint"], "_trials": trials, "_steps": steps,
               "_rules": VERDICT_RULES,
               "_engine": engine} for c in cells]
+    context["plugins"] = plugin_code(declared)
     return run_sweep(scenario_sweep_cell, cells, root_seed=seed, sweep="scenario-sweep",
-                     context=context, **options)
+                     prepare=partial(design_sweep_gains, context), **options)

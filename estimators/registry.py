@@ -47,8 +47,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 from netsim.estimators.contract import ContractError, check_estimator
+from netsim.models.lazy import issparse
 
 __all__ = [
     "BUILTIN_MODULES",
@@ -171,7 +171,7 @@ class FamilyContext:
             in_neighbours=tuple(self.in_neighbours(agent)),
             out_neighbours=tuple(self.out_neighbours(agent)),
             weights=(scenario.weights_sparse[[agent], :].toarray()[0]
-                     if sp.issparse(scenario.weights)
+                     if issparse(scenario.weights)
                      else np.asarray(scenario.weights[agent], dtype=float).copy()),
             A=plant.A, C=plant.C[agent], Q=plant.Q, R=plant.R[agent],
             prior_mean=plant.x0_mean, prior_cov=plant.x0_cov, L=gain,
@@ -479,9 +479,27 @@ _REGISTRY: dict[str, EstimatorFamily] = {}
 _LOADED = False
 
 
-def _load_builtins() -> None:
+#: The module of each built-in family (tests/test_registry.py checks it against what
+#: :data:`BUILTIN_MODULES` register): a run of built-in families imports only their
+#: modules, not the AoI or fusion estimators it does not use (start-up latency).
+BUILTIN_FAMILIES: dict[str, str] = {
+    **dict.fromkeys(("compensated", "uncompensated", "block"), "netsim.estimators.consensus"),
+    **dict.fromkeys(("centralized-kf", "local-kf"), "netsim.estimators.kalman"),
+    **dict.fromkeys(("aoi", "naive-uniform", "naive-tree"), "netsim.estimators.aoi"),
+    **dict.fromkeys(("dkfe", "sdkfe", "odkfe"), "netsim.estimators.fusion"),
+    **dict.fromkeys(("kcf", "ci", "diffkf"), "netsim.estimators.baselines"),
+}
+
+
+def _load_builtins(name: str | None = None) -> None:
+    """Import the built-in modules: only the one that declares ``name`` if that is a
+    built-in family's name, else all of them (listings, other names)."""
     global _LOADED
     if _LOADED:
+        return
+    module = BUILTIN_FAMILIES.get(name) if name is not None else None
+    if module is not None:
+        importlib.import_module(module)
         return
     _LOADED = True
     for module in BUILTIN_MODULES:
@@ -767,7 +785,7 @@ def get_family(name: str, key: str = "run.estimators",
     FamilyError
         Naming ``key`` and what is wrong (unknown name, import failure, not an estimator).
     """
-    _load_builtins()
+    _load_builtins(name if isinstance(name, str) else None)
     if not isinstance(name, str) or not name:
         raise FamilyError(key, f"expected an estimator name, got {name!r}")
     family = _REGISTRY.get(name)

@@ -11,13 +11,19 @@ The consensus matrix ``P`` (N x N) has ``P[i, j] > 0`` iff ``j == i`` or
 from __future__ import annotations
 
 import math
+from typing import TYPE_CHECKING
 
-import networkx as nx
 import numpy as np
-import scipy.sparse as sp
+from netsim.models.lazy import issparse, lazy_module
 from netsim.models.seeding import SeedLike, stream
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:
+    import networkx as nx
+    import scipy.sparse as sp
+    from scipy.spatial import cKDTree
+else:  # imported on first use (start-up latency): dense scenarios need neither
+    nx = lazy_module("networkx")
+    sp = lazy_module("scipy.sparse")
 
 __all__ = [
     "NetworkError",
@@ -172,6 +178,8 @@ def strongly_connected(n_agents: int, src: np.ndarray, dst: np.ndarray) -> tuple
     """
     adjacency = sp.csr_array((np.ones(len(src), dtype=np.int8), (np.asarray(src),
                               np.asarray(dst))), shape=(n_agents, n_agents))
+    from scipy.sparse.csgraph import connected_components
+
     count, _ = connected_components(adjacency, directed=True, connection="strong")
     return count == 1, int(count)
 
@@ -200,6 +208,8 @@ def geometric_links(n_agents: int, radius: float | None = None, seed: SeedLike =
     if radius is not None and not radius > 0:
         raise NetworkError(f"geometric network radius must be > 0, got {radius}")
     r = radius if radius is not None else math.sqrt(2.0 * math.log(n_agents) / n_agents)
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(positions)
     r = _grown_past_isolation(r, tree, positions)
     while True:
@@ -254,6 +264,8 @@ def geometric_link_estimate(n_agents: int, radius: float | None = None,
     positions = rng.random((n_agents, 2))
     r = radius if radius is not None else math.sqrt(2.0 * math.log(n_agents) / n_agents)
     # an unbalanced, uncompacted tree builds 2-3x faster and answers the same queries
+    from scipy.spatial import cKDTree
+
     tree = cKDTree(positions, balanced_tree=False, compact_nodes=False)
     r = _grown_past_isolation(r, tree, positions)
     q = min(r, 1.0)
@@ -381,7 +393,7 @@ def sparse_lazy_metropolis_weights(n_agents: int, src: np.ndarray, dst: np.ndarr
 def links_from_weights(weights: sp.csr_array | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Sorted links (sender j, receiver i) of the off-diagonal nonzeros ``P[i, j]``,
     dense or sparse, without building a graph."""
-    if sp.issparse(weights):
+    if issparse(weights):
         # column-major (CSC, a counting sort) is sender-major: already in link order
         csc = sp.csc_array(weights)
         csc.sum_duplicates()
@@ -432,6 +444,37 @@ def random_weights(graph: nx.DiGraph, seed: SeedLike = None) -> np.ndarray:
         support = [i, *in_neighbours(graph, i)]
         w = rng.uniform(0.1, 1.0, size=len(support))
         weights[i, support] = w / w.sum()
+    return weights
+
+
+def _supports(n_agents: int, src: np.ndarray, dst: np.ndarray) -> list[list[int]]:
+    """Each agent i's weight support: i, then its sorted in-neighbours (self excluded),
+    as :func:`in_neighbours` gives them for the graph of the links (src, dst)."""
+    incoming: list[set[int]] = [set() for _ in range(n_agents)]
+    for j, i in zip(np.asarray(src).tolist(), np.asarray(dst).tolist(), strict=True):
+        if j != i:
+            incoming[i].add(j)
+    return [[i, *sorted(incoming[i])] for i in range(n_agents)]
+
+
+def link_random_weights(n_agents: int, src: np.ndarray, dst: np.ndarray,
+                        seed: SeedLike = None) -> np.ndarray:
+    """:func:`random_weights` of the graph with the links (src[k], dst[k]) and nodes
+    0..N-1, the same numbers, without building a networkx graph."""
+    rng = stream(seed, "network/weights")
+    weights = np.zeros((n_agents, n_agents))
+    for i, support in enumerate(_supports(n_agents, src, dst)):
+        w = rng.uniform(0.1, 1.0, size=len(support))
+        weights[i, support] = w / w.sum()
+    return weights
+
+
+def link_uniform_weights(n_agents: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """:func:`uniform_weights` of the graph with the links (src[k], dst[k]), without
+    building a networkx graph."""
+    weights = np.zeros((n_agents, n_agents))
+    for i, support in enumerate(_supports(n_agents, src, dst)):
+        weights[i, support] = 1.0 / len(support)
     return weights
 
 
@@ -488,7 +531,7 @@ def graph_from_weights(weights: np.ndarray) -> nx.DiGraph:
     n_agents = weights.shape[0]
     graph: nx.DiGraph[int] = nx.DiGraph()
     graph.add_nodes_from(range(n_agents))
-    if sp.issparse(weights):  # no N x N array (a networkx graph still costs ~1 kB a link)
+    if issparse(weights):  # no N x N array (a networkx graph still costs ~1 kB a link)
         src, dst = links_from_weights(weights)
         graph.add_edges_from(zip(src.tolist(), dst.tolist(), strict=True))
         return graph
@@ -535,13 +578,30 @@ def check_consensus_matrix(weights: np.ndarray, name: str = "P") -> None:
         raise NetworkError(
             f"{name}[{i}][{i}] is {weights[i, i]}: self-weights must be positive"
         )
-    graph = graph_from_weights(weights)
-    if weights.shape[0] > 1 and not nx.is_strongly_connected(graph):
+    if weights.shape[0] > 1 and not _strongly_connected_dense(weights > 0):
+        graph = graph_from_weights(weights)
         components = sorted(nx.strongly_connected_components(graph), key=min)
         raise NetworkError(
             f"{name}: the communication graph is not strongly connected "
             f"({len(components)} strongly connected components, e.g. {sorted(components[0])})"
         )
+
+
+def _strongly_connected_dense(adjacency: np.ndarray) -> bool:
+    """Whether the digraph of a dense boolean adjacency matrix is strongly connected:
+    every node reached from node 0 along the edges and against them (breadth-first,
+    each node's row read once: O(N^2); networkx is not imported)."""
+    n = adjacency.shape[0]
+    for M in (adjacency, adjacency.T):
+        seen = np.zeros(n, dtype=bool)
+        seen[0] = True
+        frontier = seen.copy()
+        while frontier.any():
+            frontier = M[frontier].any(axis=0) & ~seen
+            seen |= frontier
+        if not seen.all():
+            return False
+    return True
 
 
 def check_sparse_consensus_matrix(weights: sp.csr_array, name: str = "P") -> None:
@@ -582,6 +642,8 @@ def check_sparse_consensus_matrix(weights: sp.csr_array, name: str = "P") -> Non
         if not ok:
             adjacency = sp.csr_array((np.ones(len(src), dtype=np.int8), (src, dst)),
                                      shape=(n_agents, n_agents))
+            from scipy.sparse.csgraph import connected_components
+
             _, labels = connected_components(adjacency, directed=True, connection="strong")
             first = np.flatnonzero(labels == labels[0])
             raise NetworkError(

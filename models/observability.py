@@ -32,12 +32,16 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-import networkx as nx
 import numpy as np
+from netsim.models.lazy import is_digraph, lazy_module
 from numpy.typing import ArrayLike
-from scipy.linalg import block_diag
+
+if TYPE_CHECKING:
+    import networkx as nx
+else:  # imported on first use (start-up latency): the structural tests need it
+    nx = lazy_module("networkx")
 
 __all__ = [
     "DEFAULT_RTOL",
@@ -343,7 +347,7 @@ def is_observable(A: ArrayLike, C: ArrayLike, rtol: float = DEFAULT_RTOL) -> boo
 
 
 def _in_neighbourhoods(P_or_graph: ArrayLike | nx.DiGraph, n_agents: int) -> list[list[int]]:
-    if isinstance(P_or_graph, nx.DiGraph):
+    if is_digraph(P_or_graph):
         if sorted(P_or_graph.nodes) != list(range(n_agents)):
             raise ValueError(f"graph nodes must be 0..{n_agents - 1} (one per output matrix)")
         return [
@@ -407,6 +411,8 @@ def distributed_output_matrix(C_list: Sequence[ArrayLike]) -> np.ndarray:
         raise ValueError("C_list must contain at least one output matrix")
     n = np.atleast_2d(np.asarray(C_list[0])).shape[1]
     C_arr = _outputs(C_list, n)
+    from scipy.linalg import block_diag
+
     return block_diag(*[Ci.conj().T @ Ci for Ci in C_arr])
 
 
@@ -628,6 +634,8 @@ def kronecker_pattern(
 
 
 def _network_output_pattern(C_list: Sequence[ArrayLike], n: int, atol: float) -> np.ndarray:
+    from scipy.linalg import block_diag
+
     return block_diag(*[sparsity_pattern(_output(Ci, n, f"C_list[{i}]"), atol)
                         for i, Ci in enumerate(C_list)]).astype(bool)
 

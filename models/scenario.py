@@ -32,11 +32,9 @@ from dataclasses import dataclass, field, replace
 from functools import cached_property
 from importlib import resources
 from pathlib import Path
-from typing import Any, cast
+from typing import TYPE_CHECKING, Any, cast
 
-import networkx as nx
 import numpy as np
-import scipy.sparse as sp
 from netsim.models.delays import (
     AsynchronousRandomDelays,
     DelayModel,
@@ -46,6 +44,7 @@ from netsim.models.delays import (
     heterogeneous_delays,
     homogeneous_delays,
 )
+from netsim.models.lazy import issparse, lazy_module
 from netsim.models.linkmodels import (
     BUFFER_POLICIES,
     DELAY_DISTRIBUTIONS,
@@ -76,6 +75,8 @@ from netsim.models.network import (
     geometric_links,
     graph_from_weights,
     lazy_metropolis_weights,
+    link_random_weights,
+    link_uniform_weights,
     links_from_weights,
     random_links,
     random_strongly_connected,
@@ -88,6 +89,13 @@ from netsim.models.network import (
 from netsim.models.plant import LinearPlant
 from netsim.models.seeding import SeedLike
 from netsim.models.topology import GraphSequence, LinkSchedule, TopologyError, as_sequence
+
+if TYPE_CHECKING:
+    import networkx as nx
+    import scipy.sparse as sp
+else:  # imported on first use (start-up latency): small dense scenarios need neither
+    nx = lazy_module("networkx")
+    sp = lazy_module("scipy.sparse")
 
 __all__ = [
     "ScenarioError",
@@ -368,7 +376,7 @@ class Scenario:
             graph.add_nodes_from(range(self.topology.n_agents))
             graph.add_edges_from(self.topology.links())
             return graph
-        if sp.issparse(self.weights):
+        if issparse(self.weights):
             graph = nx.DiGraph()
             graph.add_nodes_from(range(self.n_agents))
             table = self.link_table
@@ -387,6 +395,12 @@ class Scenario:
             W = self.weights_sparse
             return LinkTable(src, dst, np.asarray(W[dst, src]).ravel() if len(src)
                              else np.zeros(0))
+        if not issparse(self.weights):  # the same table without scipy.sparse
+            W = np.asarray(self.weights, dtype=float)
+            j, i = np.nonzero(W.T)  # sender-major, then receiver: the link order
+            j, i = j.astype(np.int64), i.astype(np.int64)
+            keep = i != j
+            return LinkTable(j[keep], i[keep], W[i[keep], j[keep]])
         # column-major (CSC, a counting sort) is sender-major: the link order
         csc = sp.csc_array(self.weights_sparse)
         csc.sum_duplicates()
@@ -405,7 +419,7 @@ class Scenario:
     def dense_weights(self) -> np.ndarray:
         """P as a dense (N, N) array; ScenarioError (one line) above
         :data:`DENSE_WEIGHTS_MAX_AGENTS` agents when P is stored sparse."""
-        if not sp.issparse(self.weights):
+        if not issparse(self.weights):
             return np.asarray(self.weights, dtype=float)
         N = self.n_agents
         if N > DENSE_WEIGHTS_MAX_AGENTS:
@@ -413,7 +427,7 @@ class Scenario:
                                 f"{8 * N * N / 2**30:.1f} GiB at N = {N} agents (sparse "
                                 f"paths go up to any N; dense ones to "
                                 f"{DENSE_WEIGHTS_MAX_AGENTS})")
-        return cast(sp.csr_array, self.weights).toarray()
+        return cast("sp.csr_array", self.weights).toarray()
 
     def densified(self, what: str = "this command") -> Scenario:
         """This scenario with dense weights (itself if they are dense already).
@@ -422,7 +436,7 @@ class Scenario:
         above, ScenarioError in one line saying that ``what`` needs the dense N x N
         matrix and what runs at that size instead.
         """
-        if not sp.issparse(self.weights):
+        if not issparse(self.weights):
             return self
         N = self.n_agents
         if N > DENSE_WEIGHTS_MAX_AGENTS:
@@ -431,7 +445,7 @@ class Scenario:
                                 f"paths go up to {DENSE_WEIGHTS_MAX_AGENTS} agents); at this "
                                 "size `netsim run` (vectorised engine, [gains] method = "
                                 "'local' or 'auto') is supported")
-        return replace(self, weights=cast(sp.csr_array, self.weights).toarray())
+        return replace(self, weights=cast("sp.csr_array", self.weights).toarray())
 
     @cached_property
     def links(self) -> list[tuple[int, int]]:
@@ -763,6 +777,11 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
         # dense array that every size below that gives)
         return cast(np.ndarray, _parse_sparse_network(table, agents, topology, weights_spec,
                                                       seed))
+    if topology in ("cycle", "random") and weights_spec in ("random", "uniform"):
+        # the weights from the links alone: no networkx graph (start-up latency)
+        P = _link_weights(table, agents, topology, weights_spec, seed)
+        _check_weights(P, "network")
+        return P
     if topology == "cycle":
         graph = directed_cycle(agents)
     elif topology == "random":
@@ -802,6 +821,27 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
                           int(np.count_nonzero(P) - P.shape[0]))
     _check_weights(P, "network.edges" if topology == "edges" else "network")
     return P
+
+
+def _link_weights(table: dict[str, Any], agents: int, topology: str, weights_spec: str,
+                  seed: int) -> np.ndarray:
+    """:func:`_parse_network`'s dense random or uniform weights of a cycle or random
+    graph (the same graph, draws and numbers) from its links, without networkx."""
+    if topology == "cycle":
+        src = np.arange(agents, dtype=np.int64)
+        dst = (src + 1) % agents
+    else:
+        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
+                       "network.edge_probability")
+        if not 0 <= prob <= 1:
+            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
+        if prob == 0:
+            _warn("network.edge_probability", "is 0: the random graph is only its random "
+                  "Hamiltonian cycle (every 'random' graph has one, for strong connectivity)")
+        src, dst = random_links(agents, prob, seed)
+    if weights_spec == "random":
+        return link_random_weights(agents, src, dst, seed)
+    return link_uniform_weights(agents, src, dst)
 
 
 def _warn_symmetrised(directed: int, used: int) -> None:

@@ -36,11 +36,16 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-import networkx as nx
 import numpy as np
+from netsim.models.lazy import lazy_module
 from netsim.models.seeding import SeedLike, stream
+
+if TYPE_CHECKING:
+    import networkx as nx
+else:  # imported on first use (start-up latency)
+    nx = lazy_module("networkx")
 
 __all__ = [
     "Edge",

@@ -60,23 +60,21 @@ _AOI_FLAGS = (("--gains", "gains"), ("--rho", "rho"), ("--ties", "ties"),
               ("--delayed", "delayed"))
 
 
-def _reads_aoi_options(family: Any) -> bool:
-    """:func:`netsim.estimators.aoi.reads_aoi_options` (the families that share the
-    analysis ``analytics_key = "aoi"``), without importing that module."""
-    return getattr(family, "analytics_key", "") == "aoi"
-
-
 def check_aoi_arguments(args: argparse.Namespace, families: Sequence[Any]) -> None:
     """Refuse ``--gains``, ``--rho``, ``--ties`` or ``--delayed`` when none of the run's
     ``families`` reads ``[options.aoi]`` (they would change nothing): ScenarioError
     naming the first such option."""
     given = [flag for flag, attr in _AOI_FLAGS if getattr(args, attr, None) is not None]
-    if not given or any(_reads_aoi_options(f) for f in families):
+    if not given:  # (the AoI estimators are imported only when an option is given)
+        return
+    from netsim.estimators.aoi import reads_aoi_options
+
+    if any(reads_aoi_options(f) for f in families):
         return
     from netsim.estimators.registry import families as registered
     from netsim.models.scenario import ScenarioError
 
-    aoi = [f.name for f in registered() if _reads_aoi_options(f)]
+    aoi = [f.name for f in registered() if reads_aoi_options(f)]
     run = ", ".join(f.name for f in families)
     raise ScenarioError(given[0], f"sets [options.aoi], which none of this run's estimators "
                         f"({run}) reads; it is for {', '.join(aoi)} (add one with "

@@ -75,13 +75,18 @@ import warnings
 from collections.abc import Callable, Iterator, Sequence
 from importlib import metadata
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from netsim.estimators.gains import BOUND_STATUS, GainDesign
+from netsim.models.lazy import issparse, lazy_module
 from netsim.models.scenario import ScenarioWarning
+
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+else:  # imported on first use (start-up latency): only sparse (large-N) weights need it
+    sp = lazy_module("scipy.sparse")
 
 __all__ = [
     "KL_RTOL",
@@ -210,7 +215,7 @@ def fingerprint(scenario: Any, request: dict[str, Any]) -> str:
         digest.update(a.tobytes())
 
     weights: np.ndarray | sp.csr_array = scenario.weights  # CSR at large N
-    if sp.issparse(weights):
+    if issparse(weights):
         # CSR with sorted indices: shape, structure and values (never densified)
         W = sp.csr_array(weights)
         W.sort_indices()
@@ -343,7 +348,7 @@ def _check_rho(what: str, stored: Any, P: Any, A: np.ndarray, C: Sequence[np.nda
         screen = _closed_loop_rho("structured", P, A, C, L)
         if _close(screen, stored, SCREEN_RTOL):
             return stored
-        if sp.issparse(P):  # no dense computation to confirm with
+        if issparse(P):  # no dense computation to confirm with
             raise mismatch(screen)
     value = _closed_loop_rho(own, P, A, C, L)
     if not _close(value, stored, RHO_RTOL):
@@ -387,7 +392,7 @@ def verify_design(design: GainDesign, scenario: Any,
     if design.method == _LOCAL:
         own = "dense" if design.status == "dense-eigvals" else "structured"
     else:
-        own = "structured" if sp.issparse(P) else "closed-loop"
+        own = "structured" if issparse(P) else "closed-loop"
     rho = _check_rho("rho", design.rho, P, A, C, design.L, own, N * n)
     tau = design.design_tau
     if not isinstance(tau, int) or isinstance(tau, bool) or tau < 0:

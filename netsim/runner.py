@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from netsim import budget, verdicts
 from netsim.estimators.gains import GainDesign, design_for_scenario
@@ -46,6 +45,7 @@ from netsim.models.jointsystem import (
 )
 from netsim.models.jsonsafe import json_number as _json_float
 from netsim.models.jsonsafe import json_tree as _json_tree
+from netsim.models.lazy import issparse
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import SEED_LAYOUT, SeedLike, child_sequence, stream
 from netsim.threads import single_threaded_blas
@@ -372,7 +372,7 @@ def _delay_analytics(scenario: Scenario, gains: GainDesign
     P, A, C, L = scenario.weights, plant.A, plant.C, gains.L
     tau = scenario.delay_bound
     rho0 = float(gains.rho)
-    if sp.issparse(P):
+    if issparse(P):
         # large sparse network: the delay-free rho of the design and the tolerant bound
         # only; tau*, eq. (26) and the exact augmented radii need dense P here
         return {

@@ -29,6 +29,7 @@ True
 from __future__ import annotations
 
 import contextlib
+import sys
 import threading
 from collections.abc import Iterator
 from typing import Any
@@ -90,6 +91,36 @@ def limit_worker_threads() -> None:
 def _load_blas() -> None:
     """Load the BLAS libraries netsim computes with (numpy's and scipy's own), so that
     the limit reaches them: threadpoolctl limits only libraries already loaded (a fresh
-    ``forkserver`` or ``spawn`` worker has loaded none)."""
+    ``forkserver`` or ``spawn`` worker has loaded none).
+
+    scipy's BLAS is loaded by its file when the wheel bundles it (``scipy.libs``:
+    the dynamic linker then gives scipy.linalg that same, limited, library), so that
+    a command that never uses scipy.linalg does not import it (0.2-0.3 s of CPU at
+    start-up, issue 34); elsewhere scipy.linalg is imported."""
     import numpy  # noqa: F401
+
+    if "scipy.linalg" in sys.modules or _load_bundled_scipy_blas():
+        return
     import scipy.linalg  # noqa: F401
+
+
+def _load_bundled_scipy_blas() -> bool:
+    """Load the BLAS libraries a scipy wheel bundles in ``site-packages/scipy.libs``
+    with ctypes, without importing scipy.linalg: whether any was found and loaded."""
+    import ctypes
+    import glob
+    import importlib.util
+    import os
+
+    spec = importlib.util.find_spec("scipy")
+    if spec is None or not spec.submodule_search_locations:
+        return False
+    folder = os.path.join(os.path.dirname(list(spec.submodule_search_locations)[0]),
+                          "scipy.libs")
+    libraries = sorted(glob.glob(os.path.join(folder, "lib*blas*.so*")))
+    try:
+        for path in libraries:
+            ctypes.CDLL(path)
+    except OSError:
+        return False
+    return bool(libraries)

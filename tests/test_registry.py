@@ -122,3 +122,12 @@ def test_a_family_that_needs_gains_refuses_to_build_without():
     with pytest.raises(ValueError, match="needs gains"):
         get_family("compensated").agents(
             FamilyContext(resolve_scenario("lcsys2022-heterogeneous"), None, 0))
+
+
+def test_the_builtin_family_table_names_each_familys_module():
+    """BUILTIN_FAMILIES (a run imports only its families' modules) is what the built-in
+    modules register."""
+    from netsim.estimators.registry import BUILTIN_FAMILIES
+
+    declared = {f.name: f.build.__module__ for f in families() if f.source == "builtin"}
+    assert declared == BUILTIN_FAMILIES

@@ -316,8 +316,8 @@ def _entry_point(tmp_path: Path, monkeypatch, entries: dict[str, str],
 
 def test_entry_point_runs_under_its_own_name_not_its_class_name(capsys, tmp_path,
                                                                  monkeypatch):
-    ep = f"my-kcf-{tmp_path.name.lower()}"
-    _entry_point(tmp_path, monkeypatch, {ep: "Hold"}, GOOD_CLASS.format(short="kcf"))
+    ep = f"my-kf-{tmp_path.name.lower()}"
+    _entry_point(tmp_path, monkeypatch, {ep: "Hold"}, GOOD_CLASS.format(short="kf-cls"))
     assert ep in family_names()
     for _ in range(2):  # the same command twice in one process
         code, out, err = run_cli(capsys, "run", SCENARIO, "--estimators", f"{ep},compensated",
@@ -326,7 +326,7 @@ def test_entry_point_runs_under_its_own_name_not_its_class_name(capsys, tmp_path
         assert list(json.loads(out)["estimators"]) == [ep, "compensated"]
     family = get_family(ep)
     assert (family.name, family.reference, family.source) == (ep, ep, "entry-point")
-    assert "kcf" not in family_names()  # the class's name is not a second name
+    assert "kf-cls" not in family_names()  # the class's name is not a second name
 
 
 def test_entry_point_in_repeated_python_runs(tmp_path, monkeypatch):

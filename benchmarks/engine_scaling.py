@@ -242,6 +242,30 @@ def numpy_anchor(A, C, L, P, tau, x0_mean, F0, FQ, FR, plant_seeds, steps):
     return sq
 
 
+def floor_flops_per_trial_step(agents: int, states: int, outputs: int, links: int) -> int:
+    """The arithmetic of one trial-step of the compensating estimator (eqs. 4-5) and its
+    error record, in floating-point operations: per agent the own prediction A x and
+    the sender's compensated A^(d+1) x (2 n^2 each), the innovation C x, y - C x and
+    L (y - C x) plus the add (4 m n + m + n) and the squared error (3 n); per link the
+    weighted sum (2 n). 7,640 at N = 32, n = 6, m = 1, 122 links (issue 34's 7.6 kFLOP).
+    """
+    n, m = states, outputs
+    return agents * (4 * n * n + 4 * m * n + m + 4 * n) + 2 * n * links
+
+
+def dgemm_peak(size: int = 768, repeat: int = 5) -> float:
+    """FLOP/s of a size x size double matrix product on this thread (best of repeat)."""
+    rng = np.random.default_rng(0)
+    a, b = rng.normal(size=(size, size)), rng.normal(size=(size, size))
+    out = np.empty((size, size))
+    best = float("inf")
+    for _ in range(repeat):
+        t0 = time.process_time()
+        np.matmul(a, b, out=out)
+        best = min(best, time.process_time() - t0)
+    return 2.0 * size ** 3 / max(best, 1e-9)
+
+
 def measure_anchor(repeat: int) -> dict[str, Any]:
     """The vectorised engine against :func:`numpy_anchor`, interleaved in one run."""
     from netsim.models.seeding import child_sequence
@@ -260,10 +284,13 @@ def measure_anchor(repeat: int) -> dict[str, Any]:
     args = (plant.A, np.stack(plant.C), np.stack([np.asarray(x) for x in gains.L]),
             np.asarray(scn.weights, dtype=float), base["tau"], plant.x0_mean, F0, FQ,
             np.stack(FR), [child_sequence(s, "plant") for s in seeds], base["steps"])
-    walls: dict[str, list[float]] = {"anchor": [], "vectorised": []}
+    walls: dict[str, list[float]] = {"anchor": [], "vectorised": [], "asynchronous": []}
     # CPU time of this process too: both run on one thread (OPENBLAS_NUM_THREADS=1),
     # so it is the work done, less sensitive than the wall time to other processes
-    cpus: dict[str, list[float]] = {"anchor": [], "vectorised": []}
+    cpus: dict[str, list[float]] = {"anchor": [], "vectorised": [], "asynchronous": []}
+    # the same batch with asynchronous random delays (tau = 3, an independent draw per
+    # message), timed in the same rounds against the same floor
+    scn_async = lcsys_variant(base["agents"], "random", base["tau"], "asynchronous")
     sq_anchor = sq_netsim = states = None
     for r in range(repeat):
         gc.collect()
@@ -279,8 +306,16 @@ def measure_anchor(repeat: int) -> dict[str, Any]:
         cpus["vectorised"].append(time.process_time() - c0)
         sq_netsim = np.stack([res.squared_errors for res in results], axis=1)
         states = np.stack([res.states for res in results], axis=1)
+        del results
+        gc.collect()
+        c0, t0 = time.process_time(), time.perf_counter()
+        run_trials(scn_async, "compensated", gains, seeds, base["steps"],
+                   engine="vectorised", record_estimates=False)
+        walls["asynchronous"].append(time.perf_counter() - t0)
+        cpus["asynchronous"].append(time.process_time() - c0)
         progress(f"  run {r + 1}/{repeat}: anchor {walls['anchor'][-1]:.3f} s, vectorised "
-                 f"{walls['vectorised'][-1]:.3f} s")
+                 f"{walls['vectorised'][-1]:.3f} s, asynchronous "
+                 f"{walls['asynchronous'][-1]:.3f} s")
     # round-off: the two differ only in the order of additions, so a squared error
     # ||e||^2 differs by about 2 ||e|| eps ||x|| (the estimates are as large as x)
     scale = 2 * np.sqrt(sq_netsim) * np.linalg.norm(states, axis=-1)[..., None] + 1e-300
@@ -288,7 +323,16 @@ def measure_anchor(repeat: int) -> dict[str, Any]:
     relative = float(np.max(np.abs(sq_anchor - sq_netsim) / np.abs(sq_netsim)))
     best = {k: min(v) for k, v in walls.items()}
     best_cpu = {k: min(v) for k, v in cpus.items()}
-    return {"agents": base["agents"], "states": plant.n_states, "tau": base["tau"],
+    # the arithmetic floor: the estimator's FLOPs at this thread's DGEMM rate
+    peak = dgemm_peak()
+    flops = floor_flops_per_trial_step(base["agents"], plant.n_states,
+                                       max(Ci.shape[0] for Ci in plant.C), len(scn.links))
+    floor_s = flops * base["trials"] * base["steps"] / peak
+    return {"floor": {"flops_per_trial_step": flops, "dgemm_flops_per_s": peak,
+                      "floor_s": floor_s,
+                      "vectorised_over_floor_cpu": best_cpu["vectorised"] / floor_s,
+                      "asynchronous_over_floor_cpu": best_cpu["asynchronous"] / floor_s},
+            "agents": base["agents"], "states": plant.n_states, "tau": base["tau"],
             "trials": base["trials"], "steps": base["steps"], "links": len(scn.links),
             "repeat": repeat, "walls_s": walls, "best_s": best,
             "vectorised_over_anchor": best["anchor"] / best["vectorised"],
@@ -616,8 +660,25 @@ def render(report: dict[str, Any]) -> str:
             "deviation = |sq_anchor - sq_netsim| / (2 ||e|| ||x||), the round-off of a "
             "squared error whose estimate is as large as the state; the relative difference "
             "is larger where ||e|| << ||x||; agree: deviation < 1e-12)",
-            "",
         ]
+        fl = anchor.get("floor")
+        if fl:
+            out += [
+                f"   arithmetic floor: {fl['flops_per_trial_step']:,} FLOP per trial-step "
+                f"at the DGEMM rate of this thread ({fl['dgemm_flops_per_s'] / 1e9:.1f} "
+                f"GFLOP/s, 768 x 768, best CPU of 5) = {fl['floor_s'] * 1e3:.1f} ms for "
+                f"{anchor['trials']} x {anchor['steps']}; goals: anchor / vectorised >= 3x, "
+                "vectorised within 8x of the floor",
+                format_table(["delays", "vectorised CPU s", "anchor / vectorised (CPU)",
+                              "vectorised / floor (CPU)"],
+                             [["homogeneous", f"{anchor['best_cpu_s']['vectorised']:.3f}",
+                               f"{anchor['vectorised_over_anchor_cpu']:.2f}x",
+                               f"{fl['vectorised_over_floor_cpu']:.1f}x"],
+                              ["asynchronous", f"{anchor['best_cpu_s']['asynchronous']:.3f}",
+                               "- (no asynchronous anchor)",
+                               f"{fl['asynchronous_over_floor_cpu']:.1f}x"]]),
+            ]
+        out += [""]
     ratio = report["engine_ratio"]
     if ratio:
         out += [

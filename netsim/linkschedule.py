@@ -107,6 +107,49 @@ class LinkSchedule:
             return (self.send_steps + 1.0) + self.delay_steps
         return self.send_steps.astype(float) + self.wait
 
+    @cached_property
+    def max_delay_steps(self) -> int:
+        """The largest step delay d of any message (0 without messages)."""
+        return int(self.delay_steps.max()) if self.delay_steps.size else 0
+
+    def _arrived_counts(self, ends: np.ndarray, among: np.ndarray | None = None
+                        ) -> np.ndarray:
+        """Per trial, the messages (of ``among``, a (T, L, S) bool array, if given) that
+        arrived by step ``ends[t]``: s + 1 + d <= end, lossless step delays only.
+
+        With delays at most D every message sent at s <= end - 1 - D has arrived and
+        none sent after end - 1 has, so only the D rows of sending steps in between
+        are compared, per group of trials with the same end (the same counts as the
+        whole (T, L, S) comparison). The arrays are read in their stored (S, L, T)
+        layout.
+        """
+        send = self.send_steps
+        T, L, S = self.delay_steps.shape
+        d = self.delay_steps.transpose(2, 1, 0)  # (S, L, T)
+        flags = None if among is None else among.transpose(2, 1, 0)
+        if flags is not None:
+            # messages of ``among`` per trial in the rows before each sending step
+            per_row = np.count_nonzero(flags, axis=1)  # (S, T)
+            before = np.zeros((S + 1, T), dtype=np.int64)
+            np.cumsum(per_row, axis=0, out=before[1:])
+        D = self.max_delay_steps
+        out = np.zeros(T, dtype=np.int64)
+        for end in np.unique(ends).tolist():
+            trials = np.flatnonzero(ends == end)
+            sure = int(np.searchsorted(send, end - 1 - D, side="right"))
+            maybe = max(sure, int(np.searchsorted(send, end - 1, side="right")))
+            counted = (sure * L if flags is None else before[sure, trials])
+            if maybe > sure:
+                limit = (end - 1 - send[sure:maybe])[:, None, None]
+                every = len(trials) == T
+                rows = d[sure:maybe] if every else d[sure:maybe][:, :, trials]
+                hit = rows <= limit
+                if flags is not None:
+                    hit &= flags[sure:maybe] if every else flags[sure:maybe][:, :, trials]
+                counted = counted + np.count_nonzero(hit, axis=(0, 1))
+            out[trials] = counted
+        return out
+
     def counts(self, ends: np.ndarray) -> list[dict[str, object]]:
         """Messages sent, delivered and dropped by each trial's end.
 
@@ -132,8 +175,7 @@ class LinkSchedule:
                     for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
         if self.lossless_steps:
             # s + 1 + d <= end, in integers
-            limit = np.asarray(ends, dtype=np.int64)[:, None, None] - 1 - self.send_steps
-            delivered = np.count_nonzero(self.delay_steps <= limit, axis=(1, 2))
+            delivered = self._arrived_counts(np.asarray(ends, dtype=np.int64))
             return [{"sent": int(np.count_nonzero(self.send_steps <= e)) * len(self.links),
                      "delivered": int(n), "dropped": 0, "drop_reasons": {}}
                     for e, n in zip(np.asarray(ends).tolist(), delivered.tolist(), strict=True)]
@@ -193,7 +235,8 @@ class MessageSelection:
             return np.zeros(len(ends), dtype=np.int64)
         end = np.asarray(ends)[:, None, None]
         if schedule.lossless_steps:
-            arrived = schedule.delay_steps <= end - 1 - schedule.send_steps
+            return schedule._arrived_counts(np.asarray(ends, dtype=np.int64),
+                                            among=self.discarded)
         else:
             arrived = (schedule.arrival <= end) & (schedule.send_steps[None, None, :] <= end)
         return np.count_nonzero(self.discarded & arrived, axis=(1, 2))
@@ -466,6 +509,79 @@ def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:
 def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
     """:func:`select_messages` (freshest rule) for lossless step delays, a message every
     step.
+
+    Message s of a link is usable from step s + 1 + d_s on, so the receiver holds at
+    step k the largest s with d_s <= k - 1 - s (LCSYS2022 eq. 4's freshest time-stamp).
+    With delays at most D, the message sent at k - 1 - D has always arrived and
+    dominates every older one: held[k] = k - 1 - r for the smallest r in 0..D with
+    d_{k-1-r} <= r (-1 if none, which happens only at k <= D), D + 1 whole-array passes
+    instead of a sort. The passes run on one-byte copies of the delays and lags
+    (D < 127; :func:`_select_bounded_wide` otherwise), without masked copies (a
+    candidate lag is r, or r + 128 when message k - 1 - r has not arrived, and the
+    lag is the minimum of the candidates), a block of steps at a time in cache; the
+    int32 indices are written once per block. The same selection as
+    :func:`_select_bounded_wide`, element for element.
+    """
+    T, L, S = schedule.delay_steps.shape
+    d = np.ascontiguousarray(schedule.delay_steps.transpose(2, 1, 0))  # (S, L, T)
+    D = int(d.max()) if d.size else 0
+    if D >= 127:
+        return _select_bounded_wide(schedule, K)
+    small = d.astype(np.uint8)  # (S, L, T), the delays in one byte
+    chosen = np.empty((K + 1, L, T), dtype=np.int32)
+    chosen[0] = -1  # nothing arrives before step 1
+    stale = np.zeros((S, L, T), dtype=bool)
+    max_r = -1
+    width = max(1, (1 << 18) // max(1, L * T))
+    lag = np.empty((width, L, T), dtype=np.uint8)
+    mask = np.empty((width, L, T), dtype=bool)
+    cand = np.empty((width, L, T), dtype=np.uint8)
+    for k0 in range(1, K + 1, width):
+        k1 = min(k0 + width, K + 1)
+        part = lag[: k1 - k0]
+        part.fill(255)  # nothing held
+        for r in range(min(D, k1 - 2), -1, -1):
+            # step k holds s = k - 1 - r (if s >= 0) when it has arrived: d_s <= r
+            lo = max(k0, r + 1)
+            m, c = mask[: k1 - lo], cand[: k1 - lo]
+            np.greater(small[lo - 1 - r:k1 - 1 - r], r, out=m)
+            np.left_shift(m.view(np.uint8), 7, out=c)
+            np.bitwise_or(c, r, out=c)
+            np.minimum(part[lo - k0:], c, out=part[lo - k0:])
+        out = chosen[k0:k1]
+        # chosen = k - 1 - lag where a message is held; from step D + 1 on one always is
+        np.subtract(np.arange(k0 - 1, k1 - 1, dtype=np.int32)[:, None, None], part,
+                    out=out, dtype=np.int32)
+        early = min(k1, D + 1) - k0  # steps k <= D of this block
+        if early > 0:
+            none = part[:early] >= 128
+            out[:early][none] = -1
+            held = part[:early][~none]
+            if held.size:
+                max_r = max(max_r, int(held.max()))
+            if early < k1 - k0:
+                max_r = max(max_r, int(part[early:].max()))
+        else:
+            max_r = max(max_r, int(part.max()))
+    # freshest rule: message s is discarded on arrival if a newer one s' = s + r
+    # arrived before it: s' + 1 + d_s' < s + 1 + d_s, i.e. d_(s+r) + r < d_s (r <= D)
+    shifted = cand.view(np.uint8)
+    for s0 in range(0, S, width):
+        s1 = min(s0 + width, S)
+        out_s = stale[s0:s1]
+        for r in range(1, D + 1):
+            if s0 + r >= S:
+                break
+            top = min(s1, S - r)  # s + r must exist
+            c, m = shifted[: top - s0], mask[: top - s0]
+            np.add(small[s0 + r:top + r], r, out=c)  # at most 2 D < 254
+            np.less(c, small[s0:top], out=m)
+            out_s[: top - s0] |= m
+    return MessageSelection(chosen, stale.transpose(2, 1, 0), max_r + 1)
+
+
+def _select_bounded_wide(schedule: LinkSchedule, K: int) -> MessageSelection:
+    """:func:`_select_bounded` for delays of 127 steps and more (int32 passes).
 
     Message s of a link is usable from step s + 1 + d_s on, so the receiver holds at
     step k the largest s with d_s <= k - 1 - s (LCSYS2022 eq. 4's freshest time-stamp).

@@ -40,13 +40,15 @@ def test_the_site_builds_without_warnings_and_its_doctests_pass(tmp_path):
     for page in ("index", "getting-started", "cli", "scenarios", "api", "findings",
                  "concepts/architecture", "estimators/compensated", "install", "notebook",
                  "live", "auto_examples/plot_delay_sweep", "auto_examples/plot_notebook",
-                 "auto_examples/plot_estimator_listing"):
+                 "auto_examples/plot_estimator_listing", "estimators/baselines", "calibrate",
+                 "auto_examples/plot_baselines"):
         assert (tmp_path / "html" / f"{page}.html").is_file(), page
     notebook = (tmp_path / "html" / "auto_examples" / "plot_notebook.html").read_text(
         encoding="utf-8")
     assert "<b>RunResult</b>" in notebook  # the executed example shows _repr_html_
     cli = (tmp_path / "html" / "cli.html").read_text(encoding="utf-8")
     assert "cmdoption-netsim-run-steps" in cli  # generated from the parser
+    assert "cmdoption-netsim-calibrate-evaluations" in cli  # netsim calibrate is picked up
     doctest = _sphinx("doctest", tmp_path, "-D", "plot_gallery=0")
     assert doctest.returncode == 0, doctest.stdout[-5000:] + doctest.stderr[-3000:]
     assert "0 failures in tests" in (tmp_path / "doctest" / "output.txt").read_text()

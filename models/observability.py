@@ -32,7 +32,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 from netsim.models.lazy import is_digraph, lazy_module
@@ -348,13 +348,14 @@ def is_observable(A: ArrayLike, C: ArrayLike, rtol: float = DEFAULT_RTOL) -> boo
 
 def _in_neighbourhoods(P_or_graph: ArrayLike | nx.DiGraph, n_agents: int) -> list[list[int]]:
     if is_digraph(P_or_graph):
-        if sorted(P_or_graph.nodes) != list(range(n_agents)):
+        graph = cast("nx.DiGraph", P_or_graph)
+        if sorted(graph.nodes) != list(range(n_agents)):
             raise ValueError(f"graph nodes must be 0..{n_agents - 1} (one per output matrix)")
         return [
-            [i, *sorted(j for j in P_or_graph.predecessors(i) if j != i)]
+            [i, *sorted(j for j in graph.predecessors(i) if j != i)]
             for i in range(n_agents)
         ]
-    P = _weights(P_or_graph, n_agents)
+    P = _weights(cast("ArrayLike", P_or_graph), n_agents)
     return [
         [i, *(int(j) for j in np.flatnonzero(P[i] != 0) if j != i)] for i in range(n_agents)
     ]

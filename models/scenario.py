@@ -396,11 +396,11 @@ class Scenario:
             return LinkTable(src, dst, np.asarray(W[dst, src]).ravel() if len(src)
                              else np.zeros(0))
         if not issparse(self.weights):  # the same table without scipy.sparse
-            W = np.asarray(self.weights, dtype=float)
-            j, i = np.nonzero(W.T)  # sender-major, then receiver: the link order
+            dense = np.asarray(self.weights, dtype=float)
+            j, i = np.nonzero(dense.T)  # sender-major, then receiver: the link order
             j, i = j.astype(np.int64), i.astype(np.int64)
             keep = i != j
-            return LinkTable(j[keep], i[keep], W[i[keep], j[keep]])
+            return LinkTable(j[keep], i[keep], dense[i[keep], j[keep]])
         # column-major (CSC, a counting sort) is sender-major: the link order
         csc = sp.csc_array(self.weights_sparse)
         csc.sum_duplicates()

@@ -383,6 +383,7 @@ def _sparse_product_into(matrix: sp.csr_matrix, out: np.ndarray
     """
     rows, cols = matrix.shape
     indptr, indices, data = matrix.indptr, matrix.indices, matrix.data
+    csr_matvecs: Callable[..., None] | None
     try:
         from scipy.sparse._sparsetools import csr_matvecs
     except ImportError:  # pragma: no cover - other scipy layouts
@@ -463,7 +464,8 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     gain_rows = (np.ascontiguousarray(np.broadcast_to(Lp_T, (N, T, n)))
                  if m_out == 1 else None)
     residual = np.empty((N, T, m_out))  # y - C_i x_{k|k-1} of one step
-    correction = np.empty((N, T, n)) if m_out != 1 else None
+    # the matmul's output where the outputs are several (unused when m = 1)
+    correction = np.empty((N, T, n) if m_out != 1 else (0, 0, 0))
 
     def innovate(prior: np.ndarray, k: int, out: np.ndarray) -> np.ndarray:
         # eq. (5): x_{k|k} = x_{k|k-1} + L_i (y - C_i x_{k|k-1}), per agent i as a

@@ -195,6 +195,7 @@ def test_dask_executor_without_dask(capsys, without):
                              "tcp://127.0.0.1:1", "--no-progress"], "dask")
     assert "dask[distributed]" in err
     from netsim.models.extras import MissingExtra
+
     from netsim.sweep import _Dask
 
     with pytest.raises(MissingExtra, match=r"pip install 'netsim\[dask\]'"):

@@ -342,6 +342,7 @@ def test_blas_is_single_threaded_only_while_netsim_works():
     script = textwrap.dedent("""
         import json
         import numpy as np
+        import scipy.linalg  # noqa: F401 - scipy's own BLAS too, loaded before "before"
         from threadpoolctl import threadpool_info, threadpool_limits
         import netsim
         from netsim.parallel import ordered_map

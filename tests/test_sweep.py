@@ -140,3 +140,19 @@ def test_the_same_sweep_is_identical_on_the_local_pool_and_dask(tmp_path, dask_c
     again = run_sweep(delay_tolerance_cell, cells, root_seed=3, executor="local",
                       context=context, progress=False, results=tmp_path / "dask.jsonl")
     assert again.computed == 0 and again.results() == local.results()
+
+
+def test_a_scenario_sweep_runs_every_requested_family_listed_or_not(tmp_path, capsys):
+    """--estimators names what runs: a family the scenario does not list (local-kf) is
+    not dropped because another one (compensated) is listed."""
+    from netsim.cli import main
+
+    code = main(["bench", "sweep", "lcsys2022-heterogeneous", "--estimators",
+                 "compensated,local-kf", "--taus", "0", "--delays", "homogeneous",
+                 "--trials", "1", "--steps", "10", "--out", str(tmp_path / "rows.jsonl"),
+                 "--json", "--no-progress"])
+    out = capsys.readouterr().out
+    assert code == 0
+    rows = json.loads(out)["rows"]
+    assert rows and all(set(r["result"]["estimators"]) == {"compensated", "local-kf"}
+                        for r in rows)

@@ -24,13 +24,13 @@ def _gain_key(scenario: Any) -> str:
 
 
 def _cell_families(context: dict[str, Any], scenario: Any) -> list[Any]:
-    """The families a cell runs: the keys of ``context["families"]`` (those the scenario
-    lists, else all), each the object shipped in ``context["plugins"]`` (a plugin's code,
-    by value) if there is one, else resolved here by its key."""
+    """The families a cell runs: every key of ``context["families"]`` (what the sweep
+    was asked for, listed by the scenario or not), each the object shipped in
+    ``context["plugins"]`` (a plugin's code, by value) if there is one, else resolved
+    here by its key."""
     from netsim.runner import family_of
 
-    keys = [f for f in context["families"] if f in scenario.estimators] or \
-        list(context["families"])
+    keys = list(context["families"])
     shipped = context.get("plugins")
     shipped = (shipped.value if shipped is not None else None) or {}
     return [shipped[f] if f in shipped else family_of(f, scenario) for f in keys]

@@ -785,20 +785,10 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     if topology == "cycle":
         graph = directed_cycle(agents)
     elif topology == "random":
-        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
-                       "network.edge_probability")
-        if not 0 <= prob <= 1:
-            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
-        if prob == 0:
-            _warn("network.edge_probability", "is 0: the random graph is only its random "
-                  "Hamiltonian cycle (every 'random' graph has one, for strong connectivity)")
+        prob = _edge_probability(table, warn=True)
         graph = random_strongly_connected(agents, prob, seed)
     elif topology == "geometric":
-        radius = table.get("radius")
-        if radius is not None:
-            radius = _number(radius, "network.radius")
-            if radius <= 0:
-                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+        radius = _network_radius(table)
         graph = geometric(agents, radius, seed)
     elif topology == "edges":
         edges = _require(table, "edges", "network")
@@ -823,6 +813,29 @@ def _parse_network(table: dict[str, Any], n_sensors: int) -> np.ndarray:
     return P
 
 
+def _edge_probability(table: dict[str, Any], warn: bool = False) -> float:
+    """``network.edge_probability`` of a random network, in [0, 1] (ScenarioError
+    otherwise); ``warn``: say that 0 leaves only the random Hamiltonian cycle."""
+    prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
+                   "network.edge_probability")
+    if not 0 <= prob <= 1:
+        raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
+    if warn and prob == 0:
+        _warn("network.edge_probability", "is 0: the random graph is only its random "
+              "Hamiltonian cycle (every 'random' graph has one, for strong connectivity)")
+    return prob
+
+
+def _network_radius(table: dict[str, Any]) -> float | None:
+    """``network.radius`` of a geometric network, > 0, or None for the default rule."""
+    radius = table.get("radius")
+    if radius is not None:
+        radius = _number(radius, "network.radius")
+        if radius <= 0:
+            raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+    return radius
+
+
 def _link_weights(table: dict[str, Any], agents: int, topology: str, weights_spec: str,
                   seed: int) -> np.ndarray:
     """:func:`_parse_network`'s dense random or uniform weights of a cycle or random
@@ -831,13 +844,7 @@ def _link_weights(table: dict[str, Any], agents: int, topology: str, weights_spe
         src = np.arange(agents, dtype=np.int64)
         dst = (src + 1) % agents
     else:
-        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
-                       "network.edge_probability")
-        if not 0 <= prob <= 1:
-            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
-        if prob == 0:
-            _warn("network.edge_probability", "is 0: the random graph is only its random "
-                  "Hamiltonian cycle (every 'random' graph has one, for strong connectivity)")
+        prob = _edge_probability(table, warn=True)
         src, dst = random_links(agents, prob, seed)
     if weights_spec == "random":
         return link_random_weights(agents, src, dst, seed)
@@ -875,21 +882,14 @@ def _parse_sparse_network(table: dict[str, Any], agents: int, topology: Any,
         order = np.lexsort((dst, src))
         src, dst = src[order], dst[order]
     elif topology == "random":
-        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
-                       "network.edge_probability")
-        if not 0 <= prob <= 1:
-            raise ScenarioError("network.edge_probability", f"must be in [0, 1], got {prob}")
+        prob = _edge_probability(table)
         if prob * agents * agents > MAX_SPARSE_LINKS:
             raise ScenarioError("network.edge_probability", f"= {prob:g} gives about "
                                 f"{prob * agents * agents:.3g} links at N = {agents}; "
                                 f"at most {MAX_SPARSE_LINKS:.0e} are supported (lower it)")
         src, dst = random_links(agents, prob, seed)
     elif topology == "geometric":
-        radius = table.get("radius")
-        if radius is not None:
-            radius = _number(radius, "network.radius")
-            if radius <= 0:
-                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+        radius = _network_radius(table)
         r = radius if radius is not None else math.sqrt(2.0 * math.log(agents) / agents)
         expected = min(math.pi * r * r, 1.0) * agents * (agents - 1)
         if expected > MAX_SPARSE_LINKS:
@@ -1280,15 +1280,10 @@ def _link_estimate(table: dict[str, Any], agents: int) -> int | None:
     if topology == "cycle":
         return agents
     if topology == "random":
-        prob = _number(table.get("edge_probability", DEFAULTS["network.edge_probability"]),
-                       "network.edge_probability")
-        return agents + int(round(min(max(prob, 0.0), 1.0) * agents * (agents - 1)))
+        prob = _edge_probability(table)
+        return agents + int(round(prob * agents * (agents - 1)))
     if topology == "geometric":
-        radius = table.get("radius")
-        if radius is not None:
-            radius = _number(radius, "network.radius")
-            if radius <= 0:
-                raise ScenarioError("network.radius", f"must be > 0, got {radius}")
+        radius = _network_radius(table)
         return geometric_link_estimate(agents, radius, seed)[0]
     if topology == "edges" and isinstance(table.get("edges"), list):
         return len(table["edges"])

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import os
+import signal
+import subprocess
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 from netsim.models.scenario import DelaySpec, Scenario, resolve_scenario
@@ -82,3 +86,21 @@ def mse_level(estimator: dict) -> float:
     last = max(int(k) for k in trusted)
     values = [v for k, v in trusted.items() if int(k) >= last // 2 and v is not None]
     return float(np.mean(values))
+
+
+def start_process(argv: list[str], log: Path, cwd: Path | None = None,
+                  env: dict[str, str] | None = None) -> subprocess.Popen[bytes]:
+    """Start ``argv`` in its own session (so :func:`kill_process` ends its whole group),
+    its output into ``log``."""
+    with open(log, "wb") as out:
+        return subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, cwd=cwd, env=env,
+                                start_new_session=True, stdin=subprocess.DEVNULL)
+
+
+def kill_process(proc: subprocess.Popen[bytes], timeout: float) -> None:
+    """Kill a process started by :func:`start_process` with its whole group."""
+    try:
+        os.killpg(proc.pid, signal.SIGKILL)
+    except ProcessLookupError:
+        pass
+    proc.wait(timeout=timeout)

@@ -20,7 +20,6 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import signal
 import subprocess
 import sys
 import time
@@ -28,6 +27,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from helpers import kill_process, start_process
 
 import netsim
 from netsim.sweep import (
@@ -54,17 +54,11 @@ if os.environ.get("{FAKE_VERSION_ENV}"):
 
 def _start(argv: list[str], log: Path, cwd: Path, env: dict[str, str]
            ) -> subprocess.Popen[bytes]:
-    with open(log, "wb") as out:
-        return subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT, cwd=cwd, env=env,
-                                start_new_session=True, stdin=subprocess.DEVNULL)
+    return start_process(argv, log, cwd, env)
 
 
 def _kill(proc: subprocess.Popen[bytes]) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait(timeout=TIMEOUT)
+    kill_process(proc, TIMEOUT)
 
 
 def _wait(condition: Callable[[], bool], what: str) -> None:

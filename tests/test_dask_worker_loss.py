@@ -10,8 +10,6 @@ session and is killed, whatever happens, when the test ends.
 from __future__ import annotations
 
 import json
-import os
-import signal
 import subprocess
 import sys
 import threading
@@ -19,6 +17,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers import kill_process, start_process
 
 from netsim.sweep import demo_cell, grid, run_sweep
 
@@ -27,17 +26,11 @@ CELLS = grid(scale=[1.0, 2.0, 3.0, 4.0], n=[40, 60, 80], sleep=0.4)
 
 
 def _start(argv: list[str], log: Path) -> subprocess.Popen[bytes]:
-    with open(log, "wb") as out:
-        return subprocess.Popen(argv, stdout=out, stderr=subprocess.STDOUT,
-                                start_new_session=True, stdin=subprocess.DEVNULL)
+    return start_process(argv, log)
 
 
 def _kill(proc: subprocess.Popen[bytes]) -> None:
-    try:
-        os.killpg(proc.pid, signal.SIGKILL)
-    except ProcessLookupError:
-        pass
-    proc.wait(timeout=TIMEOUT)
+    kill_process(proc, TIMEOUT)
 
 
 def _wait(condition, what: str) -> None:

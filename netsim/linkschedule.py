@@ -29,7 +29,6 @@ from typing import Any, cast
 
 import numpy as np
 
-from netsim.links import resolve_link
 from netsim.models.delays import DelayModel, FixedDelays
 
 __all__ = [
@@ -334,6 +333,8 @@ def _static_schedule(delay_models: Sequence[DelayModel], links: Sequence[tuple[i
             d[t, :, 0] = model.link_delays(*arrays)
             continue
         for l_, (j, i) in enumerate(links):
+            from netsim.links import resolve_link
+
             delays, configured = resolve_link(model, j, i)
             if configured is not None or not delays.time_invariant or delays.unit != "steps":
                 return None
@@ -400,6 +401,8 @@ def build_schedule(
             index[reason] = len(reasons) + 1
             reasons.append(reason)
         return index[reason]
+
+    from netsim.links import resolve_link  # (simpy: only when a run builds a schedule)
 
     configured_links = []
     for t, model in enumerate(delay_models):

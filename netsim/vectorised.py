@@ -34,14 +34,12 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.sparse as sp
 
 from netsim import budget, interrupt
 from netsim.estimators.gains import GainDesign
-from netsim.kernel import NOT_USED, ROUNDOFF_RELATIVE_ERROR, TrialResult, squared_threshold
 from netsim.linkschedule import (
     DELIVERED,
     LinkSchedule,
@@ -51,6 +49,11 @@ from netsim.linkschedule import (
 )
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import SeedLike, stream
+
+if TYPE_CHECKING:  # scipy.sparse and the event kernel (simpy) load when a run needs them
+    import scipy.sparse as sp
+
+    from netsim.kernel import TrialResult
 
 __all__ = [
     "BATCH_ELEMENTS",
@@ -177,6 +180,8 @@ class _Outputs:
         self.diverged_at = np.full(T, -1, dtype=np.int64)
         self.alive = np.ones(T, dtype=bool)
         self.all_alive = True
+        from netsim.kernel import squared_threshold
+
         self.threshold_sq = squared_threshold(threshold)
         self._scratch: np.ndarray | None = None  # record_many's errors
         self._ones = np.ones(n)
@@ -212,6 +217,8 @@ class _Outputs:
 
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
+        from netsim.kernel import ROUNDOFF_RELATIVE_ERROR
+
         err = estimates - state[None]
         sq = np.einsum("itj,itj->ti", err, err)
         alive = self.alive
@@ -315,6 +322,8 @@ def _link_positions(schedule_links: Sequence[tuple[int, int]], scenario: Scenari
     sorted by sender then receiver): then a counting sort through a CSR matrix, no
     dictionary and no N x N array.
     """
+    import scipy.sparse as sp
+
     N = scenario.n_agents
     table = scenario.link_table
     if len(schedule_links) == len(table) and (
@@ -431,6 +440,8 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     and propagates with A^(k - block step) in between. Eq. (5),
     x^i_{k|k} = x^i_{k|k-1} + L_i (y^i_k - C_i x^i_{k|k-1}), is a stacked product.
     """
+    import scipy.sparse as sp
+
     plant = scenario.plant
     A = plant.A
     n = plant.n_states
@@ -670,6 +681,8 @@ def effective_delays_per_link(selection: MessageSelection, schedule: LinkSchedul
     update or after ``end``). The kernel's (K+1, N, N) record holds the same numbers
     at (k, i, j); this form has no N x N array.
     """
+    from netsim.kernel import NOT_USED
+
     K1 = selection.chosen.shape[0]
     E = len(term_link)
     out = np.full((K1, E), NOT_USED, dtype=np.int32)
@@ -691,6 +704,8 @@ def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
                       ) -> np.ndarray:
     """r_ij[k] of one trial as the kernel records it, shape (K+1, N, N) (from the
     per-link record :func:`effective_delays_per_link`)."""
+    from netsim.kernel import NOT_USED
+
     terms = _consensus_terms(scenario, schedule)
     per_link = effective_delays_per_link(selection, schedule, terms.link, updated, trial, end)
     N = scenario.n_agents
@@ -758,6 +773,8 @@ def run_batch(
         (``messages`` is empty); and the link schedule and message selection the run
         used (None for the centralised filter).
     """
+    from netsim.kernel import NOT_USED, TrialResult
+
     rule = lockstep_rule(family)
     K = scenario.steps if steps is None else int(steps)
     T = len(trial_seeds)

@@ -32,6 +32,7 @@ from netsim.cliutil import (
     analyze_with_progress,
     gains_if_needed,
     note_kernel_fallbacks,
+    progress_bar,
     scenario_warnings,
     tau_star_text,
 )
@@ -393,9 +394,10 @@ def build_parser(only: str | None = None) -> argparse.ArgumentParser:
         add_reproduce_parser(sub)
     elif only == "":  # the listing only: netsim.reproduce imports the claims and plots
         sub.add_parser("reproduce", help=REPRODUCE_HELP)
-    from netsim.calibrate import add_calibrate_parser
+    if only in (None, "", "calibrate"):  # netsim.calibrate: only where it is listed
+        from netsim.calibrate import add_calibrate_parser
 
-    add_calibrate_parser(sub)
+        add_calibrate_parser(sub)
     for name, command in sub.choices.items():
         _add_no_cache(name, command)
     return parser
@@ -468,8 +470,6 @@ def _cmd_run(args: argparse.Namespace) -> int:
         from netsim.live import run_live
 
         return run_live(args, _cmd_run)
-    from tqdm import tqdm
-
     from netsim.estimators.contract import EstimatorFailure
     from netsim.models.scenario import ScenarioError, resolve_scenario
     from netsim.runner import TraceWriteError, run_monte_carlo
@@ -537,8 +537,8 @@ def _cmd_run(args: argparse.Namespace) -> int:
         _check_traces(args.trace, families, trials, args.force,
                       [args.scenario] if os.path.isfile(args.scenario) else [])
     total = trials * len(families)
-    bar = tqdm(total=total, desc=f"netsim run {scenario.name}", unit="trial",
-               disable=True if args.no_progress else None, file=sys.stderr, leave=False)
+    bar = progress_bar(total=total, desc=f"netsim run {scenario.name}", unit="trial",
+                       disable=True if args.no_progress else None)
     written: list[str] = []
     done = [0]
 

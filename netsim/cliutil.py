@@ -21,7 +21,7 @@ from typing import Any, NoReturn
 __all__ = ["EXIT_BAD_INPUT", "EXIT_DESIGN_FAILED", "EXIT_INTERRUPTED", "CommandError",
            "REPRODUCE_HELP", "OneLineParser", "TableEpilogFormatter", "analyze_with_progress",
            "gains_if_needed", "tau_star_text", "NOT_COMPUTED",
-           "note_kernel_fallbacks", "scenario_warnings"]
+           "note_kernel_fallbacks", "progress_bar", "scenario_warnings"]
 
 #: ``netsim reproduce``'s one-line help, shared by the full parser and the cheap listing.
 REPRODUCE_HELP = "regenerate every figure and table of the four papers, with a report"
@@ -141,6 +141,32 @@ def scenario_warnings(command: str) -> Iterator[None]:
         yield
 
 
+class _NoBar:
+    """What :func:`progress_bar` returns when no bar shows: ``update`` and ``close``."""
+
+    def update(self, n: float = 1) -> None:
+        """Ignore ``n`` ticks."""
+
+    def close(self) -> None:
+        """Nothing to close."""
+
+
+def progress_bar(*, total: int, desc: str, unit: str, disable: bool | None = None,
+                 leave: bool = False) -> Any:
+    """A tqdm bar on stderr, or a stand-in without output when it would not show.
+
+    ``disable=None`` shows the bar only on a terminal, as tqdm decides; tqdm (and its
+    importlib.metadata) is imported only when the bar shows (start-up, issue 34).
+    """
+    if disable or (disable is None and hasattr(sys.stderr, "isatty")
+                   and not sys.stderr.isatty()):  # tqdm's own test
+        return _NoBar()
+    from tqdm import tqdm
+
+    return tqdm(total=total, desc=desc, unit=unit, disable=disable, file=sys.stderr,
+                leave=leave)
+
+
 def analyze_with_progress(scenario: Any, gains: Any, tau_max: int, analyze: Any,
                           disable: bool | None = None, **options: Any) -> Any:
     """``analyze(scenario, gains, tau_max, **options)`` with a tqdm bar on stderr (one
@@ -150,10 +176,8 @@ def analyze_with_progress(scenario: Any, gains: Any, tau_max: int, analyze: Any,
     KeyboardInterrupt as soon as the running eigenvalue computation returns (the
     command line turns it into exit 130).
     """
-    from tqdm import tqdm
-
-    bar = tqdm(total=tau_max + 1, desc=f"netsim analyze {scenario.name}", unit="tau",
-               disable=disable, file=sys.stderr, leave=False)
+    bar = progress_bar(total=tau_max + 1, desc=f"netsim analyze {scenario.name}",
+                       unit="tau", disable=disable)
     try:  # no graceful handler: nothing is written, Ctrl-C may stop at once
         return analyze(scenario, gains, tau_max, progress=bar.update, **options)
     finally:

@@ -15,7 +15,7 @@ from collections.abc import Callable, Collection, Mapping, Sequence
 from dataclasses import dataclass, field
 from operator import itemgetter
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -27,7 +27,6 @@ from netsim.estimators.registry import (
     get_family,
     resolve_families,
 )
-from netsim.kernel import AgentSpec, KernelObserver, Simulation, TrialResult
 from netsim.models.augmented import (
     augmented_closed_loop,
     delay_bound_lcsys,
@@ -49,6 +48,9 @@ from netsim.models.lazy import issparse
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import SEED_LAYOUT, SeedLike, child_sequence, stream
 from netsim.threads import single_threaded_blas
+
+if TYPE_CHECKING:  # the event kernel (and simpy) loads when a run uses it (issue 34)
+    from netsim.kernel import AgentSpec, KernelObserver, TrialResult
 
 __all__ = [
     "GROWTH_TOLERANCE",
@@ -145,6 +147,8 @@ def build_agents(scenario: Scenario, family: str | EstimatorFamily, gains: GainD
     trial_seed : seed-like
         The trial's seed (a plugin's agents draw their own streams from it).
     """
+    from netsim.kernel import AgentSpec
+
     declared = family_of(family)
     plans = declared.agents(FamilyContext(scenario, gains, trial_seed))
     n_sensors = scenario.plant.n_sensors
@@ -180,6 +184,8 @@ def run_trial(
     family's own observer (``EstimatorFamily.observer``) wraps ``observer`` and what it
     collects is ``TrialResult.extras``.
     """
+    from netsim.kernel import AgentSpec, Simulation
+
     steps = scenario.steps if steps is None else int(steps)
     budget.check_memory(budget.kernel_trial_bytes(scenario, steps, record_delays=record_delays),
                         "steps", "one event-kernel trial", steps)

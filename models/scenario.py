@@ -93,6 +93,8 @@ from netsim.models.topology import GraphSequence, LinkSchedule, TopologyError, a
 if TYPE_CHECKING:
     import networkx as nx
     import scipy.sparse as sp
+
+    from netsim.models.timing import TimeSpec
 else:  # imported on first use (start-up latency): small dense scenarios need neither
     nx = lazy_module("networkx")
     sp = lazy_module("scipy.sparse")
@@ -186,7 +188,7 @@ DEFAULTS: dict[str, Any] = {
 
 _SCHEMA: dict[str, set[str]] = {
     "": {"name", "description", "run", "plant", "network", "delays", "gains", "links",
-         "topology", "options"},
+         "topology", "options", "time"},
     "run": {
         "steps", "trials", "seed", "sample_period", "divergence_threshold",
         "steady_state_fraction", "estimators",
@@ -364,6 +366,9 @@ class Scenario:
     link_spec: LinksSpec | None = None
     topology: GraphSequence | LinkSchedule | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
+    #: The ``[time]`` table: clocks, asynchronous sampling, triggers
+    #: (:mod:`netsim.models.timing`); None: the papers' one sampling clock.
+    timing: TimeSpec | None = None
 
     @cached_property
     def graph(self) -> nx.DiGraph:
@@ -592,6 +597,7 @@ class Scenario:
                if self.topology is not None else {}),
             **({"options": {k: dict(v) for k, v in self.options.items()}}
                if self.options else {}),
+            **({"time": self.timing.describe()} if self.timing is not None else {}),
         }
 
 
@@ -1338,7 +1344,7 @@ def parse_scenario(data: dict[str, Any], source: str = "",
         raise ScenarioError("name", f"expected a string, got {name!r}")
     description = data.get("description", "")
     run = _section(data, "run", required=False)
-    plant = _parse_plant(_section(data, "plant"))
+    plant = _parse_plant(_timed_plant_table(data, run))
     if precheck is not None:
         counts = scenario_counts(data, plant)
         if counts is not None:
@@ -1414,10 +1420,38 @@ def parse_scenario(data: dict[str, Any], source: str = "",
         link_spec=link_spec,
         topology=topology,
         options=options,
+        timing=_parse_timing(data, plant, period),
     )
     if link_spec is not None:
         _check_links_bound(scenario, "tau" in delays_table)
     return scenario
+
+
+def _timed_plant_table(data: dict[str, Any], run: dict[str, Any]) -> dict[str, Any]:
+    """The ``[plant]`` table, A and Q filled in from ``time.Ac``/``time.Qc`` if given."""
+    if "time" not in data:
+        return _section(data, "plant")
+    from netsim.models.timing import TimeError, plant_table_with_continuous
+
+    period = _number(run.get("sample_period", DEFAULTS["run.sample_period"]),
+                     "run.sample_period")
+    _section(data, "plant")
+    try:
+        return plant_table_with_continuous(data, period if period > 0 else 1.0)
+    except TimeError as exc:
+        raise ScenarioError(exc.key, exc.message) from None
+
+
+def _parse_timing(data: dict[str, Any], plant: LinearPlant, period: float) -> TimeSpec | None:
+    """The ``[time]`` table (:func:`netsim.models.timing.parse_time`), or None."""
+    if "time" not in data:
+        return None
+    from netsim.models.timing import TimeError, parse_time
+
+    try:
+        return parse_time(data["time"], plant.A, plant.Q, period, plant.n_sensors)
+    except TimeError as exc:
+        raise ScenarioError(exc.key, exc.message) from None
 
 
 _TAU_MODELS = ("homogeneous", "heterogeneous", "synchronous", "asynchronous")

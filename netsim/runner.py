@@ -190,6 +190,12 @@ def run_trial(
     budget.check_memory(budget.kernel_trial_bytes(scenario, steps, record_delays=record_delays),
                         "steps", "one event-kernel trial", steps)
     declared = family_of(family, scenario)
+    if scenario.timing is not None:  # clocks, asynchronous sampling, triggers
+        from netsim.timedkernel import run_timed_trial
+
+        return run_timed_trial(scenario, declared, gains, trial_seed, steps,
+                               record_delays=record_delays, record_messages=record_messages,
+                               observer=observer)
     context = FamilyContext(scenario, gains, trial_seed, declared.name)
     plans = declared.agents(context)
     n_sensors = scenario.plant.n_sensors
@@ -229,6 +235,12 @@ def engines_for(engine: str, families: Sequence[str | EstimatorFamily],
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
     declared = [family_of(f, scenario) for f in families]
+    if scenario is not None and scenario.timing is not None:  # netsim.timedkernel
+        if engine == "vectorised":
+            from netsim.timedkernel import TIMED_FALLBACK_NOTE
+
+            raise ValueError(f"{TIMED_FALLBACK_NOTE} (--engine events or auto)")
+        return {f.name: "events" for f in declared}
     if scenario is not None and scenario.topology is not None:
         if engine == "vectorised":
             raise ValueError("the vectorised engine does not model a time-varying "
@@ -260,7 +272,8 @@ def kernel_fallbacks(engine: str, families: Sequence[str | EstimatorFamily],
                      scenario: Scenario | None = None) -> list[str]:
     """Families with no batched form, which ``engine`` (``auto``) runs in the event
     kernel (none are named when the scenario's topology sends every family there)."""
-    if engine != "auto" or (scenario is not None and scenario.topology is not None):
+    if engine != "auto" or (scenario is not None and (scenario.topology is not None
+                                                      or scenario.timing is not None)):
         return []
     return [name for name, e in engines_for(engine, families).items() if e == "events"]
 

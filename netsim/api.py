@@ -350,7 +350,9 @@ class RunResult:
         Keys: ``estimator``, ``engine``, ``verdict``, ``steady_state_mse`` (NaN unless
         stable), ``last_trusted_mse``, ``last_trusted_step``, ``growth_rate`` (MSE
         growth factor per step), ``diverged`` (trials that blew up), ``trials``,
-        ``sent``, ``delivered``, ``dropped`` and ``discarded`` (messages, all trials).
+        ``sent``, ``delivered``, ``dropped`` and ``discarded`` (messages, all trials);
+        under a ``[time]`` table also ``message_rate`` (estimates sent per agent and
+        time unit, :mod:`netsim.timedkernel`).
         """
         mc = self.monte_carlo
         rows = []
@@ -365,6 +367,8 @@ class RunResult:
                 "sent": s.messages_sent, "delivered": s.messages_delivered,
                 "dropped": sum(r.messages_dropped for r in runs),
                 "discarded": s.messages_discarded,
+                # [time] scenarios: estimates sent per agent and time unit (triggers)
+                **({"message_rate": s.message_rate} if s.message_rate is not None else {}),
             })
         return rows
 

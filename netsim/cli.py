@@ -829,6 +829,11 @@ def _format_run(data: dict[str, Any]) -> str:
         row += " ".join(f"{BEYOND_HORIZON if m in untrusted else _fmt(e['mse_at'][m]):>11}"
                         for m in marks)
         lines.append(row)
+    for name, e in data["estimators"].items():  # [time] runs (netsim.timedkernel)
+        if (e.get("messages") or {}).get("rate") is not None:
+            lines.append(f"{name}: message rate {_fmt(e['messages']['rate'])} estimates sent "
+                         f"per agent per time unit ({_fmt(e['messages']['send_fraction'])} "
+                         "of its updates)")
     for name, e in data["estimators"].items():
         if e.get("mse_at_beyond_horizon"):
             lines.append(f"{name}: MSE@ {', '.join(e['mse_at_beyond_horizon'])} not shown "

@@ -417,6 +417,11 @@ def _delay_analytics(scenario: Scenario, gains: GainDesign
         "rho_exact_uncompensated": None,
     }
     delays = fixed_delay_matrix(scenario)
+    timing = scenario.timing
+    if timing is not None and not timing.neutral:  # netsim.timedkernel: measured verdicts
+        delays = None
+        out["time"] = {"note": timing.analytics_note(),
+                       "summary_lines": [f"analytics: {timing.analytics_note()}"]}
     if delays is not None and scenario.n_agents * plant.n_states * (tau + 1) <= _EXACT_MAX_SIZE:
         depth = int(delays.max())
         out["realised_delays"] = {
@@ -456,6 +461,8 @@ def _joint_system(scenario: Scenario, gains: GainDesign, delays: np.ndarray | No
                   rho_comp: float | None, rho_uncomp: float | None
                   ) -> tuple[dict[str, JointAnalysis], str]:
     """The joint-system analyses that apply, and a note on what does not."""
+    if scenario.timing is not None and not scenario.timing.neutral:
+        return {}, scenario.timing.analytics_note()
     if scenario.topology is not None:
         return {}, ("time-varying topology: no exact analysis of the joint system of state "
                     "and error; the measured growth decides")
@@ -540,6 +547,11 @@ class EstimatorSummary:
     last_trusted_mse: float = math.nan
     last_trusted_step: int | None = None
     tail_mse: float = math.nan
+    #: Under a ``[time]`` table (:mod:`netsim.timedkernel`): estimates sent per agent and
+    #: time unit, and the fraction of updates sent (the triggers' doing), mean over
+    #: trials; None otherwise.
+    message_rate: float | None = None
+    send_fraction: float | None = None
 
     def settle(self) -> None:
         """Set ``steady_state_mse`` from the final verdict: the tail mean for a run with
@@ -582,6 +594,9 @@ class EstimatorSummary:
                 "sent": self.messages_sent,
                 "delivered": self.messages_delivered,
                 "discarded_stale": self.messages_discarded,
+                **({"rate": _json_float(self.message_rate),
+                    "send_fraction": _json_float(self.send_fraction)}
+                   if self.message_rate is not None else {}),
             },
             **({"report": _json_tree(self.report)} if self.report is not None else {}),
             **({"trials_finished": self.trials_finished}
@@ -675,6 +690,10 @@ def _summarise(
         last_trusted_step=last if good and len(mse) else None,
         tail_mse=steady,
     )
+    timed = [r.extras["timing"] for r in trials if "timing" in r.extras]
+    if timed:  # netsim.timedkernel's counts
+        summary.message_rate = float(np.mean([t["message_rate"] for t in timed]))
+        summary.send_fraction = float(np.mean([t["send_fraction"] for t in timed]))
     summary.settle()
     return summary
 
@@ -727,10 +746,14 @@ def _traced_trial(scenario, family, gains, seed, t, steps, trace, single, on_tra
     declared = family_of(family)
     family = declared.name
     path = trace_path(trace) if single else trace_path(trace, family, t)
+    options = dict(trace_options or {})
+    if scenario.timing is not None and not scenario.timing.neutral:
+        # format 3 lays messages out per step; clocks and samples need format 2
+        options.setdefault("trace_format", 2)
     try:
         recorder = TraceRecorder.for_run(path, scenario, gains, family, t, seed=seed,
                                          steps=steps, family_traits=declared.traits(),
-                                         **dict(trace_options or {}))
+                                         **options)
     except OSError as exc:
         raise TraceWriteError(path, exc) from exc
     written = False

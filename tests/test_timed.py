@@ -141,7 +141,7 @@ def test_transition_agrees_with_scipy_cont2discrete(h):
     # Q_d(h) against the integral int_0^h e^{As} Qc e^{A's} ds by Simpson's rule
     from scipy.linalg import expm
 
-    s = np.linspace(0.0, h, 2001)
+    s = np.linspace(0.0, h, 401)
     values = np.array([expm(_AC * u) @ _QC @ expm(_AC * u).T for u in s])
     from scipy.integrate import simpson
 
@@ -307,3 +307,77 @@ def test_asynchronous_run_is_deterministic_and_finite():
         c = Clock(clocks[i]["offset"], clocks[i]["drift_ppm"])
         expected = np.array([c.local(t) for t in record.true_time[rows]])
         assert np.all(np.abs(record.local_time[rows] - expected) < 1e-2)
+
+
+# -- every path: trace, inspect, replay, CLI, API -------------------------------------
+
+EXAMPLE = "examples/clocks-async-send-on-delta.toml"
+
+
+def _example_path():
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1] / EXAMPLE
+
+
+def _fast_example(tmp_path):
+    """The shipped example with the local gain design (no SDP in the tests)."""
+    text = _example_path().read_text().replace('method = "lmi"', 'method = "local"')
+    assert 'method = "local"' in text
+    path = tmp_path / "example.toml"
+    path.write_text(text)
+    return path
+
+
+def test_trace_records_local_and_true_times(tmp_path):
+    from netsim.models.scenario import load_scenario
+    from netsim.runner import run_monte_carlo
+    from netsim.traces.inspect import inspect_trace
+    from netsim.traces.reader import read_trace
+    from netsim.traces.replay import replay_trace
+
+    scenario = load_scenario(_fast_example(tmp_path))
+    path = tmp_path / "run.mcap"
+    result = run_monte_carlo(scenario, steps=20, trials=1, families=["compensated"],
+                             trace=str(path), keep_trials=True)
+    trace = read_trace(path)
+    assert trace.format == 2
+    record = result.runs["compensated"][0].extras["timing"]["sample_record"]
+    clocks = trace.clocks()
+    for i, c in clocks.items():
+        rows = record.agent == i
+        assert np.array_equal(c["true_time"], record.true_time[rows])
+        assert np.array_equal(c["local_time"], record.local_time[rows])
+        assert np.array_equal(c["sent"], record.sent[rows])
+    # sent_step of a link message is the sender's sample index: its stamp is that
+    # sample's local time
+    sent = trace.link_events(0, 1, "sent")
+    assert sent and all(e.sent_step < len(clocks[0]["sample"]) for e in sent)
+    report = inspect_trace(trace)
+    assert set(report.clocks) == {0, 1, 2, 3}
+    # what inspect infers of each clock is what the scenario drew (jitter 1e-4)
+    drawn = result.runs["compensated"][0].extras["timing"]["clocks"]
+    for i in range(4):
+        assert abs(report.clocks[i]["drift_ppm"] - drawn[i]["drift_ppm"]) < 20
+    replay = replay_trace(trace)
+    assert not replay.defined and "[time]" in replay.reason
+
+
+def test_cli_run_reports_the_message_rate(tmp_path, capsys):
+    import json
+
+    from netsim.cli import main
+
+    example = _fast_example(tmp_path)
+    assert main(["run", str(example), "--steps", "15", "--trials", "1",
+                 "--no-progress", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    messages = data["estimators"]["compensated"]["messages"]
+    assert 0 < messages["rate"] <= 1.0 / 0.9 + 1e-9  # at most one per (shortest) period
+    assert "time" in data["scenario"]
+    bad = tmp_path / "bad.toml"
+    bad.write_text(example.read_text().replace('kind = "send-on-delta"',
+                                                       'kind = "on-delta"'))
+    assert main(["run", str(bad), "--no-progress"]) != 0
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "time.trigger.kind" in lines[0]

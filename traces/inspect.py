@@ -140,9 +140,14 @@ class InspectReport:
     #: Messages per topic of the file itself (format 3: its per-step topics, which
     #: ``topics`` gives as the per-agent and per-link view; else equal to ``topics``).
     file_topics: dict[str, int] = field(default_factory=dict)
+    #: [time] traces: per agent, its clock as the samples show it (samples, sent,
+    #: offset at the first sample, drift in ppm fitted over the run, mean local period)
+    clocks: dict[int, dict[str, float]] | None = None
 
     def to_dict(self) -> dict[str, Any]:
         return {
+            **({"clocks": {str(i): {k: _num(v) for k, v in c.items()}
+                           for i, c in self.clocks.items()}} if self.clocks else {}),
             "freshness": None if self.freshness is None else {
                 str(i): {"triggered_at": v[0], "max_index_after": v[1]}
                 for i, v in self.freshness.items()
@@ -274,6 +279,15 @@ class InspectReport:
             for i, (first, worst) in self.freshness.items():
                 lines.append(f"  agent {i}: every index triggered from step {first}; "
                              f"largest index after that {worst}")
+        if self.clocks:
+            lines.append("clocks (samples on each agent's own clock; offset = local - true "
+                         "at the first sample, drift fitted, period in local time)")
+            lines.append(f"  {'agent':<6}{'samples':>8}{'sent':>7}{'offset':>12}"
+                         f"{'drift ppm':>12}{'period':>10}")
+            for i, c in self.clocks.items():
+                lines.append(f"  {i:<6}{int(c['samples']):>8}{int(c['sent']):>7}"
+                             f"{_fmt(c['offset'], 4):>12}{_fmt(c['drift_ppm'], 1):>12}"
+                             f"{_fmt(c['period'], 4):>10}")
         return "\n".join(lines)
 
     def __str__(self) -> str:
@@ -398,6 +412,7 @@ def inspect_trace(trace: Trace) -> InspectReport:
         network_mse=float(np.mean(mses)) if mses else math.nan,
         matrices=sorted(trace.matrices, key=_topic_key),
         freshness=_freshness_summary(trace),
+        clocks=_clock_summary(trace),
         lost_chunks=[c.to_dict(trace.sample_period) for c in trace.lost_chunks],
         lost_messages=trace.lost_messages,
         orphaned_messages=trace.orphaned_messages,
@@ -405,6 +420,24 @@ def inspect_trace(trace: Trace) -> InspectReport:
         trace_format=trace.format,
         time_origin=format_time_origin(trace.time_origin_ns),
     )
+
+
+def _clock_summary(trace: Trace) -> dict[int, dict[str, float]] | None:
+    """Per agent: samples, sent, offset at the first sample, fitted drift (ppm) and
+    mean local period, from ``/agent_<i>/clock`` (None without those topics)."""
+    if not any(t.endswith("/clock") for t in trace.counts):
+        return None
+    out: dict[int, dict[str, float]] = {}
+    for i, c in trace.clocks().items():
+        true, local = c["true_time"], c["local_time"]
+        lead = local - true
+        drift = (float(np.polyfit(true, lead, 1)[0]) * 1e6
+                 if len(true) > 1 and np.ptp(true) > 0 else math.nan)
+        out[i] = {"samples": float(len(true)), "sent": float(c["sent"].sum()),
+                  "offset": float(lead[0]) if len(lead) else math.nan,
+                  "drift_ppm": drift,
+                  "period": float(np.mean(np.diff(local))) if len(local) > 1 else math.nan}
+    return out
 
 
 def _freshness_summary(trace: Trace) -> dict[int, list[int | None]] | None:

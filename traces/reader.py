@@ -67,6 +67,7 @@ from netsim.traces.schemas import (
 )
 from netsim.traces.schemas import PACKAGE_PREFIX as PACKAGE
 from netsim.traces.schemas import estimate_topic as _estimate_topic
+from netsim.traces.schemas import clock_topic as _clock_topic
 from netsim.traces.schemas import freshness_topic as _freshness_topic
 from netsim.traces.schemas import link_topic as _link_topic
 from netsim.traces.schemas import sensor_topic as _sensor_topic
@@ -505,6 +506,23 @@ class Trace:
         for i in self.agents:
             for msg in self.topic(self.freshness_topic(i)):
                 out[msg.step, i] = msg.max_index
+        return out
+
+    def clocks(self) -> dict[int, dict[str, np.ndarray]]:
+        """Each agent's samples on its own clock (``/agent_<i>/clock``, scenarios with a
+        ``[time]`` table): arrays ``sample``, ``true_time``, ``local_time`` (the stamp on
+        what it sent) and ``sent`` (bool), in sample order; {} for a trace without them."""
+        out: dict[int, dict[str, np.ndarray]] = {}
+        for i in self.agents:
+            msgs = self.topic(_clock_topic(i))
+            if not msgs:
+                continue
+            out[i] = {
+                "sample": np.array([m.sample for m in msgs], dtype=np.int64),
+                "true_time": np.array([m.time for m in msgs], dtype=float),
+                "local_time": np.array([m.local_time for m in msgs], dtype=float),
+                "sent": np.array([bool(m.sent) for m in msgs], dtype=bool),
+            }
         return out
 
     def link_events(self, sender: int, receiver: int,

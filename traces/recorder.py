@@ -85,6 +85,7 @@ from netsim.models.seeding import SEED_LAYOUT
 from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.traces.schemas import (
     DEFAULT_TIME_ORIGIN_NS,
+    clock_topic,
     DROP_REASONS_METADATA,
     TRACE_FORMAT,
     estimate_topic,
@@ -621,6 +622,25 @@ class TraceRecorder:
                         step=k, time=t, agent=agent, index=[float(v) for v in index],
                         adopted_from=[float(int(v)) for v in adopted_from],
                         substate_dim=[float(d) for d in dims], max_index=max_index), ns, ns, k)
+
+    def on_clock(self, agent: int, sample: int, true_time: float, local_time: float,
+                 sent: bool) -> None:
+        """Record a sample of agent i on its own clock (``/agent_<i>/clock``; scenarios
+        with a ``[time]`` table, :mod:`netsim.timedkernel`): its true time (log_time),
+        the agent's clock reading (the stamp on what it sends) and whether its trigger
+        sent the new estimate. Format 2 only."""
+        self._check_open()
+        if self._steps is not None:
+            raise ValueError("trace format 3 does not record agent clocks ([time] "
+                             "scenarios); use trace format 2")
+        t = float(true_time)
+        ns = self._ns(t)
+        step = max(0, int(math.floor(t / self.sample_period + 1e-9)))
+        self._write(clock_topic(agent), "AgentClock",
+                    self._classes["AgentClock"](step=step, time=t, agent=int(agent),
+                                                sample=int(sample),
+                                                local_time=float(local_time),
+                                                sent=int(bool(sent))), ns, ns, int(sample))
 
     def on_sent(self, message: Any) -> None:
         """Record a message leaving its sender (log_time = send time)."""

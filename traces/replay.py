@@ -497,6 +497,21 @@ def _no_recursion_reason(trace: Trace) -> str:
             f"{known})")
 
 
+def _timed_reason(trace: Trace) -> str:
+    """Why a trace of a ``[time]`` scenario is not replayed ('' when it can be: every
+    sample on the base grid, read exactly, every update sent)."""
+    if not any(t.endswith("/clock") for t in trace.counts):
+        return ""
+    for c in trace.clocks().values():
+        steps = c["true_time"] / trace.sample_period
+        if (not np.array_equal(c["local_time"], c["true_time"])
+                or not np.array_equal(steps, np.rint(steps)) or not c["sent"].all()):
+            return ("a [time] trace (agent clocks, asynchronous sampling or a trigger): "
+                    "the augmented error recursion (one clock, one grid, every update "
+                    "sent) is not defined for it; see docs/time.rst")
+    return ""
+
+
 def _usable_steps(system: TraceSystem, X: np.ndarray, Ys: list[np.ndarray],
                   Xhat: np.ndarray, D: np.ndarray) -> tuple[int, str]:
     """Last step k such that steps 0..k are complete and finite; and why it stops."""
@@ -734,6 +749,10 @@ def replay_trace(trace: Trace, *, method: str = "auto",
         report.reason = _no_recursion_reason(trace)
         return report
     report.compensated = compensated
+    off_grid = _timed_reason(trace)
+    if off_grid:
+        report.reason = off_grid
+        return report
     system, why = trace_system(trace)
     if system is None:
         report.reason = why

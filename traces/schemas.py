@@ -29,6 +29,7 @@ topic                           type                 one message per
 ``/agent_<i>/estimate``         ``Estimate``         update: estimate, error, norms
 ``/agent_<i>/update``           ``EstimatorUpdate``  update: r_ij[k], s_j per neighbour
 ``/agent_<i>/freshness``        ``Freshness``        update of an AoI agent
+``/agent_<i>/clock``            ``AgentClock``       sample of an agent on its own clock
 ``/link_<j>_<i>/sent``          ``LinkSent``         message j -> i sent
 ``/link_<j>_<i>/delivered``     ``LinkDelivered``    message j -> i delivered
 ``/link_<j>_<i>/dropped``       ``LinkDropped``      message j -> i lost
@@ -96,6 +97,7 @@ __all__ = [
     "estimate_topic",
     "update_topic",
     "freshness_topic",
+    "clock_topic",
     "link_topic",
     "parse_topic",
     "format1_file_descriptor_proto",
@@ -213,6 +215,15 @@ MESSAGES: dict[str, tuple[Field, ...]] = {
     "LinkSent": _LINK_COMMON + (_r("payload", 9),),
     "LinkDelivered": _LINK_COMMON + (_f("accepted", 9, _FIXED32),),
     "LinkDropped": _LINK_COMMON + (_f("reason", 9, _FIXED32), _f("drop_time", 10, _DOUBLE)),
+    # a sample of an agent on its own clock ([time] scenarios, netsim.timedkernel)
+    "AgentClock": (
+        _f("step", 1, _FIXED64),
+        _f("time", 2, _DOUBLE),
+        _f("agent", 3, _FIXED32),
+        _f("sample", 4, _FIXED64),
+        _f("local_time", 5, _DOUBLE),
+        _f("sent", 6, _FIXED32),
+    ),
 }
 
 #: Format-2 message names (as :data:`MESSAGES`), kept for callers of format 1's name.
@@ -230,6 +241,7 @@ TOPIC_TYPES: dict[str, str] = {
     "/agent_<i>/estimate": "Estimate",
     "/agent_<i>/update": "EstimatorUpdate",
     "/agent_<i>/freshness": "Freshness",
+    "/agent_<i>/clock": "AgentClock",
     "/link_<j>_<i>/sent": "LinkSent",
     "/link_<j>_<i>/delivered": "LinkDelivered",
     "/link_<j>_<i>/dropped": "LinkDropped",
@@ -471,6 +483,12 @@ def freshness_topic(agent: int, fmt: int = FORMAT) -> str:
     return _agent(agent, "freshness", fmt)
 
 
+def clock_topic(agent: int, fmt: int = FORMAT) -> str:
+    """Topic of agent i's samples on its own clock: ``/agent_<i>/clock`` (format 2;
+    scenarios with a ``[time]`` table)."""
+    return _agent(agent, "clock", fmt)
+
+
 def link_topic(sender: int, receiver: int, event: str | None = None,
                fmt: int = FORMAT) -> str:
     """Topic of link sender -> receiver: ``/link_<j>_<i>/<event>`` (event one of
@@ -499,7 +517,7 @@ class TopicInfo(NamedTuple):
 _PATTERNS = (
     (re.compile(r"^/plant/state$"), "plant", 2),
     (re.compile(r"^/sensor_(\d+)/measurement$"), "sensor", 2),
-    (re.compile(r"^/agent_(\d+)/(estimate|update|freshness)$"), None, 2),
+    (re.compile(r"^/agent_(\d+)/(estimate|update|freshness|clock)$"), None, 2),
     (re.compile(r"^/link_(\d+)_(\d+)/(sent|delivered|dropped)$"), "link", 2),
     (re.compile(r"^/sensor/(\d+)/measurement$"), "sensor", 1),
     (re.compile(r"^/agent/(\d+)/(estimate|update|freshness)$"), None, 1),

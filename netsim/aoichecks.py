@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 
@@ -386,12 +386,14 @@ class ConvergenceSample:
     delay : int
         Homogeneous link delay (0: the paper's model; > 0: ``delayed = "age"``).
     converged_at : int or None
-        First step from which every agent's error stays within the aoi report's
-        relative tolerance (None: not within the run).
+        First step from which every agent's error stays within ``tolerance ||x[k]||``
+        (None: not within the run).
     bound : int
         Corollary 1's ``n + 2N(N-1)T``.
     steps : int
         Length of the run.
+    tolerance : float
+        The relative error counted as zero (see :func:`convergence_times`).
     """
 
     n: int
@@ -402,6 +404,7 @@ class ConvergenceSample:
     converged_at: int | None
     bound: int
     steps: int
+    tolerance: float = 1e-9
 
     @property
     def ratio(self) -> float | None:
@@ -412,7 +415,7 @@ class ConvergenceSample:
         """JSON-safe form."""
         return {"n": self.n, "N": self.N, "T": self.T, "seed": self.seed,
                 "delay": self.delay, "converged_at": self.converged_at, "bound": self.bound,
-                "ratio": self.ratio, "steps": self.steps}
+                "ratio": self.ratio, "steps": self.steps, "tolerance": self.tolerance}
 
 
 @dataclass(frozen=True)
@@ -461,13 +464,30 @@ class ConvergenceTimes:
                 "samples": [s.to_dict() for s in self.samples]}
 
 
-def _converged_at(scenario: Any) -> int | None:
+def _converged_at(scenario: Any) -> tuple[int | None, float]:
+    """The first step from which every agent's error stays within ``tol ||x[k]||`` to
+    the end of the run (None: not within it), and ``tol``: the aoi report's
+    ``CONVERGED_RTOL`` or, if larger, the deadbeat design's round-off floor
+    ``1e3 eps conditioning`` (large gains amplify rounding; the report's fixed tolerance
+    would call such a run unconverged although its error reached the floor)."""
+    from netsim.estimators.aoi import CONVERGED_RTOL, aoi_design
     from netsim.runner import run_monte_carlo
 
-    res = run_monte_carlo(scenario, families=["aoi"], keep_trials=False)
-    rep = cast("dict[str, Any]", res.estimators["aoi"].report)  # aoi has a report
-    v = rep.get("converged_at")
-    return None if v is None else int(v)
+    tol = max(CONVERGED_RTOL,
+              1e3 * float(np.finfo(float).eps) * aoi_design(scenario).gains.conditioning)
+    res = run_monte_carlo(scenario, families=["aoi"], keep_trials=True)
+    trial = res.runs["aoi"][0]
+    if trial.diverged_at is not None:
+        return None, tol
+    err = np.sqrt(np.asarray(trial.squared_errors, dtype=float))
+    scale = np.maximum(np.linalg.norm(np.asarray(trial.states, dtype=float), axis=1),
+                       np.finfo(float).tiny)
+    ok = np.all(err <= tol * scale[:, None], axis=1)
+    if not ok[-1]:
+        return None, tol
+    bad = np.flatnonzero(~ok)
+    k = 0 if bad.size == 0 else int(bad[-1]) + 1
+    return (k if k < len(ok) - 1 else None), tol
 
 
 def convergence_times(seed: int = 0, instances: int = 100,
@@ -477,7 +497,9 @@ def convergence_times(seed: int = 0, instances: int = 100,
     N 2..5, T 1..3; Assumption 1 checked, other draws not counted), each run with every
     homogeneous link delay in ``delays`` (delay > 0 with ``delayed = "age"``: the paper
     has no delays, ``discard`` would drop every message). A run lasts
-    ``(n + 2N(N-1)T)(d+1) + 10`` steps.
+    ``(n + 2N(N-1)T)(d+1) + 10`` steps. An error counts as zero below ``tol ||x[k]||``,
+    ``tol`` the larger of the aoi report's 1e-9 and the design's round-off floor
+    ``1e3 eps conditioning`` (:attr:`netsim.estimators.aoi.SourceGains.conditioning`).
     """
     from netsim.models.scenario import DelaySpec
 
@@ -498,10 +520,11 @@ def convergence_times(seed: int = 0, instances: int = 100,
         bound = x.n + 2 * x.N * (x.N - 1) * x.T
         for d in delays:
             steps = bound * (int(d) + 1) + 10
-            sc = replace(x.scenario(steps=steps))
+            sc = x.scenario(steps=steps)
             if d:
                 sc = replace(sc, delays=DelaySpec("homogeneous", int(d)))
                 sc = sc.with_options("aoi", delayed="age")
-            samples.append(ConvergenceSample(x.n, x.N, x.T, x.seed, int(d), _converged_at(sc),
-                                             bound, steps))
+            conv, tol = _converged_at(sc)
+            samples.append(ConvergenceSample(x.n, x.N, x.T, x.seed, int(d), conv, bound, steps,
+                                             tol))
     return ConvergenceTimes(tuple(samples), int(seed), got)

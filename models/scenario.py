@@ -65,6 +65,7 @@ from netsim.models.linkmodels import (
     load_latency_csv,
     load_trace_replay,
 )
+from netsim.models.medium import MediumSpec
 from netsim.models.network import (
     NetworkError,
     check_consensus_matrix,
@@ -195,7 +196,7 @@ _SCHEMA: dict[str, set[str]] = {
     },
     "plant": {"A", "C", "Q", "R", "x0_mean", "x0_cov", "sensors"},
     "network": {"topology", "agents", "edges", "weights", "P", "seed", "edge_probability",
-                "radius"},
+                "radius", "medium"},
     "delays": {"model", "tau", "links", "default", "seed"},
     "gains": {"method", "K", "tau1", "refine_from"},
     "links": {"delay", "loss", "buffer", "outages", "bandwidth", "message_size", "seed",
@@ -363,6 +364,9 @@ class Scenario:
     divergence_threshold: float
     steady_state_fraction: float
     source: str = ""
+    #: The ``[network.medium]`` table (:mod:`netsim.models.medium`): delays and losses
+    #: made by a simulated network; None: the link models draw them.
+    medium: MediumSpec | None = None
     link_spec: LinksSpec | None = None
     topology: GraphSequence | LinkSchedule | None = None
     options: dict[str, dict[str, Any]] = field(default_factory=dict)
@@ -475,12 +479,25 @@ class Scenario:
         per-link step delay. With a ``[links]`` table that sets delays: ``links.bound``
         if given, else the largest step delay of the links' distributions (their
         99.9 % quantile for unbounded ones) and serialisation."""
+        if self.medium is not None:
+            return self._medium_bound()
         if self.link_spec is not None and (self.link_spec.bound is not None
                                            or self.link_spec.sets_delays):
             return self._links_bound(self.link_spec, self._base_delay_model(0))
         if self.delays.model in ("homogeneous", "heterogeneous", "synchronous", "asynchronous"):
             return int(self.delays.tau)
         return self.max_delay
+
+    def _medium_bound(self) -> int:
+        """``bound`` of ``[network.medium]``, else the pilot run's nominal bound
+        (:func:`netsim.models.medium.nominal_bound`, the scenario's seed)."""
+        from netsim.models.medium import nominal_bound
+
+        assert self.medium is not None
+        if self.medium.bound is not None:
+            return self.medium.bound
+        return nominal_bound(self.medium, self.links, sample_period=self.sample_period,
+                             seed=self.seed, steps=self.steps)
 
     def _links_bound(self, spec: LinksSpec, base: DelayModel) -> int:
         if spec.bound is not None:
@@ -542,6 +559,11 @@ class Scenario:
         (a delay model whose ``link(j, i)`` gives the kernel each link's model).
         """
         base = self._base_delay_model(trial_seed)
+        if self.medium is not None:
+            from netsim.models.medium import medium_links
+
+            return medium_links(self.medium, self.links, base, trial_seed,
+                                sample_period=self.sample_period, max_delay=self.delay_bound)
         if self.link_spec is None:
             return base
         return self.link_spec.build(
@@ -589,6 +611,7 @@ class Scenario:
             },
             **({"link_models": self.link_spec.describe(self.plant.n_states)}
                if self.link_spec is not None else {}),
+            **({"medium": self.medium.describe()} if self.medium is not None else {}),
             "estimators": list(self.estimators),
             "steps": self.steps,
             "trials": self.trials,
@@ -1402,6 +1425,7 @@ def parse_scenario(data: dict[str, Any], source: str = "",
                         "run.divergence_threshold")
     if threshold <= 0:
         raise ScenarioError("run.divergence_threshold", f"must be > 0, got {threshold}")
+    medium = _parse_medium(data, plant)
     scenario = Scenario(
         name=name,
         description=str(description),
@@ -1417,6 +1441,7 @@ def parse_scenario(data: dict[str, Any], source: str = "",
         divergence_threshold=threshold,
         steady_state_fraction=fraction,
         source=source,
+        medium=medium,
         link_spec=link_spec,
         topology=topology,
         options=options,
@@ -1452,6 +1477,19 @@ def _parse_timing(data: dict[str, Any], plant: LinearPlant, period: float) -> Ti
         return parse_time(data["time"], plant.A, plant.Q, period, plant.n_sensors)
     except TimeError as exc:
         raise ScenarioError(exc.key, exc.message) from None
+
+
+def _parse_medium(data: dict[str, Any], plant: LinearPlant) -> MediumSpec | None:
+    """``[network.medium]`` (:func:`netsim.models.medium.scenario_medium`), or None."""
+    network = data.get("network")
+    if not isinstance(network, dict) or "medium" not in network:
+        return None
+    from netsim.models.medium import MediumError, scenario_medium
+
+    try:
+        return scenario_medium(data, n_agents=plant.n_sensors, n_states=plant.n_states)
+    except MediumError as exc:
+        raise ScenarioError(exc.key, exc.detail) from None
 
 
 _TAU_MODELS = ("homogeneous", "heterogeneous", "synchronous", "asynchronous")

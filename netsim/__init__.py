@@ -17,6 +17,7 @@ submodule (``netsim.models``, ``netsim.traces``) stays light:
 from netsim.models.delaysources import (
     register_delay_source as _register_delay_source,
 )
+from netsim.models.medium import register_medium_simulator as _register_medium_simulator
 
 
 def _trace_replay(path):
@@ -30,6 +31,17 @@ def _trace_replay(path):
 # Before any netsim.models module runs (netsim/__init__ always loads first), give the
 # scenario loader its reader of trace-driven delays ([links] delay.distribution = "trace").
 _register_delay_source("trace", _trace_replay)
+
+
+def _medium(spec, links, sample_period, seed):
+    """The ``[network.medium]`` simulator: imports simpy and :mod:`netsim.medium` only
+    when a scenario names a medium (``netsim.models`` never imports simpy)."""
+    from netsim.medium.schedule import simulate_medium
+
+    return simulate_medium(spec, links, sample_period, seed)
+
+
+_register_medium_simulator(_medium)
 
 
 

@@ -78,6 +78,14 @@ __all__ = [
     "covariance_norm_curves",
     "FusionTrajectories",
     "fusion_trajectories",
+    "eq94_transient",
+    "Theorem4Case",
+    "Theorem4Check",
+    "two_sink_example1",
+    "theorem4_check",
+    "Remark1Check",
+    "remark1_check",
+    "readings_report",
 ]
 
 ESTIMATOR_NAMES = ("local", "cse", "dkfe", "sdkfe", "odkfe", "centralized-kf")
@@ -735,3 +743,313 @@ def example2(json: bool = False) -> tuple[dict[str, Any], str]:
     lines.append("Phi_K (88): largest difference to the printed matrices "
                  + ", ".join(_f(v) for v in data["Phi_K_minus_paper_eq88_max_abs"]))
     return data, "\n".join(lines) + "\n"
+
+
+# ---------------------------------------------------------------------------
+# (94) from finite-horizon weights; Theorem 4; Remark 1 (issue 31)
+# ---------------------------------------------------------------------------
+
+
+def eq94_transient(scales: Sequence[float] = (0.01, 1.0, 100.0), steps: int = 300
+                   ) -> list[dict[str, Any]]:
+    """Could (94) be Algorithm 1's Omega_i(t) at a finite t rather than the limit?
+
+    For x(0) ~ N(0, s I) with each s in ``scales``, the exact weights Omega_i(t) of
+    Example 2 (:class:`netsim.estimators.fusion.FusionCovariance`, time-varying gains)
+    for t = 0..steps; returns per scale the t with the smallest max |ours - printed|
+    and that distance.
+    """
+    from dataclasses import replace
+
+    setup = dk.example2()
+    out = []
+    for s in scales:
+        cov, _, _ = covariances_for(replace(setup, x0_cov=float(s) * np.eye(setup.n)))
+        dist = [max(float(np.max(np.abs(w - p)))
+                    for w, p in zip(cov.at(t).weights, dk.PAPER_EX2_OMEGA, strict=True))
+                for t in range(int(steps) + 1)]
+        k = int(np.argmin(dist))
+        out.append({"x0_cov_scale": float(s), "steps": int(steps), "closest_t": k,
+                    "distance": dist[k], "distance_at_end": dist[-1]})
+    return out
+
+
+@dataclass
+class Theorem4Case:
+    """One instance of Theorem 4: which sinks satisfy (71)-(72) and what P(t) does."""
+
+    name: str
+    claim: str
+    example: str
+    delays: tuple[int, ...]
+    radius: list[float]
+    lmi71_72: list[bool]
+    c77: list[float]
+    trace_P: list[float]  # exact tr P(t), t = 0..steps
+    trace_Xi: list[list[float]]  # per sink, exact tr Xi_ii(t)
+    growth: float  # max tr P over the last quarter / max over the second quarter
+    # below a convergent tr Xi_ii(t) (57), or growth < 1.001
+    bounded: bool
+    eq57_holds: bool  # tr P(t) <= tr Xi_ii(t) for every sink with a finite Xi_ii
+    cse_limits: list[float | None] = field(default_factory=list)  # steady tr Xi_ii alone
+    limit_gap: float | None = None  # |tr P(T) from two initial covariances|
+    stationary_gap: float | None = None  # |tr P(T) - tr P of stationary_fusion|
+    monte_carlo: dict[str, float] | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return json_tree({k: getattr(self, k) for k in (
+            "name", "claim", "example", "delays", "radius", "lmi71_72", "c77", "growth", "bounded",
+            "eq57_holds", "cse_limits", "limit_gap", "stationary_gap", "monte_carlo")}
+            | {"trace_P_end": self.trace_P[-1],
+               "trace_Xi_end": [x[-1] for x in self.trace_Xi]})
+
+
+@dataclass
+class Theorem4Check:
+    """Theorem 4 (C.1), (C.2) on Example 2 with chosen delays, plus a control."""
+
+    steps: int
+    cases: list[Theorem4Case]
+
+    def case(self, name: str) -> Theorem4Case:
+        return next(c for c in self.cases if c.name == name)
+
+    @property
+    def c1_holds(self) -> bool:
+        c = self.case("C.1")
+        return bool(c.bounded and c.eq57_holds)
+
+    @property
+    def c2_holds(self) -> bool:
+        c = self.case("C.2")
+        tol = 1e-5 * abs(c.trace_P[-1])
+        return bool(c.bounded and c.limit_gap is not None and c.limit_gap < tol
+                    and c.stationary_gap is not None and c.stationary_gap < tol)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"steps": self.steps, "c1_holds": self.c1_holds, "c2_holds": self.c2_holds,
+                "cases": [c.to_dict() for c in self.cases]}
+
+    def format_text(self) -> str:
+        lines = [f"Theorem 4 (exact covariance recursion, {self.steps} steps)", ""]
+        for c in self.cases:
+            lines.append(f"{c.name} {c.example}, delays {list(c.delays)}: {c.claim}")
+            lines.append("  (71)-(72) per sink: " + ", ".join(
+                f"sink {i + 1} {'holds' if ok else 'fails'} (radius {r:.4f}, (77) {q:.4f})"
+                for i, (ok, r, q) in enumerate(zip(c.lmi71_72, c.radius, c.c77,
+                                                   strict=True))))
+            lines.append(f"  tr P(T) = {_f(c.trace_P[-1])}, growth over the last quarter "
+                         f"{_f(c.growth)} -> {'bounded' if c.bounded else 'UNBOUNDED'}; "
+                         "tr Xi_ii(T) = " + ", ".join(_f(x[-1]) for x in c.trace_Xi)
+                         + f"; (57) tr P <= tr Xi_ii: {c.eq57_holds}; steady tr Xi_ii of "
+                         "each sink satisfying (71)-(72) alone: "
+                         + ", ".join(_f(v) for v in c.cse_limits))
+            if c.limit_gap is not None:
+                lines.append(f"  two initial covariances: |tr P_a(T) - tr P_b(T)| = "
+                             f"{_f(c.limit_gap)}; steady state (stationary_fusion) gap "
+                             f"{_f(c.stationary_gap)}")
+            if c.monte_carlo:
+                m = c.monte_carlo
+                lines.append(f"  Monte Carlo at T: MSE {_f(m['mse'])} +- {_f(m['se'])} "
+                             f"(exact {_f(m['exact'])}, z = {_f(m['z'], 2)})")
+        lines += ["", f"(C.1) holds: {self.c1_holds}; (C.2) holds: {self.c2_holds}"]
+        return "\n".join(lines) + "\n"
+
+
+def two_sink_example1(gammas: tuple[float, float], delays: tuple[int, int] = (0, 0)
+                      ) -> dk.DkfeSetup:
+    """Example 1's plant (81) watched by two sinks with the sensor (82), independent
+    noises, selection probabilities gamma_11 = ``gammas[i]`` (84) and delays ``delays``
+    (a small instance for Theorem 4; not in the paper)."""
+    from dataclasses import replace
+
+    one = dk.example1(gammas[0], delays[0])
+    two = dk.example1(gammas[1], delays[1])
+    return replace(one, name="dkfe-example1-two-sinks",
+                   description=(f"Example 1's plant with two sinks sending one component, "
+                                f"gamma_11 = {list(gammas)}, d = {list(delays)}"),
+                   C=one.C + two.C, R=one.R + two.R, delays=(delays[0], delays[1]),
+                   selections=one.selections + two.selections)
+
+
+def _theorem4_case(name: str, claim: str, setup: dk.DkfeSetup, steps: int,
+                   trials: int, seed: int, two_starts: bool) -> Theorem4Case:
+    from dataclasses import replace
+
+    n, L, delays = setup.n, setup.n_sinks, setup.delays
+    phis = [dk.steady_state_local_filter(setup.A, setup.C[i], setup.Q, setup.R[i]).Phi
+            for i in range(L)]
+    radius = [dk.second_moment_radius(setup.A, phis[i], setup.selections[i], delays[i])
+              for i in range(L)]
+    lmi = [dk.lmi_theorem2(setup.A, phis[i], setup.selections[i], delays[i]).feasible
+           for i in range(L)]
+    c77 = [dk.condition_77(setup.A, setup.selections[i], delays[i]) for i in range(L)]
+    with np.errstate(over="ignore", invalid="ignore"):
+        cov, _, _ = covariances_for(setup)
+        trP = [float(np.trace(cov.at(t).P)) for t in range(steps + 1)]
+        trXi = [[float(np.trace(cov.at(t).Xi_block(i, i))) for t in range(steps + 1)]
+                for i in range(L)]
+    q = max(steps // 4, 1)
+    growth = max(trP[-q:]) / max(max(trP[q:2 * q]), 1e-300)
+    eq57 = all(trP[t] <= x[t] * (1 + 1e-9) + 1e-12 for x in trXi for t in range(steps + 1)
+               if math.isfinite(x[t]))
+    # the bound of (C.1): each sink satisfying (71)-(72) alone has a steady CSE
+    # (stationary_fusion of that sink alone); tr P(t) <= tr Xi_ii(t) -> that limit
+    limits: list[float | None] = []
+    for i in range(L):
+        if not lmi[i]:
+            limits.append(None)
+            continue
+        alone = replace(setup, C=(setup.C[i],), R=(setup.R[i],), delays=(delays[i],),
+                        selections=(setup.selections[i],))
+        st = dk.stationary_fusion(alone, tol=1e-10)
+        limits.append(float(np.trace(st.Xi)) if st.converged else None)
+    converging = [i for i in range(L) if limits[i] is not None
+                  and abs(trXi[i][-1] - cast(float, limits[i])) <= 1e-3 * cast(float, limits[i])]
+    bounded = bool(eq57 and converging) or bool(math.isfinite(growth) and growth < 1.001)
+    case = Theorem4Case(name, claim, setup.name, delays, radius, lmi, c77, trP, trXi, float(growth),
+                        bounded, bool(eq57))
+    case.cse_limits = limits
+    if two_starts:
+        cov_b, _, _ = covariances_for(replace(setup, x0_cov=100.0 * np.eye(n)))
+        case.limit_gap = abs(float(np.trace(cov_b.at(steps).P)) - trP[-1])
+        st = dk.stationary_fusion(setup)
+        case.stationary_gap = (abs(float(np.trace(st.P)) - trP[-1]) if st.converged
+                               else math.inf)
+    if trials > 1:
+        with np.errstate(over="ignore", invalid="ignore"):
+            run = run_lockstep(setup, steps, trials, seed)
+        sq = np.sum((run.states[steps] - run.dkfe[steps]) ** 2, axis=-1)
+        mse, se = float(sq.mean()), float(sq.std(ddof=1) / math.sqrt(len(sq)))
+        case.monte_carlo = {"trials": trials, "mse": mse, "se": se, "exact": trP[-1],
+                            "z": (mse - trP[-1]) / se if se > 0 else math.inf}
+    return case
+
+
+def theorem4_check(steps: int = 200, trials: int = 0, seed: int = 0,
+                   c1: dk.DkfeSetup | None = None, c2: dk.DkfeSetup | None = None,
+                   control: dk.DkfeSetup | None = None, with_control: bool = True
+                   ) -> Theorem4Check:
+    """Theorem 4 (C.1), (C.2) checked with the exact covariance recursion.
+
+    (C.1): the DKFE's MSE is bounded once one sink's selection probabilities satisfy
+    (71)-(72). Default instance ``c1``: Example 2 with delays (1, 14) (with the printed
+    pi, sink 1 satisfies (71)-(72) at d_1 = 1 and sink 2 fails them at d_2 = 14, see
+    :func:`netsim.models.dkfe.sink_delay_table`). Checked: (57) tr P(t) <= tr Xi_ii(t) at
+    every step, and the CSE of a sink satisfying (71)-(72) converges to its own steady
+    state (:func:`netsim.models.dkfe.stationary_fusion` of that sink alone, within
+    0.1 %), so tr P(t) stays below a convergent sequence while the other CSE grows.
+    (C.2): every sink satisfies (71)-(72) and (77) (default ``c2``: Example 2 as
+    printed, d = (1, 2)): P(t) converges to one limit from x(0) ~ N(0, I) and
+    N(0, 100 I), equal to the steady state computed independently. The control
+    (default: Example 2 with d = (14, 14), no sink satisfies (71)-(72); outside the
+    theorem) shows that the test sees growth. ``trials`` > 1 adds the lock-step Monte
+    Carlo MSE of the DKFE at the last step beside the exact tr P.
+    """
+    if steps < 8:
+        raise ValueError("steps must be at least 8")
+    cases = [_theorem4_case("C.1", "one sink satisfies (71)-(72): the DKFE's MSE is bounded",
+                            c1 if c1 is not None else dk.example2(delays=(1, 14)), steps,
+                            trials, seed, False),
+             _theorem4_case("C.2", "every sink satisfies (71)-(72) and (77): P(t) converges "
+                            "to a unique limit", c2 if c2 is not None else dk.example2(),
+                            steps, trials, seed, True)]
+    if with_control:
+        cases.append(_theorem4_case(
+            "control", "no sink satisfies (71)-(72) (outside the theorem)",
+            control if control is not None else dk.example2(delays=(14, 14)), steps, 0, seed,
+            False))
+    return Theorem4Check(int(steps), cases)
+
+
+@dataclass
+class Remark1Check:
+    """Remark 1: time-varying delays d_i(t) <= d_i^u buffered to the bound.
+
+    Per trial the kernel run with random link delays (uniform in 0..d_i - 1 steps,
+    padded by the centre to d_i) against the constant-delay run with the same seed.
+    """
+
+    delays: tuple[int, ...]
+    steps: int
+    trials: int
+    max_abs_difference: float  # over trials, steps, DKFE and CSEs
+    buffered: int  # selections that arrived before their slot and waited
+    reordered: int  # selections overtaken by a later one on the same link
+    messages: int
+
+    @property
+    def identical(self) -> bool:
+        return self.max_abs_difference == 0.0
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"delays": list(self.delays), "steps": self.steps, "trials": self.trials,
+                "max_abs_difference": self.max_abs_difference, "buffered": self.buffered,
+                "reordered": self.reordered, "messages": self.messages,
+                "identical": self.identical}
+
+    def format_text(self) -> str:
+        return (f"Remark 1 (Example 2, bounds d = {list(self.delays)}, {self.trials} trials x "
+                f"{self.steps} steps): {self.messages} selections, {self.buffered} arrived "
+                f"early and waited in the centre's buffer, {self.reordered} were overtaken; "
+                f"max |time-varying - constant| over the DKFE and CSEs = "
+                f"{self.max_abs_difference:g} -> "
+                f"{'identical' if self.identical else 'DIFFERENT'}\n")
+
+
+def remark1_check(delays: tuple[int, ...] = (3, 2), steps: int = 40, trials: int = 3,
+                  seed: int = 0) -> Remark1Check:
+    """Run Example 2 with time-varying delays buffered to their bound and compare with
+    the run at the constant bound (same seed): Remark 1 says they are the same model."""
+    setup = dk.example2(delays=delays)
+    covs = covariances_for(setup)
+    worst, buffered, reordered, messages = 0.0, 0, 0, 0
+    for t in range(int(trials)):
+        s = child_sequence(seed, "trial", t)
+        fixed = run_fusion_trial(setup, s, steps, covariances=covs)
+        varying = run_fusion_trial(setup, s, steps, covariances=covs, time_varying=True)
+        for a, b in ((fixed.dkfe, varying.dkfe), (fixed.cse, varying.cse)):
+            worst = max(worst, float(np.max(np.abs(a - b))))
+        messages += len(varying.arrivals)
+        buffered += sum(1 for (i, sent), usable in varying.arrivals.items()
+                        if usable < sent + setup.delays[i])
+        for i in range(setup.n_sinks):
+            order = sorted((u, s_) for (j, s_), u in varying.arrivals.items() if j == i)
+            sent_order = [s_ for _, s_ in order]
+            reordered += sum(1 for k in range(1, len(sent_order))
+                             if sent_order[k] < max(sent_order[:k]))
+    return Remark1Check(tuple(int(d) for d in delays), int(steps), int(trials), worst,
+                        buffered, reordered, messages)
+
+
+def readings_report(quick: bool = False) -> tuple[dict[str, Any], str]:
+    """(94) readings, the gamma x d table, the r_i sweep, Theorem 4 and Remark 1.
+
+    ``quick``: small settings (for tests); otherwise the reproduce settings. Returns
+    (data, text).
+    """
+    if quick:
+        readings = dk.eq94_readings(("categorical", "independent-bernoulli"), (),
+                                    delay_readings=(), marginal_search=False)
+        table = dk.gamma_delay_table((0.3, 0.6), (0, 1))
+        sweep = dk.dimension_sweep(r_values=(2, 4), same_r=True)
+        thm4 = theorem4_check(steps=60, c1=two_sink_example1((0.5, 0.2)),
+                              c2=two_sink_example1((0.5, 0.6)), with_control=False)
+        rem1 = remark1_check(steps=20, trials=1)
+        transient: list[dict[str, Any]] = []
+    else:
+        readings = dk.eq94_readings()
+        table = dk.gamma_delay_table()
+        sweep = dk.dimension_sweep()
+        thm4 = theorem4_check()
+        rem1 = remark1_check()
+        transient = eq94_transient()
+    data = {"eq94_readings": readings.to_dict(), "eq94_transient": transient,
+            "gamma_delay_table": table.to_dict(), "dimension_sweep": sweep.to_dict(),
+            "theorem4": thm4.to_dict(), "remark1": rem1.to_dict()}
+    text = "\n".join([readings.format_text(), *(
+        [("finite-time weights Omega_i(t) of Algorithm 1: " + "; ".join(
+            f"x(0) ~ N(0, {r['x0_cov_scale']:g} I): closest at t = {r['closest_t']}, "
+            f"{r['distance']:.4f}" for r in transient))] if transient else []),
+        table.format_text(), sweep.format_text(), thm4.format_text(), rem1.format_text()])
+    return data, text

@@ -66,8 +66,8 @@ from netsim.traces.schemas import (
     parse_topic,
 )
 from netsim.traces.schemas import PACKAGE_PREFIX as PACKAGE
-from netsim.traces.schemas import estimate_topic as _estimate_topic
 from netsim.traces.schemas import clock_topic as _clock_topic
+from netsim.traces.schemas import estimate_topic as _estimate_topic
 from netsim.traces.schemas import freshness_topic as _freshness_topic
 from netsim.traces.schemas import link_topic as _link_topic
 from netsim.traces.schemas import sensor_topic as _sensor_topic

@@ -85,9 +85,9 @@ from netsim.models.seeding import SEED_LAYOUT
 from netsim.traces.bulkmcap import BulkMcapWriter as Writer
 from netsim.traces.schemas import (
     DEFAULT_TIME_ORIGIN_NS,
-    clock_topic,
     DROP_REASONS_METADATA,
     TRACE_FORMAT,
+    clock_topic,
     estimate_topic,
     file_descriptor_set,
     format_time_origin,

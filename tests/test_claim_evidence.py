@@ -27,15 +27,13 @@ from netsim.claims import (
 from netsim.claims.search import (
     SHRINK_EVALUATIONS,
     ScalarInstance,
-    _hard_instance,
-    _theorem1_judge,
     decode_scalar,
     encode_scalar,
-    search_theorem1,
     shrink,
-    theorem1_score,
 )
+from netsim.claims.search import hard_instance as _hard_instance
 from netsim.cli import main
+from netsim.papers.lcsys2022 import _theorem1_judge, search_theorem1, theorem1_score
 
 
 def rho(M: np.ndarray) -> float:

@@ -11,8 +11,9 @@ import pytest
 
 from netsim.claims import CLAIM_IDS, PROVED, REFUTED, REGISTRY, UNDECIDED, VERDICTS, Context, select
 from netsim.claims.checks import eq14_on, theorem1_on
-from netsim.claims.search import ScalarInstance, search_theorem1
+from netsim.claims.search import ScalarInstance
 from netsim.cli import main
+from netsim.papers.lcsys2022 import search_theorem1
 
 
 def scalar_augmented(a: float, P: np.ndarray, g: np.ndarray, tau: int) -> np.ndarray:
@@ -106,7 +107,7 @@ def test_eq14_detects_a_non_monotone_case():
 
 def test_naive_growth_factors_are_the_closed_forms():
     """Uniform weights: sqrt(rho([[2, 1], [1, 1]])) = golden ratio; tree weights: a = 2."""
-    from netsim.claims.checks import naive_growth
+    from netsim.papers.aoi import naive_growth
 
     g = naive_growth()
     golden = (1 + 5 ** 0.5) / 2

@@ -79,7 +79,7 @@ def test_wheel_contents(dists):
     for proto in PROTOS:
         assert f"netsim/traces/{proto}" in names
     for package in ("netsim", "netsim/models", "netsim/estimators", "netsim/traces",
-                    "netsim/bench", "netsim/claims", "netsim/reproduce"):
+                    "netsim/bench", "netsim/claims", "netsim/papers", "netsim/reproduce"):
         assert f"{package}/__init__.py" in names
     licences = [n for n in names if n.endswith(".dist-info/licenses/LICENSE")]
     assert licences, names

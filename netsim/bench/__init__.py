@@ -1,10 +1,10 @@
 """``netsim bench``: how much delay does each estimator tolerate, do the bounds predict it?
 
 ``netsim bench delay-tolerance SCENARIO|PRESET`` runs, for every delay setting and
-delay bound tau of a grid and for every estimator family (compensated LCSYS2022
-eqs. 4-5, uncompensated delay-tolerant eqs. 6-7, block update LCSYS2022 eqs. 15-16,
-and the centralised Kalman filter as the reference), M Monte Carlo trials in the
-event kernel, and puts next to each other:
+delay bound tau of a grid and for every estimator family (by default the consensus
+estimators with and without delay compensation, the block update, and the centralised
+Kalman filter as the reference), M Monte Carlo trials in the event kernel, and puts next
+to each other:
 
 * measured: the steady-state network MSE (mean over the last ``steady_state_fraction``
   of the steps, trials that blew up left out), the fitted MSE growth per step over the
@@ -12,14 +12,16 @@ event kernel, and puts next to each other:
   (``netsim.traces.analysis.decay_fit``: exp(slope/2) of log MSE over the transient);
   ``stable`` / ``diverging`` / ``diverged`` exactly as ``netsim run`` decides;
 * exact: for time-invariant delays the spectral radius of the augmented closed loop
-  of the realised delays (LCSYS2022 eq. 9-10 for ``compensated``, the delay-tolerant
-  paper's eq. 11 for ``uncompensated``, which describes its error only for a still
-  state; for ``block`` its own per-step rate rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)),
+  of the realised delays (the error recursion the family declares: with A^(r+1)
+  compensation for ``compensated``, with A for ``uncompensated``, which describes its
+  error only for a still state; for ``block`` its own per-step rate
+  rho((I-KD)(P kron A^(tau+1)))^(1/(tau+1)),
   exact when every message arrives within its block); for time-varying delays (or
   lossy links) the realised growth factor of the product A-hat[k]...A-hat[1] along
   trial 0's effective delays (``netsim.traces.analysis.growth_rates``; second-half rate);
-* the papers' bounds at tau: LCSYS2022 eq. (26) and Theorem 1 (tau*), the delay-
-  tolerant paper's rho(A-hat)^(1/(tau+1)) (its Theorem 1 / Lemma 5);
+* the papers' bounds at tau, as the paper modules declare them
+  (:func:`netsim.papers.delay_bounds`: each bound, the error recursions it bounds and
+  what it predicts, tau* or any bounded delay);
 * a verdict per cell: ``bound violated`` (the exact value exceeds the bound -- the one
   meaning of the words, as in ``netsim analyze``), ``prediction contradicted`` (the bound
   predicts stability but the run is diverging or diverged), ``bound conservative`` (the
@@ -42,7 +44,8 @@ noise, and a cell's numbers equal ``netsim run``'s for the same scenario, tau an
 Modules
 -------
 :mod:`~netsim.bench.presets`
-    estimator families, delay settings, the papers' presets;
+    estimator families, delay settings, the papers' presets (declared by
+    :mod:`netsim.papers`);
 :mod:`~netsim.bench.variants`
     the scenario of a cell (delay-setting and sweep variants) and its fingerprint;
 :mod:`~netsim.bench.cells`
@@ -59,6 +62,8 @@ Modules
     the ``netsim bench`` command line (``python -m netsim.bench``).
 """
 
+from typing import Any
+
 from netsim.bench.cells import BOUND_SLACK as BOUND_SLACK
 from netsim.bench.cells import CURVE_POINTS as CURVE_POINTS
 from netsim.bench.cells import ROUNDOFF_WARNING as ROUNDOFF_WARNING
@@ -69,7 +74,7 @@ from netsim.bench.command import main as main
 from netsim.bench.delay_tolerance import SCAN_TAU_MIN as SCAN_TAU_MIN
 from netsim.bench.delay_tolerance import run_delay_tolerance
 from netsim.bench.plots import plot_report
-from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, PRESETS, Preset
+from netsim.bench.presets import DELAY_MODELS, FAMILIES, Preset, delay_settings, presets
 from netsim.bench.report import format_report
 from netsim.bench.scenario_sweep import run_scenario_sweep, scenario_sweep_cell
 from netsim.bench.variants import scenario_data as scenario_data
@@ -79,9 +84,22 @@ from netsim.bench.variants import sweep_variant as sweep_variant
 #: The name benchmarks/engine_scaling.py imports (bench.py's private name before the split).
 _scenario_data = scenario_data
 
+
+def __getattr__(name: str) -> Any:
+    # PRESETS and DELAY_SETTINGS come from the paper modules: computed on access, so that
+    # importing the bench does not import the papers
+    if name == "PRESETS":
+        return presets()
+    if name == "DELAY_SETTINGS":
+        return delay_settings()
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 __all__ = [
     "DELAY_SETTINGS",
+    "DELAY_MODELS",
     "PRESETS",
+    "presets",
+    "delay_settings",
     "FAMILIES",
     "Preset",
     "run_delay_tolerance",

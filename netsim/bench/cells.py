@@ -27,8 +27,8 @@ from netsim.estimators.registry import (
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import child_sequence
 
-__all__ = ["BOUND_SLACK", "CURVE_POINTS", "EXACT_COMPENSATED", "EXACT_UNCOMPENSATED",
-           "ROUNDOFF_WARNING", "delay_tolerance_cell", "find_cell"]
+__all__ = ["BOUND_SLACK", "CURVE_POINTS", "ROUNDOFF_WARNING", "delay_tolerance_cell",
+           "find_cell"]
 
 
 #: An exact value above a bound by more than this counts as a violation.
@@ -118,24 +118,17 @@ def _measure(results: list, steps: int, fraction: float,
     }
 
 
-#: What a cell's ``exact`` value is, per kind (``analytics.exact_kind``).
-EXACT_COMPENSATED = "augmented rho (LCSYS2022 eq. 9)"
-EXACT_UNCOMPENSATED = ("augmented rho of eq. (11), the error recursion alone (ignores the "
-                       "moving state's forcing (A^(r+1) - A) x)")
-
-
 def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
                first: Any) -> tuple[dict[str, Any], Any]:
     """Exact rho (fixed delays) or realised growth (time-varying), bounds, prediction,
     for the families that declare an augmented error recursion (the registry's
-    ``error_recursion``); the others get no bound and no prediction. For fixed delays
+    ``error_recursion``); the others get no bound and no prediction. The bounds are the
+    papers' (:func:`netsim.papers.delay_bounds`): every one at ``tau`` under its key, and
+    the one of the family's recursion as ``bound``. For fixed delays
     also ``joint``: the analysis of the joint system of plant state and error
     (:mod:`netsim.models.jointsystem`), returned as well (it decides the verdict)."""
-    from netsim.models.augmented import (
-        augmented_spectral_radius,
-        delay_bound_lcsys,
-        delay_bound_tolerant,
-    )
+    from netsim.models.augmented import augmented_spectral_radius
+    from netsim.papers import delay_bounds
     from netsim.runner import fixed_delay_matrix
 
     out: dict[str, Any] = {"exact_kind": None, "exact": None}
@@ -146,21 +139,22 @@ def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
     compensated = recursion == RECURSION_COMPENSATED
     plant = variant.plant
     P, A, C, L = variant.weights, plant.A, plant.C, gains.L
-    eq26 = float(delay_bound_lcsys(P, A, C, L, tau))
-    tolerant = float(delay_bound_tolerant(P, A, C, L, tau))
-    out["bound_eq26"] = eq26
-    out["bound_tolerant"] = tolerant
-    if recursion == RECURSION_UNCOMPENSATED:
-        out.update(bound_name="delay-tolerant rho(A-hat)^(1/(tau+1))", bound=tolerant)
+    bounds = delay_bounds()
+    for b in bounds:
+        out[b.key] = float(b.compute(P, A, C, L, tau))
+    mine = next((b for b in bounds if recursion in b.recursions), None)
+    if mine is None:
+        out.update(bound_name=None, bound=None)
     else:
-        out.update(bound_name="LCSYS2022 eq. (26)", bound=eq26)
-    out["predicted_stable"] = bool(out["bound"] < 1.0)
+        out.update(bound_name=mine.name, bound=out[mine.key])
+    exact_kinds = {} if mine is None else mine.exact_kinds
+    out["predicted_stable"] = None if out["bound"] is None else bool(out["bound"] < 1.0)
     delays = fixed_delay_matrix(variant) if variant.topology is None else None
     analysis = None
     noise = {"Q": plant.Q, "x0_mean": plant.x0_mean, "x0_cov": plant.x0_cov}
     if recursion == RECURSION_BLOCK:
         out.update(exact_kind="block rate (eq. 26 expression, exact for eqs. 15-16)",
-                   exact=eq26)
+                   exact=out["bound"])
         edge = (np.asarray(P) != 0) & ~np.eye(variant.n_agents, dtype=bool)
         if delays is not None and (not np.any(edge) or int(delays[edge].max()) <= tau):
             from netsim.models.jointsystem import block_joint_analysis
@@ -173,8 +167,7 @@ def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
         with np.errstate(over="ignore", invalid="ignore"):
             rho = float(augmented_spectral_radius(P, A, C, L, delays, None,
                                                   compensated=compensated))
-        out.update(exact_kind=EXACT_COMPENSATED if compensated else EXACT_UNCOMPENSATED,
-                   exact=rho)
+        out.update(exact_kind=exact_kinds.get(recursion), exact=rho)
         analysis = joint_analysis(P, A, C, L, delays, compensated=compensated,
                                   rho_error=rho, **noise)
     elif first is not None and first.effective_delays is not None:
@@ -185,6 +178,7 @@ def _analytics(variant: Scenario, gains: Any, family: EstimatorFamily, tau: int,
         out["joint"] = {**analysis.to_dict(), "verdict": analysis_verdict(analysis)}
     exact = out["exact"]
     out["exact_violates_bound"] = bool(exact is not None and math.isfinite(exact)
+                                       and out["bound"] is not None
                                        and exact > out["bound"] + BOUND_SLACK)
     return out, analysis
 
@@ -330,7 +324,9 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
 
 def _scan(scenario: Scenario, gains: Any, tau_max: int) -> dict[str, Any]:
     from netsim.analysis import analyze
+    from netsim.papers import delay_bounds
 
+    bounds = delay_bounds()
     report = analyze(scenario.with_tau(0) if scenario.delays.model not in ("fixed", "latency")
                      else scenario, gains, tau_max)
 
@@ -351,8 +347,8 @@ def _scan(scenario: Scenario, gains: Any, tau_max: int) -> dict[str, Any]:
         "tau_star_isolated": list(report.tau_star_isolated),
         "tau_max": tau_max,
         "homogeneous": [{"tau": r.tau, "rho_compensated": r.rho_compensated,
-                         "rho_uncompensated": r.rho_uncompensated, "bound_eq26": r.bound_eq26,
-                         "bound_tolerant": r.bound_tolerant} for r in rows],
+                         "rho_uncompensated": r.rho_uncompensated,
+                         **{b.key: getattr(r, b.key, None) for b in bounds}} for r in rows],
         "exact_tolerance_compensated": comp,
         "exact_tolerance_uncompensated_eq11": uncomp,
         "exact_tolerance_censored": {"compensated": comp == tau_max,

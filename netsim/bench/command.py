@@ -11,7 +11,7 @@ from typing import Any, overload
 from netsim.bench.delay_tolerance import run_delay_tolerance
 from netsim.bench.fmt import fmt_value as _f
 from netsim.bench.plots import plot_report
-from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, PRESETS
+from netsim.bench.presets import DELAY_MODELS, FAMILIES, presets
 from netsim.bench.report import format_report
 from netsim.bench.scenario_sweep import run_scenario_sweep
 from netsim.models.jsonsafe import json_tree
@@ -27,8 +27,12 @@ def add_bench_parser(subparsers: Any) -> Any:
         description="Benchmarks that run many Monte Carlo cells on a local process pool "
                     "(default, 2 workers) or a Dask cluster, resumable.",
     )
+    from netsim.papers import delay_bounds
+
     sub = bench.add_subparsers(dest="bench_command", metavar="BENCH")
-    presets = ", ".join(PRESETS)
+    named = presets()
+    presets_list = ", ".join(named)
+    bounds = ", ".join(b.help for b in delay_bounds())
     dt = sub.add_parser(
         "delay-tolerance",
         help="how much delay each estimator tolerates, measured and predicted",
@@ -36,20 +40,19 @@ def add_bench_parser(subparsers: Any) -> Any:
             "For each delay setting, delay bound tau and estimator family: Monte Carlo "
             "steady-state MSE, MSE growth and error decay factor, the exact augmented "
             "spectral radius (fixed delays) or the realised growth factor (time-varying), "
-            "the papers' bounds (LCSYS2022 eq. 26 and Theorem 1's tau*, the delay-tolerant "
-            "rho(A-hat)^(1/(tau+1))) and a verdict (stable / diverging / undecided / bound "
+            f"the papers' bounds ({bounds}) and a verdict (stable / diverging / undecided / bound "
             "violated (exact > bound) / prediction contradicted / bound conservative); the "
             "largest tolerated delay per estimator, measured vs predicted; the papers' "
             "statements checked, with the numbers where they "
-            f"disagree. Presets: {presets}."
+            f"disagree. Presets: {presets_list}."
         ),
     )
-    dt.add_argument("scenario", help=f"a preset ({presets}), a built-in scenario or a "
+    dt.add_argument("scenario", help=f"a preset ({presets_list}), a built-in scenario or a "
                     "scenario TOML file")
     dt.add_argument("--taus", help="comma-separated delay bounds (default: the preset's, "
                     "else 0,3,8,19)")
     dt.add_argument("--delays", help="comma-separated delay settings: "
-                    f"{', '.join(DELAY_SETTINGS)} (default: the preset's, else "
+                    f"{', '.join(DELAY_MODELS)} (default: the preset's, else "
                     "homogeneous,heterogeneous,time-varying)")
     dt.add_argument("--estimators", help="comma-separated estimator families: registered "
                     "('netsim estimators' lists them), module:attribute of your own, or an "
@@ -201,7 +204,8 @@ def _cmd_delay_tolerance(args: Any) -> int:
     from netsim.models.scenario import ScenarioError, resolve_scenario
     from netsim.sweep import SweepInterrupted
 
-    preset = PRESETS.get(args.scenario)
+    named = presets()
+    preset = named.get(args.scenario)
     for option in ("trials", "steps"):
         value = getattr(args, option)
         if value is not None and value < 1:
@@ -218,7 +222,7 @@ def _cmd_delay_tolerance(args: Any) -> int:
         scenario = resolve_scenario(preset.scenario if preset else args.scenario)
         scenario = scenario.densified("netsim bench")
     except ScenarioError as exc:
-        extra = "" if preset else f" (or a preset: {', '.join(PRESETS)})"
+        extra = "" if preset else f" (or a preset: {', '.join(named)})"
         raise CommandError(f"scenario {args.scenario}: {exc}{extra}") from None
     if scenario.link_spec is not None and scenario.link_spec.sets_delays:
         raise CommandError(f"scenario {args.scenario}: its [links] table sets the link delays; "
@@ -228,7 +232,7 @@ def _cmd_delay_tolerance(args: Any) -> int:
                            "delays have no bound tau to vary; use a homogeneous, heterogeneous "
                            "or time-varying scenario")
     taus = _ints(args.taus, "--taus") or list(preset.taus if preset else (0, 3, 8, 19))
-    delays = _names(args.delays, "--delays", list(DELAY_SETTINGS)) or list(
+    delays = _names(args.delays, "--delays", list(DELAY_MODELS)) or list(
         preset.delays if preset else ("homogeneous", "heterogeneous", "time-varying"))
     declared = _families(args.estimators, scenario)
     families = [f.name for f in declared]

@@ -9,9 +9,9 @@ from typing import Any
 
 from netsim.bench.cells import delay_tolerance_cell
 from netsim.bench.cells import find_cell as _cell
-from netsim.bench.claims import CLAIMS, disagreements
+from netsim.bench.claims import bench_rows, default_rows, disagreements
 from netsim.bench.fmt import describe_cell, fmt_value
-from netsim.bench.presets import DELAY_SETTINGS, FAMILIES, NO_DELAY, Preset
+from netsim.bench.presets import DELAY_MODELS, FAMILIES, NO_DELAY, Preset, delay_settings
 from netsim.bench.variants import scenario_fingerprint
 from netsim.estimators.registry import (
     RECURSION_BLOCK,
@@ -103,7 +103,7 @@ def run_delay_tolerance(
     engine = choose_engine(engine, declared)
     taus = sorted({int(t) for t in taus})
     for s in delays:
-        if s not in DELAY_SETTINGS:
+        if s not in DELAY_MODELS:
             raise ValueError(f"unknown delay setting {s!r}")
     if gains is None and any(f.needs_gains for f in declared):
         gains = scenario_gains(scenario)
@@ -140,6 +140,7 @@ def run_delay_tolerance(
                               **({"computed_as": f"{shared[0]}, tau {shared[1]}"}
                                  if shared != (setting, tau) else {}),
                               **row["result"]})
+    described = delay_settings()
     data: dict[str, Any] = {
         "bench": "delay-tolerance",
         "preset": None if preset is None else {
@@ -151,7 +152,7 @@ def run_delay_tolerance(
         "gains": None if gains is None else {
             "method": gains.method, "solver": gains.solver, "certified": gains.certified,
             "rho_delay_free": float(gains.rho)},
-        "settings": {s: DELAY_SETTINGS[s][1] for s in delays},
+        "settings": {s: described[s][1] for s in delays},
         "taus": taus,
         "families": list(families),
         "family_traits": {f.name: f.traits() for f in declared},
@@ -165,8 +166,9 @@ def run_delay_tolerance(
         "cells": table,
     }
     data["tolerance"] = _tolerance(data, {f.name: f for f in declared})
-    claims = preset.claims if preset is not None else ("T-theorem1", "L-theorem1")
-    data["claims"] = [CLAIMS[c](data) for c in claims]
+    rows = bench_rows()
+    claims = preset.claims if preset is not None else default_rows()
+    data["claims"] = [rows[c](data) for c in claims]
     data["disagreements"] = disagreements(data) + _contradictions(data)
     data["run"] = {
         "elapsed_s": round(time.perf_counter() - started, 3),
@@ -194,7 +196,10 @@ def _contradictions(data: dict[str, Any]) -> list[str]:
 
 def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
                ) -> list[dict[str, Any]]:
+    from netsim.papers import delay_bounds
+
     scan = data["analysis"] or {}
+    bounds = delay_bounds()
     out = []
     for family in data["families"]:
         recursion = declared[family].error_recursion
@@ -217,29 +222,35 @@ def _tolerance(data: dict[str, Any], declared: dict[str, EstimatorFamily]
                 else:
                     broken = True
             censored = scan.get("exact_tolerance_censored") or {}
+            bound = next((b for b in bounds if recursion in b.recursions), None)
+            if bound is None:
+                predicted = None
+                why = ("no prediction: the family declares no augmented error recursion"
+                       if recursion is None else
+                       "no prediction: no paper's bound covers the family's error recursion")
+            elif bound.prediction == "any":
+                predicted = ("any" if (scan.get("rho_delay_free") or 2) < 1 else None)
+                why = bound.predicted_by
+            else:
+                predicted = scan.get("tau_star")
+                why = bound.predicted_by
             if recursion is None:
-                predicted = exact = None
-                why = "no prediction: the family declares no augmented error recursion"
+                exact = None
                 exact_why = "no exact analysis for this family"
             elif recursion == RECURSION_UNCOMPENSATED:
-                predicted = ("any" if (scan.get("rho_delay_free") or 2) < 1 else None)
-                why = "delay-tolerant Theorem 1: any bounded delay when rho(A-hat) < 1"
                 exact = scan.get("exact_tolerance_uncompensated_eq11")
                 if censored.get("uncompensated_eq11"):
                     exact = f">={exact}"
                 exact_why = ("eq. (11) alone, homogeneous (ignores the moving state's "
                              "forcing (A^(r+1) - A) x)")
+            elif recursion == RECURSION_BLOCK:
+                exact = scan.get("tau_star")
+                exact_why = "block rate < 1 (= Theorem 1's condition)"
             else:
-                predicted = scan.get("tau_star")
-                why = "LCSYS2022 Theorem 1 tau*"
-                if recursion == RECURSION_BLOCK:
-                    exact = scan.get("tau_star")
-                    exact_why = "block rate < 1 (= Theorem 1's condition)"
-                else:
-                    exact = scan.get("exact_tolerance_compensated")
-                    if censored.get("compensated"):
-                        exact = f">={exact}"
-                    exact_why = "exact augmented rho < 1, homogeneous"
+                exact = scan.get("exact_tolerance_compensated")
+                if censored.get("compensated"):
+                    exact = f">={exact}"
+                exact_why = "exact augmented rho < 1, homogeneous"
             out.append({
                 "family": family, "setting": setting,
                 "measured_max": measured, "stable_taus": stable,

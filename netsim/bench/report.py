@@ -7,14 +7,19 @@ from typing import Any
 from netsim.bench.cells import ROUNDOFF_WARNING
 from netsim.bench.cells import find_cell as _cell
 from netsim.bench.fmt import fmt_value as _f
-from netsim.bench.presets import DELAY_SETTINGS
+from netsim.bench.presets import DELAY_MODELS
 from netsim.cliutil import tau_star_text
 
 __all__ = ["format_report"]
 
 
 def format_report(data: dict[str, Any]) -> str:
-    """The benchmark as text: per-setting tables, tolerance, the papers' statements."""
+    """The benchmark as text: per-setting tables, tolerance, the papers' statements (the
+    bounds' words are the papers' own, :func:`netsim.papers.delay_bounds`)."""
+    from netsim.papers import delay_bounds
+
+    bounds = delay_bounds()
+    tau_star_label = next((b.tau_star_label for b in bounds if b.tau_star_label), "tau*")
     s = data["scenario"]
     lines = []
     if data["preset"]:
@@ -34,7 +39,7 @@ def format_report(data: dict[str, Any]) -> str:
     scan = data["analysis"] or {}
     if g:
         lines.append(f"gains: {g['method']} ({g['solver']}), rho(A-hat) delay-free = "
-                     f"{_f(g['rho_delay_free'])}; tau* (LCSYS2022 Thm 1) = "
+                     f"{_f(g['rho_delay_free'])}; {tau_star_label} = "
                      f"{tau_star_text(scan.get('tau_star'), data['analysis'] is not None)}"
                      + (f", isolated {scan['tau_star_isolated']}"
                         if scan.get("tau_star_isolated") else ""))
@@ -74,7 +79,7 @@ def format_report(data: dict[str, Any]) -> str:
             c = _cell(data, setting, tau, "compensated") or _cell(data, setting, tau,
                                                                   "uncompensated")
             if c is not None and tau > 0 and c["analytics"].get("realised_delays") and \
-                    DELAY_SETTINGS[setting][0] == "heterogeneous":
+                    DELAY_MODELS.get(setting) == "heterogeneous":
                 realised.append(f"tau {tau}: " + " ".join(
                     f"{k}:{v}" for k, v in c["analytics"]["realised_delays"].items()))
         if realised:
@@ -91,8 +96,8 @@ def format_report(data: dict[str, Any]) -> str:
               "by a moving state, (A^(r+1) - A) x; block: its rate), or the realised growth "
               "factor along trial 0's delays (time-varying); joint = the verdict of the "
               "joint linear system of plant state and error (fixed delays; - where it does "
-              "not apply); bound = LCSYS2022 eq. (26) (compensated, block) or "
-              "rho(A-hat)^(1/(tau+1)) (uncompensated); pred = the bound predicts stability; "
+              "not apply); bound = " + " or ".join(b.legend for b in bounds) + "; pred = "
+              "the bound predicts stability; "
               "verdict: bound violated = exact > bound, prediction contradicted = predicted "
               "stable but diverging/unbounded/diverged."]
     lines += ["", "largest tolerated delay (measured on this grid: every tau up to it stable) "
@@ -110,8 +115,8 @@ def format_report(data: dict[str, Any]) -> str:
         lines.append(f"{t['family']:<15}{t['setting']:<20}{measured:>9}"
                      f"{predicted:>10}  {exact:>14}  "
                      f"{t['stable_taus']} / {t['unstable_taus']}")
-    lines.append("predicted: tau* of LCSYS2022 Theorem 1 (compensated, block); 'any' for the "
-                 "delay-tolerant Theorem 1 (uncompensated); none: no delay is tolerated "
+    lines.append("predicted: " + "; ".join(b.prediction_legend for b in bounds)
+                 + "; none: no delay is tolerated "
                  "(rho(A-hat) >= 1); -: no prediction for the family. exact: largest tau "
                  "with every smaller homogeneous tau's exact rho < 1 (scanned to "
                  f"{scan.get('tau_max')}).")

@@ -119,6 +119,7 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
     """
     from netsim.estimators.gains import GainDesignError
     from netsim.models.scenario import ScenarioError
+    from netsim.papers import delay_bounds
     from netsim.runner import run_monte_carlo, scenario_gains
 
     try:
@@ -154,7 +155,7 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
     if data["analytics"]:
         a = data["analytics"]
         out["analytics"] = {k: a.get(k) for k in (
-            "rho_delay_free", "tau_star", "bound_lcsys_eq26", "bound_delay_tolerant",
+            "rho_delay_free", "tau_star", *(b.run_key for b in delay_bounds()),
             "rho_exact_compensated", "rho_exact_uncompensated", "joint_system")}
     out["estimators"] = {
         # a steady MSE for stable runs only (netsim.verdicts.has_steady_state)

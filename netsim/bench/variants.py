@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from netsim.bench.presets import DELAY_SETTINGS, NO_DELAY
+from netsim.bench.presets import DELAY_MODELS, NO_DELAY
 from netsim.models.scenario import DelaySpec, Scenario
 
 __all__ = ["delay_variant", "scenario_data", "scenario_fingerprint", "sweep_variant"]
@@ -19,7 +19,7 @@ __all__ = ["delay_variant", "scenario_data", "scenario_fingerprint", "sweep_vari
 
 def delay_variant(scenario: Scenario, setting: str, tau: int) -> Scenario:
     """The scenario with the delay setting's model at bound tau (tau 0: no delay)."""
-    model = "none" if setting == NO_DELAY or tau == 0 else DELAY_SETTINGS[setting][0]
+    model = "none" if setting == NO_DELAY or tau == 0 else DELAY_MODELS[setting]
     spec = DelaySpec(model=model, tau=int(tau), links={}, default=0,
                      seed=scenario.delays.seed)
     return replace(scenario, delays=spec)
@@ -95,7 +95,7 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
         net.setdefault("agents", len(plant["C"]))
     if "delays" in params:
         setting = params["delays"]
-        delays["model"] = DELAY_SETTINGS[setting][0] if setting in DELAY_SETTINGS else setting
+        delays["model"] = DELAY_MODELS.get(setting, setting)
         delays.pop("links", None)
     if "tau" in params:
         delays["tau"] = int(params["tau"])

@@ -1,6 +1,6 @@
 """The claim registry's data types: a paper statement, its check and the check's outcome.
 
-Every checkable statement of the four papers is one :class:`Claim`; its ``check`` gets a
+Every checkable statement of a paper is one :class:`Claim`; its ``check`` gets a
 :class:`Context` (seed, instance counts, optional time budget, output folder, cached
 instances) and returns an :class:`Outcome` in the one verdict vocabulary of
 :data:`netsim.verdicts.VERDICT_TABLE`:
@@ -144,7 +144,7 @@ class Context:
     out : pathlib.Path or None
         Folder for counterexample scenarios (None: nothing is written).
     cache : dict
-        Instances shared between checks (e.g. the LCSYS2022 instance and its gains).
+        Instances shared between checks (e.g. a paper's instance and its gains).
     """
 
     seed: int = 0
@@ -171,9 +171,9 @@ class Claim:
     Attributes
     ----------
     id : str
-        Short identifier (``L-`` LCSYS2022, ``T-`` delay-tolerant, ``A-`` aoi, ``D-`` dkfe).
+        Short identifier, a letter of the paper, a dash and the statement (``X-lemma2``).
     paper : str
-        The paper's short name (``LCSYS2022``, ``delay-tolerant``, ``aoi``, ``dkfe``).
+        The key of the paper that declares it (``netsim.papers.Paper.key``).
     where : str
         Equation, theorem or section.
     statement : str
@@ -191,9 +191,10 @@ class Claim:
     bench : callable(dict) -> dict, optional
         The form used by ``netsim bench delay-tolerance`` on its report (a bench row).
     searches : tuple of str
-        Counterexample searches the check reads (names in
-        :data:`netsim.claims.searches.SEARCHES`); :func:`netsim.claims.run_claims` runs
-        them first, in parallel worker processes.
+        Counterexample searches the check reads (names of the papers' searches,
+        ``Paper.searches``, or ``PREFIX:ARGUMENT`` of a job, ``bench:PRESET`` or one of
+        ``Paper.jobs``); :func:`netsim.claims.run_claims` runs them first, in parallel
+        worker processes.
     """
 
     id: str

@@ -131,9 +131,13 @@ class ClaimsReport:
 
 
 def _search_key(name: str) -> str:
-    if name.startswith(("bench:", "fusion:")):
+    """The context cache key of a search's or job's result."""
+    if ":" in name:  # a job, PREFIX:ARGUMENT
         return name
-    return "search" if name == "L-theorem1" else f"search:{name}"
+    from netsim.claims.searches import searches
+
+    found = searches().get(name)
+    return found.key if found is not None else f"search:{name}"
 
 
 def search_names(claims: Sequence[Claim]) -> list[str]:
@@ -165,7 +169,7 @@ def run_searches(names: Sequence[str], seed: int, budget: float | None = None,
 
     ctx = multiprocessing.get_context("forkserver")
     # the counterexample searches first, then the shorter jobs
-    names.sort(key=lambda n: n.startswith(("bench:", "fusion:")))
+    names.sort(key=lambda n: ":" in n)
     with ProcessPoolExecutor(max_workers=min(workers, len(names)), mp_context=ctx,
                              initializer=limit_worker_threads) as pool:
         futures = {pool.submit(run_search, n, seed, budget, instances): n for n in names}

@@ -1,4 +1,4 @@
-"""Counted, seeded counterexample searches; the LCSYS2022 Theorem 1 search over scalar plants.
+"""Counted, seeded counterexample searches over scalar plants, and their engine.
 
 The engine (:func:`counted_search`) searches instance families counted in instances drawn
 from a seed, then an optimiser over the claim's hypothesis set (:class:`Attack`,
@@ -6,15 +6,16 @@ scipy.optimize Nelder-Mead from seeded starts, counted in evaluations), and shri
 first hit with a counted number of judge calls. The same seed gives the same result on
 any machine at any load; a time budget can only cut a search short (``cut_short``).
 
-Theorem 1's hypotheses, in the papers' own setting: a row-stochastic ``P`` on a
-strongly connected, self-looped graph (Lemma 1; self-loops undelayed), a plant
-``x_k = a x_{k-1}`` observed by the sensors with ``c_i != 0`` (``(P kron A, D_C)``
+The scalar instances (:class:`ScalarInstance`) are the consensus papers' own setting: a
+row-stochastic ``P`` on a strongly connected, self-looped graph (self-loops undelayed), a
+plant ``x_k = a x_{k-1}`` observed by the sensors with ``c_i != 0`` (``(P kron A, D_C)``
 observable), gains ``K_i`` with ``rho(A-hat) < 1`` and one common delay ``tau`` on every
-link (self-loops excluded). The theorem says the compensating estimator is stable for
-every ``tau <= tau*``; the judge is the exact spectral radius of the augmented closed
-loop (LCSYS2022 eq. 9-10). A hit is shrunk greedily (fewer links, coarser numbers,
-smaller ``tau``) while it stays a counterexample, then written as a scenario file that
-``netsim analyze FILE`` and ``netsim run FILE`` reproduce.
+link (self-loops excluded); tau* is the largest tau with
+``rho((I-KD_C)(P kron A^(tau+1))) < 1``. A judge is an exact computation (the spectral
+radius of the augmented closed loop); a hit is shrunk greedily (fewer links, coarser
+numbers, smaller ``tau``) while it stays a counterexample, then written as a scenario
+file that ``netsim analyze FILE`` and ``netsim run FILE`` reproduce. The papers'
+searches themselves are declared by the paper modules (:mod:`netsim.papers`).
 """
 
 from __future__ import annotations
@@ -32,10 +33,10 @@ from netsim.claims.core import Evidence
 from netsim.models.augmented import augmented_spectral_radius, spectral_radius, tau_star
 
 __all__ = ["ScalarInstance", "Found", "Phase", "Attack", "counted_search", "random_search",
-           "shrink", "search_theorem1", "theorem1_score", "encode_scalar", "decode_scalar",
+           "shrink", "encode_scalar", "decode_scalar",
            "scenario_toml", "write_scenario", "MARGIN", "TAU_MAX", "DEFAULT_INSTANCES",
            "MAX_DRAWS_PER_INSTANCE", "SHRINK_EVALUATIONS", "RANDOM_FAMILY", "HARD_FAMILY",
-           "OPTIMISER_FAMILY"]
+           "OPTIMISER_FAMILY", "random_instance", "hard_instance", "simpler_scalar"]
 
 #: A counterexample must have exact rho >= 1 + MARGIN (so that a run visibly diverges
 #: and round-off cannot flip the verdict).
@@ -90,7 +91,8 @@ class ScalarInstance:
         return spectral_radius(G @ P * self.a)
 
     def tau_star(self) -> int | None:
-        """Theorem 1's tau* (scanned to :data:`TAU_MAX`)."""
+        """tau*: the largest tau with rho((I-KD_C)(P kron A^(tau+1))) < 1 (scanned to
+        :data:`TAU_MAX`)."""
         return tau_star(*self.matrices(), tau_max=TAU_MAX)
 
     def exact_rho(self, tau: int) -> float:
@@ -99,7 +101,8 @@ class ScalarInstance:
                                          compensated=True)
 
     def hypotheses(self) -> str | None:
-        """None if Theorem 1's hypotheses hold, else the first one that does not."""
+        """None if the hypotheses of the module docstring hold, else the first one that
+        does not."""
         P = np.array(self.P)
         if np.any(P < 0) or not np.allclose(P.sum(axis=1), 1.0, atol=1e-12):
             return "P is not row-stochastic"
@@ -137,7 +140,7 @@ class ScalarInstance:
                 "k": list(self.k)}
 
 
-def _random_instance(rng: np.random.Generator, a_max: float = 2.0,
+def random_instance(rng: np.random.Generator, a_max: float = 2.0,
                      k_range: tuple[float, float] = (-1.0, 2.0),
                      a_edge: float = 0.0) -> ScalarInstance:
     """A random scalar instance: N in 2..4 agents on a directed cycle plus random links
@@ -170,7 +173,7 @@ def _with_P(inst: ScalarInstance, P: np.ndarray) -> ScalarInstance:
     return replace(inst, P=tuple(map(tuple, P.tolist())))
 
 
-def _simpler(inst: ScalarInstance) -> list[ScalarInstance]:
+def simpler_scalar(inst: ScalarInstance) -> list[ScalarInstance]:
     """Candidate simplifications of ``inst``, simplest first."""
     out = []
     P = np.array(inst.P)
@@ -531,7 +534,7 @@ def random_search(claim: str, draw: Callable[[np.random.Generator], Any | None],
                           seed=seed, deadline=deadline, progress=progress)
 
 
-# -- LCSYS2022 Theorem 1 ----------------------------------------------------------------
+# -- the scalar families ----------------------------------------------------------------
 
 #: The families of the scalar searches, in words.
 RANDOM_FAMILY = "random scalar plants, N 2..4, a ~ U(-2, 2)"
@@ -539,7 +542,7 @@ HARD_FAMILY = "scalar N = 2, self-loops undelayed, a = +-1 or +-U(1, 2)"
 OPTIMISER_FAMILY = "Nelder-Mead on (a, K, P)"
 
 
-def _hard_instance(rng: np.random.Generator, a_max: float = 2.0,
+def hard_instance(rng: np.random.Generator, a_max: float = 2.0,
                    k_range: tuple[float, float] = (-1.0, 2.0)) -> ScalarInstance:
     """A member of the family known to be hard: N = 2 with both links (self-loops
     undelayed), one or two sensors, a = +-1 (half of the draws) or +-U(1, a_max)."""
@@ -587,70 +590,6 @@ def decode_scalar(template: ScalarInstance, v: np.ndarray) -> ScalarInstance | N
                           template.c, tuple(round(x, 12) for x in k))
 
 
-def _theorem1_draw(rng: np.random.Generator) -> ScalarInstance | None:
-    inst = _random_instance(rng)
-    return inst if _theorem1_ok(inst) else None
-
-
-def _theorem1_hard_draw(rng: np.random.Generator) -> ScalarInstance | None:
-    inst = _hard_instance(rng)
-    return inst if _theorem1_ok(inst) else None
-
-
-def _theorem1_ok(inst: ScalarInstance) -> bool:
-    if inst.hypotheses() is not None:
-        return False
-    star = inst.tau_star()
-    return star is not None and star >= 1
-
-
-def _theorem1_judge(inst: ScalarInstance) -> dict[str, Any] | None:
-    v = inst.violation()
-    return None if v is None else {"tau_star": v[0], "tau": v[1], "exact_rho": v[2]}
-
-
-def theorem1_score(inst: ScalarInstance) -> float:
-    """``max over 1 <= tau <= tau*`` of exact rho minus (1 + MARGIN); ``-inf`` where the
-    hypotheses fail or ``tau* < 1`` (> 0 exactly for a counterexample)."""
-    if not _theorem1_ok(inst):
-        return -math.inf
-    star = inst.tau_star() or 0
-    return max(inst.exact_rho(t) for t in range(1, star + 1)) - (1.0 + MARGIN)
-
-
-def search_theorem1(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
-                    deadline: float = math.inf,
-                    progress: Callable[[float], None] | None = None) -> Found:
-    """Counted search for a counterexample to LCSYS2022 Theorem 1.
-
-    Three families, each counted from the seed: ``instances`` random scalar instances
-    (:func:`_random_instance`), ``instances // 2`` of the hard family
-    (:func:`_hard_instance`), and the optimiser (:class:`Attack`: 8 starts from the hard
-    family, ``instances // 8`` evaluations each) maximising :func:`theorem1_score`. Every
-    instance satisfies the hypotheses with ``tau* >= 1``; a hit is judged by
-    :meth:`ScalarInstance.violation` and shrunk. The details of the shrunk hit add its
-    ``rho_delay_free`` and the eq. (26) value ``bound_eq26`` at its tau.
-
-    Returns
-    -------
-    Found
-    """
-    phases = [Phase(RANDOM_FAMILY, instances, _theorem1_draw),
-              Phase(HARD_FAMILY, max(1, instances // 2), _theorem1_hard_draw)]
-    attack = Attack(OPTIMISER_FAMILY, 8, max(1, instances // 8), _theorem1_hard_draw,
-                    encode_scalar, decode_scalar, theorem1_score)
-    found = counted_search("L-theorem1", phases, _theorem1_judge, _simpler, seed=seed,
-                           attack=attack, deadline=deadline, progress=progress)
-    if found.instance is not None and found.details is not None:
-        from netsim.models.augmented import delay_bound_lcsys
-
-        x, d = found.instance, found.details
-        d["rho_delay_free"] = x.rho_delay_free()
-        P, A, C, L = x.matrices()
-        d["bound_eq26"] = float(delay_bound_lcsys(P, A, C, L, d["tau"]))
-    return found
-
-
 def _toml_list(v: Any) -> str:
     if isinstance(v, (list, tuple)):
         return "[" + ", ".join(_toml_list(x) for x in v) + "]"
@@ -696,3 +635,9 @@ def write_scenario(inst: ScalarInstance, tau: int, folder: Path, name: str, note
 
     return write_text_safely(folder / f"{name}.toml", scenario_toml(inst, tau, name, note),
                              "--out")
+
+
+# The names other modules imported before the paper modules split (kept for them).
+_random_instance = random_instance
+_hard_instance = hard_instance
+_simpler = simpler_scalar

@@ -1,7 +1,7 @@
-"""``netsim reproduce``: every figure and table of the four papers, with a report.
+"""``netsim reproduce``: every figure and table of the registered papers, with a report.
 
-:data:`~netsim.reproduce.items.ITEMS` lists the figures and tables that have data
-(LCSYS2022 Fig. 1; delay-tolerant Figs. 1-2; aoi Fig. 2; dkfe Table I and Figs. 3-8);
+Each paper module (:mod:`netsim.papers`) declares the figures and tables that have data
+(``Paper.items``; :data:`~netsim.reproduce.items.ITEMS` collects them);
 :func:`~netsim.reproduce.report.reproduce` writes each as a PNG with its data (CSV /
 JSON) and a Markdown report that puts our figure beside the paper's caption and text,
 where our system differs, and the claim registry's verdicts.
@@ -9,9 +9,20 @@ where our system differs, and the claim registry's verdicts.
 
 from __future__ import annotations
 
+from typing import Any
+
 from netsim.reproduce.command import add_reproduce_parser, cmd_reproduce
-from netsim.reproduce.items import ITEMS, PAPERS, Item, items_for
+from netsim.reproduce.items import Item, items_for
 from netsim.reproduce.report import DEFAULT_TRIALS, ReproduceResult, reproduce
 
-__all__ = ["ITEMS", "PAPERS", "Item", "items_for", "reproduce", "ReproduceResult",
-           "DEFAULT_TRIALS", "add_reproduce_parser", "cmd_reproduce"]
+__all__ = ["ITEMS", "PAPERS", "Item", "items_for", "reproduce",  # noqa: F822
+           "ReproduceResult", "DEFAULT_TRIALS", "add_reproduce_parser", "cmd_reproduce"]
+
+
+def __getattr__(name: str) -> Any:
+    # ITEMS and PAPERS come from the paper modules: computed on access
+    if name in ("ITEMS", "PAPERS"):
+        import importlib
+
+        return getattr(importlib.import_module("netsim.reproduce.items"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -9,7 +9,7 @@ import sys
 from typing import Any
 
 from netsim.cliutil import REPRODUCE_HELP
-from netsim.reproduce.items import ITEMS, PAPERS
+from netsim.reproduce.items import items
 from netsim.reproduce.report import CLAIM_BUDGET, DEFAULT_TRIALS, reproduce
 
 __all__ = ["add_reproduce_parser", "cmd_reproduce", "MAX_TRIALS"]
@@ -20,9 +20,17 @@ MAX_TRIALS = 100_000
 
 
 def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
-    """Add ``reproduce`` to the ``netsim`` parser."""
-    listing = "; ".join(f"{p}: " + ", ".join(i.label for i in ITEMS if i.paper == p)
-                        for p in PAPERS)
+    """Add ``reproduce`` to the ``netsim`` parser (its help lists the registered
+    papers and their items)."""
+    from netsim.papers import papers
+
+    registered = papers()
+    keys = [p.key for p in registered]
+    every = items()
+    listing = "; ".join(f"{p}: " + ", ".join(i.label for i in every if i.paper == p)
+                        for p in keys)
+    own = [p.key for p in registered if p.mc_trials == DEFAULT_TRIALS]
+    seeded = [p for p in keys if any(i.seeded for i in every if i.paper == p)]
     rep = subparsers.add_parser(
         "reproduce",
         help=REPRODUCE_HELP,
@@ -35,14 +43,15 @@ def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
             "trades time for precision."),
     )
     rep.add_argument("papers", nargs="*", metavar="PAPER",
-                     help=f"papers to reproduce ({', '.join(PAPERS)}); default all")
+                     help=f"papers to reproduce ({', '.join(keys)}); default all")
     rep.add_argument("--out", default="reproduce-out",
                      help="output folder (default ./reproduce-out)")
     rep.add_argument("--trials", type=int, default=DEFAULT_TRIALS,
-                     help=f"Monte Carlo trials per curve (default {DEFAULT_TRIALS}, the "
-                     "LCSYS2022 paper's)")
-    rep.add_argument("--seed", type=int, default=0, help="seed of the aoi and dkfe runs "
-                     "(default 0; the delay benchmarks use their scenario's seed)")
+                     help=f"Monte Carlo trials per curve (default {DEFAULT_TRIALS}"
+                     + "".join(f", the {k} paper's" for k in own[:1]) + ")")
+    rep.add_argument("--seed", type=int, default=0, help="seed of the "
+                     + " and ".join(seeded) + " runs (default 0; the delay benchmarks use "
+                     "their scenario's seed)")
     rep.add_argument("--workers", type=int, default=2,
                      help="local processes of the delay benchmarks (default 2)")
     rep.add_argument("--claim-budget", type=float, default=CLAIM_BUDGET, metavar="SECONDS",
@@ -55,12 +64,15 @@ def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _check_budget(trials: int) -> None:
-    """Refuse a --trials whose largest benchmark cell cannot fit in memory."""
+    """Refuse a --trials whose largest benchmark cell (of any preset) cannot fit in
+    memory."""
+    from netsim.bench.presets import presets
     from netsim.budget import check_run
     from netsim.models.scenario import resolve_scenario
 
-    check_run(resolve_scenario("lcsys2022-heterogeneous"), 500, trials, ["vectorised"],
-              trials_name="--trials")
+    for scenario, steps in dict.fromkeys((p.scenario, p.steps) for p in presets().values()):
+        check_run(resolve_scenario(scenario), steps, trials, ["vectorised"],
+                  trials_name="--trials")
 
 
 def cmd_reproduce(args: argparse.Namespace) -> int:

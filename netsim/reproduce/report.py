@@ -10,14 +10,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from netsim.reproduce.items import PAPER_TITLES, PAPERS, BuildContext, Item, items_for
+from netsim.reproduce.items import BuildContext, Item, items_for
 
 __all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "output_names",
            "reproduce",
            "item_claim_ids",
            "DEFAULT_TRIALS", "CLAIM_BUDGET"]
 
-#: Default Monte Carlo trials (LCSYS2022 Fig. 1 uses 100).
+#: Default Monte Carlo trials (a paper's own count where it says, ``Paper.mc_trials``).
 DEFAULT_TRIALS = 100
 #: Seconds after which each claim's counterexample search is cut short (None: never; the
 #: searches are counted in instances, netsim.claims.search).
@@ -122,7 +122,7 @@ def _run_claim_searches(items: Sequence[Item], context: Any, workers: int) -> No
     from netsim.claims.report import run_searches
 
     names = [n for it in items for cid in item_claim_ids(it) if cid in REGISTRY
-             for n in REGISTRY[cid].searches if not n.startswith(("bench:", "fusion:"))]
+             for n in REGISTRY[cid].searches if ":" not in n]
     if names:
         context.cache.update(run_searches(list(dict.fromkeys(names)), context.seed,
                                           context.budget, max(1, workers)))
@@ -203,18 +203,21 @@ def _markdown(result: ReproduceResult) -> str:
            "our figure, what the paper states, where our system differs, and the verdicts "
            "of the claims it bears on (`netsim claims`; *this run* is the same claim "
            "checked on this run's data where the benchmark has such a check).", ""]
-    for paper in PAPERS:
+    from netsim.papers import papers
+
+    titles = {p.key: p.title for p in papers()}
+    for paper in titles:
         mine = [r for r in result.items if r.item.paper == paper]
         if not mine:
             continue
-        out += [f"- **{PAPER_TITLES[paper]}**: "
+        out += [f"- **{titles[paper]}**: "
                 + ", ".join(f"[{r.item.label}](#{r.item.id})" for r in mine)]
     out.append("")
-    for paper in PAPERS:
+    for paper in titles:
         mine = [r for r in result.items if r.item.paper == paper]
         if not mine:
             continue
-        out += [f"## {PAPER_TITLES[paper]}", ""]
+        out += [f"## {titles[paper]}", ""]
         for r in mine:
             it = r.item
             out += [f'<a id="{it.id}"></a>', "", f"### {paper} {it.label}", "",
@@ -250,13 +253,14 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
     Parameters
     ----------
     papers : sequence of str, optional
-        Keys of :data:`netsim.reproduce.items.PAPERS` (case-insensitive).
+        Keys of the registered papers (:func:`netsim.papers.paper_keys`,
+        case-insensitive).
     out : path
         Folder for ``<item>.png``, its data (CSV / JSON) and ``report.md``.
     trials : int
         Monte Carlo trials of every simulated curve (precision against time).
     seed : int
-        Seed of the AoI and dkfe runs (the delay benchmarks use their scenario's seed).
+        Seed of the items' own runs (the delay benchmarks use their scenario's seed).
     workers : int
         Local processes of the delay benchmarks.
     claim_budget : float, optional

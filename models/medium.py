@@ -488,6 +488,7 @@ def scenario_medium(data: Mapping[str, Any], *, n_agents: int, n_states: int
     network = data.get("network")
     if not isinstance(network, dict) or "medium" not in network:
         return None
+    spec = parse_medium(network["medium"], n_agents=n_agents, n_states=n_states)
     if "links" in data:
         raise MediumError("links", "cannot be combined with [network.medium]: the medium "
                           "makes every link's delays and losses")
@@ -502,7 +503,7 @@ def scenario_medium(data: Mapping[str, Any], *, n_agents: int, n_states: int
     if "topology" in data:
         raise MediumError("topology", "a time-varying [topology] is not modelled with "
                           "[network.medium] (the medium carries the [network] links)")
-    return parse_medium(network["medium"], n_agents=n_agents, n_states=n_states)
+    return spec
 
 
 #: Quantile of a pilot run's step delays reported as the medium's nominal bound.

@@ -703,11 +703,19 @@ def delay_bound_kind(scenario: Any) -> tuple[str, float | None]:
     """What the scenario's delay bound ``summary()['delays']['bound']`` is: ``("bound",
     None)`` a hard bound no delay exceeds, ``("links.bound", None)`` the bound the
     ``[links]`` table states, or ``("quantile", q)`` the q-quantile of an unbounded
-    delay distribution of the ``[links]`` table (delays beyond it do occur)."""
+    delay distribution of the ``[links]`` table (delays beyond it do occur) or of a
+    ``[network.medium]`` pilot run's step delays (``("network.medium.bound", None)``
+    when the table states its bound)."""
     import math as _math
 
     from netsim.models.linkmodels import NOMINAL_QUANTILE
 
+    medium = getattr(scenario, "medium", None)
+    if medium is not None:
+        from netsim.models.medium import PILOT_QUANTILE
+
+        return (("network.medium.bound", None) if medium.bound is not None
+                else ("quantile", PILOT_QUANTILE))
     spec = scenario.link_spec
     if spec is None:
         return "bound", None
@@ -738,7 +746,17 @@ def _format_delays(s: dict[str, Any], bound: dict[str, Any] | None) -> str:
     text = f"delays: {d['model']}, tau = {d['tau']}; bound {d['bound']}"
     b = bound or {}
     kind = b.get("kind", "bound")
-    if kind == "quantile":
+    m = s.get("medium")
+    if m is not None:
+        text = (f"delays: network medium {m['model']} ({m['bit_rate']:g} bit/s, "
+                f"{m['packet_bits']:g} bits = {m['transmission_time'] * 1e3:.3g} ms a packet); "
+                f"bound {d['bound']}")
+        if kind == "quantile":
+            text += (f" (the {b['quantile']:.1%} quantile of a pilot run's step delays; "
+                     "delays beyond it occur)")
+        elif kind == "network.medium.bound":
+            text += " (network.medium.bound)"
+    elif kind == "quantile":
         text += (f" (the {b['quantile']:.1%} quantile of the links' unbounded delay "
                  "distributions; delays beyond it occur)")
     elif kind == "links.bound":

@@ -161,6 +161,9 @@ MEANINGS: dict[str, str] = {
                                 "Hamiltonian cycle with this probability",
     "network.radius": "geometric topology: the connection radius (default: grown "
                       "until the graph is strongly connected)",
+    "network.medium": "a simulated network that makes the delays and losses: model "
+                      "(point-to-point, switched, tdma, csma, can, aloha) and its "
+                      "parameters (docs: Delays made by the network)",
     "delays.model": "how link delays are made (see below)",
     "delays.tau": "the delay bound tau-bar, in steps",
     "delays.links": "model fixed or latency: a list of {from, to, delay}",
@@ -196,6 +199,7 @@ PROBES: list[tuple[tuple[str, ...], Any]] = [
     (("links", "delay"), {"distribution": "uniform", "low": 0, "high": 1, "mode": "?"}),
     (("links", "loss"), {"model": "?"}),
     (("links", "buffer"), {"capacity": 3, "policy": "?"}),
+    (("network", "medium"), {"model": "?"}),
 ]
 
 

@@ -1313,33 +1313,35 @@ def _subset_law_moments(patterns: np.ndarray, probs: np.ndarray) -> Moments:
     return probs @ patterns, (patterns.T * probs) @ patterns
 
 
-def conditional_bernoulli(g: Sequence[float], r: int) -> tuple[np.ndarray, np.ndarray]:
+def conditional_bernoulli(g: Sequence[float] | np.ndarray, r: int
+                          ) -> tuple[np.ndarray, np.ndarray]:
     """Independent Bernoulli(g_l) components conditioned on exactly r being sent.
 
     Returns (patterns (C(n, r), n) in lexicographic order, probabilities).
     """
-    g = np.asarray(g, dtype=float)
-    pats = SelectionScheme.all_subsets(len(g), r, [1.0] + [0.0] * (math.comb(len(g), r) - 1)
-                                       ).patterns
-    w = np.array([np.prod(np.where(h == 1, g, 1.0 - g)) for h in pats])
+    gv = np.asarray(g, dtype=float)
+    pats = SelectionScheme.all_subsets(len(gv), r,
+                                       [1.0] + [0.0] * (math.comb(len(gv), r) - 1)).patterns
+    w = np.array([np.prod(np.where(h == 1, gv, 1.0 - gv)) for h in pats])
     if w.sum() <= 0:
         raise ValueError("no r-subset has positive probability")
     return pats, w / w.sum()
 
 
-def sequential_without_replacement(g: Sequence[float], r: int) -> tuple[np.ndarray, np.ndarray]:
+def sequential_without_replacement(g: Sequence[float] | np.ndarray, r: int
+                                   ) -> tuple[np.ndarray, np.ndarray]:
     """r successive draws without replacement, component l drawn with weight g_l.
 
     Returns (patterns (C(n, r), n) in lexicographic order, probabilities).
     """
-    g = np.asarray(g, dtype=float)
-    n = len(g)
+    gv = np.asarray(g, dtype=float)
+    n = len(gv)
     law: dict[frozenset[int], float] = {}
     for order in itertools.permutations(range(n), r):
         p, left = 1.0, set(range(n))
         for k in order:
-            total = sum(g[j] for j in left)
-            p *= g[k] / total if total > 0 else 0.0
+            total = float(sum(gv[j] for j in left))
+            p *= float(gv[k]) / total if total > 0 else 0.0
             left.discard(k)
         key = frozenset(order)
         law[key] = law.get(key, 0.0) + p
@@ -1699,9 +1701,14 @@ _PAIR_DIRECTIONS = np.array([[1, 0, 0, 0, 0, 1],    # a: e_12 + e_34
 
 def _marginal_search(base: DkfeSetup, printed: Sequence[np.ndarray],
                      evaluations: int) -> Eq94Reading:
-    """Closest categorical law with the printed marginals (92) (see eq94_readings)."""
-    from scipy.optimize import minimize
+    """Closest categorical law with the printed marginals (92) (see eq94_readings).
 
+    SLSQP on the squared distance (smooth), then Nelder-Mead on the max-entry distance
+    from there (a law outside the polygon is penalised); ``evaluations`` bounds each.
+    """
+    from scipy import optimize
+
+    minimize: Any = optimize.minimize
     sels = base.selections
     if any(s.n != 4 or s.r != 2 for s in sels):
         raise ValueError("the marginal search is for n = 4, r = 2 (Example 2)")
@@ -1713,20 +1720,40 @@ def _marginal_search(base: DkfeSetup, printed: Sequence[np.ndarray],
 
     count = [0]
 
-    def residual(x: np.ndarray) -> float:
+    def weights_of(x: np.ndarray) -> list[np.ndarray] | None:
         count[0] += 1
         moments = [_subset_law_moments(s.patterns, np.clip(p, 0.0, None))
                    for s, p in zip(sels, laws(x), strict=True)]
         st = stationary_fusion(base, moments, tol=1e-10)
-        if not st.converged:
+        return st.weights if st.converged else None
+
+    def squared(x: np.ndarray) -> float:
+        W = weights_of(x)
+        if W is None:
             return 1e3
-        return float(sum(np.sum((w - p) ** 2) for w, p in zip(st.weights, printed,
-                                                               strict=True)))
+        return float(sum(np.sum((w - p) ** 2) for w, p in zip(W, printed, strict=True)))
+
+    def worst(x: np.ndarray) -> float:
+        outside = float(sum(-np.minimum(p, 0.0).sum() for p in laws(x)))
+        if outside > 0:
+            return 10.0 + outside
+        W = weights_of(x)
+        if W is None:
+            return 1e3
+        return max(float(np.max(np.abs(w - p))) for w, p in zip(W, printed, strict=True))
 
     cons = [{"type": "ineq", "fun": (lambda x, i=i: laws(x)[i])} for i in range(len(sels))]
-    res = minimize(residual, np.zeros(2 * len(sels)), method="SLSQP", constraints=cons,
+    res = minimize(squared, np.zeros(2 * len(sels)), method="SLSQP", constraints=cons,
                    options={"maxiter": max(1, evaluations // 5), "ftol": 1e-10})
-    probs = [np.clip(p, 0.0, None) / np.clip(p, 0.0, None).sum() for p in laws(res.x)]
+    x_ls = np.asarray(res.x)
+    if worst(x_ls) >= 10.0:
+        x_ls = np.zeros(2 * len(sels))
+    res2 = minimize(worst, x_ls, method="Nelder-Mead",
+                    options={"maxfev": max(1, evaluations), "xatol": 1e-5, "fatol": 1e-6,
+                             "initial_simplex": x_ls + np.vstack([np.zeros(len(x_ls)),
+                                                                  0.02 * np.eye(len(x_ls))])})
+    x = np.asarray(res2.x) if res2.fun <= worst(x_ls) else x_ls
+    probs = [np.clip(p, 0.0, None) / np.clip(p, 0.0, None).sum() for p in laws(x)]
     moments = [_subset_law_moments(s.patterns, p) for s, p in zip(sels, probs, strict=True)]
     law = "; ".join(f"pi^{i + 1} = " + ", ".join(f"{v:.3f}" for v in p)
                     for i, p in enumerate(probs))
@@ -2031,7 +2058,7 @@ def dimension_sweep(setup: DkfeSetup | None = None,
 
     rows = []
     for combo in combos:
-        sels = [SelectionScheme.all_subsets(n, r, np.full(math.comb(n, r), 1 / math.comb(n, r)))
+        sels = [SelectionScheme.all_subsets(n, r, [1 / math.comb(n, r)] * math.comb(n, r))
                 for r in combo]
         rows.append(row(sels, "uniform"))
     rows.append(row(list(setup.selections), "printed"))

@@ -12,9 +12,9 @@ that turns a scenario's ``[network.medium]`` into per-message delays and drops
 
 from __future__ import annotations
 
-from netsim.medium import aloha, can, csma, p2p, switched, tdma  # noqa: F401  (register)
+from netsim.medium.catalog import mac_model
 from netsim.medium.core import Medium, Packet, Recorder, TransmitQueue, poisson_source
-from netsim.medium.registry import MAC_MODELS, mac_model, register_mac
+from netsim.medium.registry import MAC_MODELS, register_mac
 from netsim.medium.schedule import MediumRun, simulate_medium
 
 __all__ = ["MAC_MODELS", "Medium", "MediumRun", "Packet", "Recorder", "TransmitQueue",

@@ -1,4 +1,7 @@
-"""The registry of MAC models: each model module declares itself with :func:`register_mac`."""
+"""The registry of MAC models: each model module declares itself with :func:`register_mac`.
+
+:func:`netsim.medium.catalog.mac_model` looks a model up after loading the built-in ones.
+"""
 
 from __future__ import annotations
 
@@ -7,7 +10,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from netsim.medium.core import Medium
 
-__all__ = ["MAC_MODELS", "register_mac", "mac_model"]
+__all__ = ["MAC_MODELS", "register_mac"]
 
 #: name (``network.medium.model``) -> Medium subclass.
 MAC_MODELS: dict[str, type[Medium]] = {}
@@ -17,14 +20,3 @@ def register_mac(cls: type[Medium]) -> type[Medium]:
     """Class decorator: register a :class:`netsim.medium.core.Medium` under its ``name``."""
     MAC_MODELS[cls.name] = cls
     return cls
-
-
-def mac_model(name: str) -> type[Medium]:
-    """The MAC model registered as ``name`` (ValueError naming the known ones)."""
-    import netsim.medium  # noqa: F401  (registers the built-in models)
-
-    try:
-        return MAC_MODELS[name]
-    except KeyError:
-        raise ValueError(f"unknown medium model {name!r}; known: "
-                         f"{', '.join(sorted(MAC_MODELS))}") from None

@@ -23,8 +23,8 @@ from typing import Any
 
 import simpy
 
+from netsim.medium.catalog import mac_model
 from netsim.medium.core import Medium, Packet, Recorder, poisson_source
-from netsim.medium.registry import mac_model
 from netsim.models.medium import MediumOutcome, MediumSpec
 from netsim.models.seeding import SeedLike, stream
 

@@ -140,3 +140,17 @@ def test_cli_bad_medium_is_one_stderr_line(tmp_path):
     assert out.returncode != 0
     lines = out.stderr.strip().splitlines()
     assert len(lines) == 1 and "network.medium.min_be" in lines[0], out.stderr
+
+
+def test_bench_sweep_resizes_a_medium_scenario_with_a_sensors_key():
+    """netsim bench sweep --sizes on examples/csma-32.toml (plant.sensors = 32): each cell
+    has the requested number of agents on the same medium."""
+    from netsim.bench.variants import sweep_variant
+    from netsim.models.scenario import read_scenario_data
+
+    path = ROOT / "examples" / "csma-32.toml"
+    data = read_scenario_data(path)
+    for agents in (8, 16):
+        s = sweep_variant(data, str(path), {"agents": agents})
+        assert s.n_agents == agents and s.medium is not None
+        assert s.medium.n_agents == agents

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -92,6 +93,13 @@ def add_bench_parser(subparsers: Any) -> Any:
     sw.add_argument("--sizes", help="comma-separated numbers of agents (agent i carries "
                     "sensor i mod m of the base plant)")
     sw.add_argument("--seeds", help="comma-separated run seeds")
+    sw.add_argument("--offsets", help="comma-separated clock-offset bounds o: each agent's "
+                    "offset uniform in [-o, o] ([time] table; the event kernel runs it)")
+    sw.add_argument("--drifts", help="comma-separated clock-drift standard deviations, ppm "
+                    "([time] table)")
+    sw.add_argument("--thresholds", help="comma-separated send-on-delta thresholds: an "
+                    "agent sends when its estimate moved by this much; the message rate "
+                    "is reported ([time] table)")
     sw.add_argument("--estimators", help="comma-separated estimator families ('netsim "
                     f"estimators' lists them; default: {', '.join(FAMILIES)})")
     sw.add_argument("--trials", type=int, default=10, help="trials per cell (default 10)")
@@ -170,6 +178,22 @@ def _names(text: str | None, option: str, allowed: Sequence[str] | None) -> list
         if bad:
             raise CommandError(f"{option}: unknown {', '.join(bad)}; expected some of "
                                f"{', '.join(allowed)}")
+    return values
+
+
+def _floats(text: str | None, option: str) -> list[float] | None:
+    """Comma-separated non-negative finite numbers (the [time] axes), or None."""
+    from netsim.cliutil import CommandError
+
+    if text is None:
+        return None
+    try:
+        values = [float(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise CommandError(f"{option}: expected comma-separated numbers, got {text!r}"
+                           ) from None
+    if not values or any(not math.isfinite(v) or v < 0 for v in values):
+        raise CommandError(f"{option}: expected non-negative finite numbers, got {text!r}")
     return values
 
 
@@ -345,6 +369,9 @@ def _cmd_sweep(args: Any) -> int:
         "topology": _names(args.topologies, "--topologies", ["cycle", "random", "geometric"]),
         "agents": agents,
         "seed": _ints(args.seeds, "--seeds"),
+        "offset": _floats(args.offsets, "--offsets"),
+        "drift_ppm": _floats(args.drifts, "--drifts"),
+        "threshold": _floats(args.thresholds, "--thresholds"),
     }
     if agents and min(agents) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
@@ -393,8 +420,9 @@ def _cmd_sweep(args: Any) -> int:
             continue
         # a steady MSE for stable runs only; the others show their last trusted MSE
         verdicts = ", ".join(
-            f"{k} {v['verdict']} (MSE {_f(v['steady_state_mse'])})" if "steady_state_mse" in v
-            else f"{k} {v['verdict']} (last MSE {_f(v.get('last_trusted_mse'))})"
+            (f"{k} {v['verdict']} (MSE {_f(v['steady_state_mse'])})" if "steady_state_mse" in v
+             else f"{k} {v['verdict']} (last MSE {_f(v.get('last_trusted_mse'))})")
+            + (f" rate {_f(v['message_rate'])}" if "message_rate" in v else "")
             for k, v in res["estimators"].items())
         lines.append(f"  {p}: {verdicts}")
     sys.stdout.write("\n".join(lines) + "\n")

@@ -68,7 +68,9 @@ def scenario_data(name_or_path: str) -> tuple[dict[str, Any], str]:
 def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> Scenario:
     """The scenario of one sweep cell: ``delays`` (a delay setting or ``delays.model``),
     ``tau``, ``topology``, ``agents`` (agent i carries sensor i mod m of the base plant),
-    ``seed`` (run seed)."""
+    ``seed`` (run seed), and the ``[time]`` axes (:mod:`netsim.models.timing`): ``offset``
+    (clock offsets uniform in [-o, o]), ``drift_ppm`` (drifts N(0, s^2) ppm),
+    ``threshold`` (a send-on-delta trigger)."""
     from netsim.models.scenario import parse_scenario
 
     data = copy.deepcopy(data)
@@ -79,6 +81,7 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
         n_agents = int(params["agents"])
         C = plant["C"]
         plant["C"] = [C[i % len(C)] for i in range(n_agents)]
+        plant.pop("sensors", None)  # C now has one entry per agent
         if isinstance(plant.get("R"), list):
             plant["R"] = [plant["R"][i % len(plant["R"])] for i in range(n_agents)]
         net["agents"] = n_agents
@@ -103,4 +106,25 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
             delays["model"] = "homogeneous"
     if "seed" in params:
         data.setdefault("run", {})["seed"] = int(params["seed"])
+    _time_axes(data, params)
     return parse_scenario(data, source)
+
+
+#: Sweep axes that set the ``[time]`` table (clocks, triggers; the event kernel only).
+TIME_AXES = ("offset", "drift_ppm", "threshold")
+
+
+def _time_axes(data: dict[str, Any], params: dict[str, Any]) -> None:
+    """Write the cell's ``[time]`` axes into the scenario's TOML dict (in place)."""
+    if not any(k in params for k in TIME_AXES):
+        return
+    time = data.get("time")
+    time = data["time"] = dict(time) if isinstance(time, dict) else {}
+    if "offset" in params:
+        o = float(params["offset"])
+        time["offset"] = {"distribution": "uniform", "low": -o, "high": o} if o else 0.0
+    if "drift_ppm" in params:
+        s = float(params["drift_ppm"])
+        time["drift_ppm"] = {"distribution": "normal", "std": s} if s else 0.0
+    if "threshold" in params:
+        time["trigger"] = {"kind": "send-on-delta", "threshold": float(params["threshold"])}

@@ -531,6 +531,10 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"--engine {args.engine}: scenario {args.scenario}: {exc}"
                            ) from None
     note_kernel_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
+    if scenario.timing is not None and args.engine == "auto":  # netsim.timedkernel
+        from netsim.timedkernel import TIMED_FALLBACK_NOTE
+
+        sys.stderr.write(f"netsim run: note: {TIMED_FALLBACK_NOTE}\n")
     trials = args.trials or scenario.trials
     trace_options = _trace_options(args)
     if args.trace is not None:

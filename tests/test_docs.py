@@ -41,7 +41,8 @@ def test_the_site_builds_without_warnings_and_its_doctests_pass(tmp_path):
                  "concepts/architecture", "estimators/compensated", "install", "notebook",
                  "live", "auto_examples/plot_delay_sweep", "auto_examples/plot_notebook",
                  "auto_examples/plot_estimator_listing", "estimators/baselines", "calibrate",
-                 "auto_examples/plot_baselines"):
+                 "auto_examples/plot_baselines", "time",
+                 "auto_examples/plot_clocks_and_triggers"):
         assert (tmp_path / "html" / f"{page}.html").is_file(), page
     notebook = (tmp_path / "html" / "auto_examples" / "plot_notebook.html").read_text(
         encoding="utf-8")

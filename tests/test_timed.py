@@ -372,7 +372,10 @@ def test_cli_run_reports_the_message_rate(tmp_path, capsys):
     example = _fast_example(tmp_path)
     assert main(["run", str(example), "--steps", "15", "--trials", "1",
                  "--no-progress", "--json"]) == 0
-    data = json.loads(capsys.readouterr().out)
+    captured = capsys.readouterr()
+    data = json.loads(captured.out)
+    # the engine selection says in one line why the kernel runs it
+    assert [line for line in captured.err.splitlines() if "event kernel only" in line]
     messages = data["estimators"]["compensated"]["messages"]
     assert 0 < messages["rate"] <= 1.0 / 0.9 + 1e-9  # at most one per (shortest) period
     assert "time" in data["scenario"]
@@ -422,3 +425,36 @@ def test_arrivals_meet_samples_regardless_of_rounding(monkeypatch):
         assert samples_before == int(np.sum(times < arrival - 1e-9))
         near += bool(np.any(np.abs(times - arrival) < 1e-9))
     assert near > 10  # the case happens (arrivals meeting samples)
+
+
+def test_bench_sweep_time_axes(tmp_path, capsys):
+    """netsim bench sweep --thresholds/--offsets: [time] cells run on the event kernel
+    (auto), and the message rate each cell reports is the broadcast count of an
+    identical run_monte_carlo call divided by agents x duration."""
+    import json
+
+    from netsim.cli import main
+
+    example = _fast_example(tmp_path)
+    assert main(["bench", "sweep", str(example), "--thresholds", "0,1", "--estimators",
+                 "compensated", "--trials", "1", "--steps", "20", "--out",
+                 str(tmp_path / "cells.jsonl"), "--workers", "1", "--no-progress",
+                 "--json"]) == 0
+    rows = json.loads(capsys.readouterr().out)["rows"]
+    rates = {row["params"]["threshold"]: row["result"]["estimators"]["compensated"]
+             ["message_rate"] for row in rows}
+    assert rows[0]["params"]["_engine"] == "events"
+    assert rates[1.0] < rates[0.0]
+    from netsim.bench.variants import scenario_data, sweep_variant
+    from netsim.runner import run_monte_carlo
+
+    data, source = scenario_data(str(example))
+    variant = sweep_variant(data, source, {"threshold": 1.0})
+    assert variant.timing.trigger.threshold == 1.0
+    direct = run_monte_carlo(variant, steps=20, trials=1, families=["compensated"],
+                             keep_trials=True)
+    timing = direct.runs["compensated"][0].extras["timing"]
+    assert rates[1.0] == timing["broadcasts"] / (4 * 20.0)
+    assert main(["bench", "sweep", str(example), "--offsets", "-1", "--out",
+                 str(tmp_path / "x.jsonl")]) != 0
+    assert "--offsets" in capsys.readouterr().err

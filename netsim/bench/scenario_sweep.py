@@ -165,7 +165,10 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
                "last_trusted_mse": e["last_trusted_mse"],
                "growth_rate": e["growth_rate"], "diverged_trials": len(e["diverged_trials"]),
                "messages_sent": e["messages"]["sent"],
-               "messages_delivered": e["messages"]["delivered"]}
+               "messages_delivered": e["messages"]["delivered"],
+               # [time] scenarios: estimates sent per agent and time unit (triggers)
+               **({"message_rate": e["messages"]["rate"]} if "rate" in e["messages"]
+                  else {})}
         for name, e in data["estimators"].items()
     }
     return out
@@ -189,7 +192,12 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], tria
     # the scenario's own first, so --estimators may use their short names
     resolve_families(base.estimators, "run.estimators", scenario_folder(base))
     declared = [family_of(f, base, "--estimators") for f in families]
-    engine = choose_engine(engine, declared)
+    from netsim.bench.variants import TIME_AXES
+
+    probe = base  # [time] cells run on the event kernel
+    if any(axes.get(k) for k in TIME_AXES):
+        probe = sweep_variant(data, source, {k: 0.0 for k in TIME_AXES if axes.get(k)})
+    engine = choose_engine(engine, declared, scenario=probe)
     if engine == "mixed":  # each run picks per family (auto)
         engine = "auto"
     cells = grid(**{k: v for k, v in axes.items() if v})

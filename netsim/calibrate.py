@@ -500,7 +500,23 @@ def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
     Returns
     -------
     CalibrationResult
+
+    Notes
+    -----
+    Runs with single-threaded BLAS (:func:`netsim.threads.single_threaded_blas`): a
+    multi-threaded eigensolver rounds differently, and least squares amplifies the last
+    bit, so the result would depend on the thread count.
     """
+    from netsim.threads import single_threaded_blas
+
+    with single_threaded_blas():
+        return _search(reading, evaluations=evaluations, starts=starts, seed=seed,
+                       tick=tick)
+
+
+def _search(reading: str, *, evaluations: int, starts: int, seed: int,
+            tick: Callable[[int], Any] | None) -> CalibrationResult:
+    """The body of :func:`search`."""
     from scipy.optimize import least_squares
 
     if reading not in READINGS:
@@ -1042,8 +1058,19 @@ def search_tolerant(*, evaluations: int = TOLERANT_EVALUATIONS,
     stated property (:func:`properties`). The first verified instance is a match.
     Every evaluation, the projected ones included, counts against ``evaluations``.
     ``exact=False`` leaves the exact radii out of an unmatched result's numbers (a
-    match is always verified with them).
+    match is always verified with them). Runs with single-threaded BLAS, as
+    :func:`search`, so the result does not depend on the thread count.
     """
+    from netsim.threads import single_threaded_blas
+
+    with single_threaded_blas():
+        return _search_tolerant(evaluations=evaluations, starts=starts, seed=seed,
+                                tick=tick, exact=exact)
+
+
+def _search_tolerant(*, evaluations: int, starts: int, seed: int,
+                     tick: Callable[[int], Any] | None, exact: bool) -> CalibrationResult:
+    """The body of :func:`search_tolerant`."""
     from scipy.optimize import least_squares
 
     evaluations, starts = int(evaluations), int(starts)
@@ -1273,7 +1300,8 @@ SETTLE_FACTOR = 1.5
 def simulate_figures(scenario: Any, *, trials: int = 20, steps: int = 500,
                      seed: int | None = None, families: Sequence[str] = ("uncompensated",),
                      figures: Sequence[str] = ("fig1", "fig2"),
-                     tick: Callable[[int], Any] | None = None) -> list[dict[str, Any]]:
+                     tick: Callable[[int], Any] | None = None,
+                     curves: bool = False) -> list[dict[str, Any]]:
     """Figs. 1-2 of the delay-tolerant paper by simulation on ``scenario``.
 
     One :func:`netsim.api.run` per cell of :data:`FIGURE_CELLS` (the delay settings of
@@ -1293,6 +1321,9 @@ def simulate_figures(scenario: Any, *, trials: int = 20, steps: int = 500,
     figures : sequence of {"fig1", "fig2"}
     tick : callable, optional
         Called with 1 per cell done.
+    curves : bool, default False
+        Also return each cell's network MSE curve (``mse``, ``(steps + 1,)`` list; NaN
+        where every trial diverged).
 
     Returns
     -------
@@ -1341,7 +1372,10 @@ def simulate_figures(scenario: Any, *, trials: int = 20, steps: int = 500,
                 "tail_mse": float(summ.tail_mse),
                 "last_mse": float(finite[-1]) if finite.size else None,
                 "diverged": len(summ.diverged), "exact": exact, "bound": bound,
-                "settle_step": settle if settle < half.size else None})
+                "settle_step": (settle if settle < half.size and summ.verdict == "stable"
+                                else None)})
+            if curves:
+                rows[-1]["mse"] = mse.tolist()
         if tick is not None:
             tick(1)
     return rows

@@ -11,7 +11,7 @@ from netsim.models import augmented as aug
 
 from netsim import calibrate as cal
 
-SMALL = {"evaluations": 300, "starts": 1, "seed": 7}
+SMALL = {"evaluations": 60, "starts": 1, "seed": 7}
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +90,7 @@ def test_search_is_deterministic_for_a_seed(small: cal.CalibrationResult) -> Non
     assert again.parameters == small.parameters
     assert again.numbers == small.numbers
     assert again.evaluations == small.evaluations
-    other = cal.search("no-root", evaluations=300, starts=1, seed=8)
+    other = cal.search("no-root", evaluations=60, starts=1, seed=8)
     assert other.parameters != small.parameters
 
 

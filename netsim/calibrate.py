@@ -1352,8 +1352,8 @@ def simulate_figures(scenario: Any, *, trials: int = 20, steps: int = 500,
         sc = replace(base, delays=replace(base.delays, model=model, tau=tau))
         res = run(sc, steps=steps, trials=trials, seed=seed, estimators=list(families))
         exact = None
-        if model in ("none", "heterogeneous"):
-            d = fixed_delay_matrix(sc)
+        d = fixed_delay_matrix(sc) if model in ("none", "heterogeneous") else None
+        if d is not None:
             exact = float(augmented_spectral_radius(P, A, C, L, d, tau, compensated=False))
         bound = float(delay_bound_tolerant(P, A, C, L, tau))
         for fam in families:

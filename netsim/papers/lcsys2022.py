@@ -648,9 +648,9 @@ def _build_lcsys_calibrated(ctx: BuildContext) -> ItemResult:
     printed_v = [LCSYS_RHO, *LCSYS_EQ26.values()]
     for key, style, name in (("calibrated", "-", "calibrated instance"),
                              ("ours", "--", "our instance")):
-        v = np.asarray(res[key]["theorem1"])
-        axes[0].plot(taus, positive(v), ls=style, lw=1.3, label=name)
-        axes[1].plot(taus, positive(v) ** (1.0 / (taus + 1)), ls=style, lw=1.3, label=name)
+        v = positive(res[key]["theorem1"])
+        axes[0].plot(taus, v, ls=style, lw=1.3, label=name)
+        axes[1].plot(taus, v ** (1.0 / (taus + 1)), ls=style, lw=1.3, label=name)
     for ax, title in ((axes[0], "Theorem 1's rho((I-KD)(P kron A^(tau+1))) (no root)"),
                       (axes[1], "eq. (26) as printed (with the root)")):
         ax.plot(printed_t, printed_v, "ko", label="paper's printed values")

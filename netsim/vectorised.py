@@ -34,7 +34,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -65,6 +65,9 @@ __all__ = [
     "LockstepRule",
     "lockstep_rule",
     "effective_delays_per_link",
+    "KERNEL_ENV",
+    "choose_kernel",
+    "numba_available",
 ]
 
 #: Largest trials x links x (steps + 2) of one lockstep batch (the budget's
@@ -217,15 +220,21 @@ class _Outputs:
 
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
-        from netsim.kernel import ROUNDOFF_RELATIVE_ERROR
-
         err = estimates - state[None]
         sq = np.einsum("itj,itj->ti", err, err)
+        return self.record_errors(k, sq, estimates.transpose(1, 0, 2), state)
+
+    def record_errors(self, k: int, sq: np.ndarray, estimates: np.ndarray | None,
+                      state: np.ndarray) -> bool:
+        """Record step k from its squared errors sq (T, N) and estimates (T, N, n)
+        (may be None when they are not recorded); False when all diverged."""
+        from netsim.kernel import ROUNDOFF_RELATIVE_ERROR
+
         alive = self.alive
         if self.all_alive:
             self.sq[k] = sq
             if self.estimates is not None:
-                self.estimates[k] = estimates.transpose(1, 0, 2)
+                self.estimates[k] = cast(np.ndarray, estimates)
             # every error finite and within the threshold (NaN fails the comparisons):
             # no trial diverges at k, whatever the round-off floor
             worst = sq.max(initial=0.0)
@@ -234,7 +243,7 @@ class _Outputs:
         else:
             self.sq[k, alive] = sq[alive]
             if self.estimates is not None:
-                self.estimates[k, alive] = estimates.transpose(1, 0, 2)[alive]
+                self.estimates[k, alive] = cast(np.ndarray, estimates)[alive]
         state_sq = np.einsum("tj,tj->t", state, state)
         floor = np.maximum(self.threshold_sq, ROUNDOFF_RELATIVE_ERROR ** 2 * state_sq)
         bad = ~np.all(np.isfinite(sq), axis=1) | np.any(sq > floor[:, None], axis=1)
@@ -413,9 +422,140 @@ def _sparse_product_into(matrix: sp.csr_matrix, out: np.ndarray
     return product_direct
 
 
+#: Environment variable choosing the lockstep step's implementation when ``run_batch``
+#: is not told: ``numba`` (or ``1``) for the compiled step (:mod:`netsim.lockstep_numba`,
+#: needs the optional extra ``netsim[numba]``), anything else the numpy step.
+KERNEL_ENV = "NETSIM_NUMBA"
+
+
+def numba_available() -> bool:
+    """Whether numba can be imported (``pip install netsim[numba]``), without importing it."""
+    import importlib.util
+
+    return importlib.util.find_spec("numba") is not None
+
+
+def choose_kernel(kernel: str | None = None) -> str:
+    """The lockstep step to run: ``"numpy"`` (the reference) or ``"numba"``.
+
+    Parameters
+    ----------
+    kernel : {"numpy", "numba"} or None
+        None: ``numba`` when the environment variable ``NETSIM_NUMBA`` is ``1`` or
+        ``numba``, else ``numpy``. The numpy step is the default because importing
+        numba costs more CPU than importing numpy and scipy together (about 0.25 s
+        here), which a short run would pay for nothing.
+
+    Returns
+    -------
+    str
+        ``"numba"`` only when numba is installed. ``kernel="numba"`` without it raises
+        :class:`netsim.models.extras.MissingExtra` (naming ``pip install
+        'netsim[numba]'``); ``NETSIM_NUMBA=1`` without it warns (RuntimeWarning) and
+        the numpy step runs, the same numbers to round-off.
+    """
+    import os
+
+    asked = kernel is not None
+    if kernel is None:
+        kernel = ("numba" if os.environ.get(KERNEL_ENV, "").strip().lower()
+                  in ("1", "numba", "yes", "on", "true") else "numpy")
+    if kernel not in ("numpy", "numba"):
+        raise ValueError(f"kernel must be 'numpy' or 'numba', got {kernel!r}")
+    if kernel == "numba" and not numba_available():
+        from netsim.models.extras import missing
+
+        if asked:
+            raise missing("numba", "numba", "the vectorised engine's compiled step")
+        import warnings
+
+        warnings.warn(f"{KERNEL_ENV}=1 asks for the compiled step but numba is not "
+                      "installed (pip install 'netsim[numba]'); running the numpy step",
+                      RuntimeWarning, stacklevel=3)
+        return "numpy"
+    return kernel
+
+
+def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
+                         batch: PlantBatch, selection: MessageSelection, send: np.ndarray,
+                         terms: _Terms, steps: int, record_estimates: bool
+                         ) -> tuple[_Outputs, np.ndarray]:
+    """:func:`_consensus_run` by the compiled step (:mod:`netsim.lockstep_numba`).
+
+    The same recursion (LCSYS2022 eqs. 4-5; delay-tolerant eqs. 6-7), the same
+    message selection and the same recording and divergence rule; the estimates are
+    kept agent-major with the trials innermost, (N, n, T), and the terms of each
+    receiver are summed per lag before A^lag is applied, so the numbers agree with
+    the numpy step to round-off. Not for the block rule.
+    """
+    from netsim.lockstep_numba import consensus_chunk
+
+    plant = scenario.plant
+    n = plant.n_states
+    K = int(steps)
+    T = batch.states.shape[1]
+    N = scenario.n_agents
+    Cp, Lp = _pad_outputs(scenario, gains)
+    Cp = np.ascontiguousarray(Cp, dtype=float)
+    Lp = np.ascontiguousarray(Lp, dtype=float)
+    oldest = max(1, min(selection.max_lag, K))  # the largest k - s of a message used
+    R = oldest if rule.compensate else 1  # powers A^r applied (eq. 6: A only)
+    powers = np.ascontiguousarray(_powers(plant.A, R), dtype=float)
+    depth = oldest + 1  # step k's slot is never one that step k reads
+    ring = np.zeros((depth, N, n, T))
+    term_ptr = np.zeros(N + 1, dtype=np.int64)
+    np.cumsum(np.bincount(terms.i, minlength=N), out=term_ptr[1:])
+    uniform = selection.uniform_delay
+    chosen = (np.zeros((1, 1, 1), dtype=np.int32) if uniform is not None
+              else np.ascontiguousarray(selection.chosen, dtype=np.int32))
+    offsets = np.asarray(batch.offsets, dtype=np.int64)
+    meas = np.ascontiguousarray(batch.measurements, dtype=float)
+    # (K+1, n, T) flat: the trials innermost
+    states = np.ascontiguousarray(batch.states.transpose(0, 2, 1), dtype=float).reshape(-1)
+    outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
+    chunk_steps = max(1, min(64, 200_000 // max(1, N * T)))
+    sq_chunk = np.empty((chunk_steps, T, N))
+    est_chunk = np.empty((chunk_steps, T, N, n) if record_estimates else (1, 1, 1, 1))
+    acc = np.zeros((R + 1) * n * T)  # per lag, (n, T) flat
+    prior = np.empty(n * T)
+    res = np.empty((Cp.shape[1] + 1) * T)  # the residuals and the squared errors
+    args = (ring, ring.reshape(-1), powers,
+            np.ascontiguousarray(terms.diagonal, dtype=float), term_ptr,
+            terms.j.astype(np.int64), np.ascontiguousarray(terms.weight, dtype=float),
+            terms.link.astype(np.int64), chosen, np.asarray(send, dtype=np.int64),
+            -1 if uniform is None else int(uniform), bool(rule.compensate),
+            np.ascontiguousarray(plant.x0_mean, dtype=float), meas, offsets[:-1].copy(),
+            np.diff(offsets), Cp, Lp, states)
+    last = -1
+    with np.errstate(all="ignore"):
+        for k0 in range(0, K + 1, chunk_steps):
+            interrupt.check()  # a requested Ctrl-C stops here, between chunks
+            k1 = min(k0 + chunk_steps, K + 1)
+            c = k1 - k0
+            worst = consensus_chunk(k0, k1, *args, sq_chunk, est_chunk, record_estimates,
+                                    acc, prior, res)
+            last = k1 - 1
+            if outputs.all_alive and worst <= outputs.threshold_sq and worst < np.inf:
+                outputs.sq[k0:k1] = sq_chunk[:c]
+                if outputs.estimates is not None:
+                    outputs.estimates[k0:k1] = est_chunk[:c]
+                continue
+            alive = True
+            for k in range(k0, k1):
+                alive = outputs.record_errors(
+                    k, sq_chunk[k - k0],
+                    est_chunk[k - k0] if record_estimates else None, batch.states[k])
+                if not alive:
+                    break
+            if not alive:
+                break
+    return outputs, np.arange(last + 1)
+
+
 def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
-                   steps: int, record_estimates: bool) -> tuple[_Outputs, np.ndarray]:
+                   steps: int, record_estimates: bool, kernel: str = "numpy"
+                   ) -> tuple[_Outputs, np.ndarray]:
     """Run a consensus family; returns the outputs and the steps with an update.
 
     Estimates are (N, T, n) arrays (agent, trial, state). The prior of LCSYS2022
@@ -451,6 +591,9 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     Cp, Lp = _pad_outputs(scenario, gains)
     Y = _agent_measurements(batch, Cp.shape[1])
     terms = _consensus_terms(scenario, schedule)
+    if kernel == "numba" and not rule.block:
+        return _consensus_run_numba(scenario, rule, gains, batch, selection,
+                                    schedule.send_steps, terms, steps, record_estimates)
     E = len(terms.i)
     own_weight = terms.diagonal.copy()
     block = rule.block
@@ -743,6 +886,7 @@ def run_batch(
     record_delays: bool | Collection[int] = False,
     record_estimates: bool = True,
     progress: Callable[[int], None] | None = None,
+    kernel: str | None = None,
 ) -> VectorisedBatch:
     """Run a batch of trials of one estimator family in lockstep.
 
@@ -765,6 +909,12 @@ def run_batch(
         Fill ``TrialResult.estimates`` (K+1, N, n); otherwise it has shape (0, N, n).
     progress : callable(int), optional
         Called with T once the batch is done.
+    kernel : {"numpy", "numba"} or None
+        The step of the consensus families (not the block rule, which always runs
+        the numpy step): the numpy step (the reference, bit for bit the same numbers
+        for the same seeds) or the compiled one (:mod:`netsim.lockstep_numba`, the
+        extra ``netsim[numba]``; the same numbers to round-off). None: the
+        environment variable ``NETSIM_NUMBA`` decides (:func:`choose_kernel`).
 
     Returns
     -------
@@ -797,7 +947,8 @@ def run_batch(
                                   sample_period=scenario.sample_period)
         selection = select_messages(schedule, K, timestamps=rule.timestamps)
         outputs, updated = _consensus_run(scenario, rule, gains, batch, schedule,
-                                          selection, K, record_estimates)
+                                          selection, K, record_estimates,
+                                          choose_kernel(kernel))
         N = scenario.n_agents
     n = plant.n_states
     wanted = set(range(T)) if record_delays is True else set(record_delays or ())
@@ -864,6 +1015,7 @@ def run_vectorised(
     record_delays: bool | Collection[int] = False,
     record_estimates: bool = True,
     progress: Callable[[int], None] | None = None,
+    kernel: str | None = None,
 ) -> list[TrialResult]:
     """Run trials in lockstep; one TrialResult per trial (see :func:`run_batch`).
 
@@ -882,5 +1034,5 @@ def run_vectorised(
             t - start for t in record_delays if start <= t < stop}
         results += run_batch(scenario, family, gains, trial_seeds[start:stop], K,
                              record_delays=wanted, record_estimates=record_estimates,
-                             progress=progress).results
+                             progress=progress, kernel=kernel).results
     return results

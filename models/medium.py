@@ -51,7 +51,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 # Light at import: the netsim package registers the simulator here at start-up, so this
 # module imports numpy and the link models only when a medium is used.
@@ -417,7 +417,7 @@ class MediumDelays:
     Ts); a dropped message's latency is the time until its drop.
     """
 
-    unit = "time"
+    unit: Literal["steps", "time"] = "time"
     time_invariant = False
 
     def __init__(self, run: Any, max_delay: int) -> None:

@@ -15,8 +15,10 @@ tends to the classic S = G e^(-G) with offered load G = N p as N grows.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any
+
+import simpy
 
 from netsim.medium.core import REASON_RETRY_LIMIT, Medium, Packet
 from netsim.medium.registry import register_mac
@@ -45,7 +47,7 @@ class SlottedAloha(Medium):
             wake, self._wake = self._wake, None
             wake.succeed()
 
-    def _slots(self) -> Iterator[Any]:
+    def _slots(self) -> Generator[simpy.Event, Any, None]:
         env, rng = self.env, self.rng
         m = 0
         while True:

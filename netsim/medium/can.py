@@ -17,8 +17,10 @@ of ceil((w_m + tau_bit) / T_k) C_k, B_m the longest lower-priority frame.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any
+
+import simpy
 
 from netsim.medium.core import Medium, Packet
 from netsim.medium.registry import register_mac
@@ -59,7 +61,7 @@ class CANBus(Medium):
             wake, self._wake = self._wake, None
             wake.succeed()
 
-    def _bus(self) -> Iterator[Any]:
+    def _bus(self) -> Generator[simpy.Event, Any, None]:
         env = self.env
         n = self.n_nodes
         while True:

@@ -18,7 +18,7 @@ there is nothing to supersede).
 from __future__ import annotations
 
 from collections import deque
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -149,7 +149,7 @@ class TransmitQueue:
             self._waiter = self.env.event()
         return self._waiter
 
-    def get(self) -> Iterator[Any]:
+    def get(self) -> Generator[simpy.Event, Any, Packet]:
         """Generator (``packet = yield from queue.get()``): the head packet, waiting."""
         while not self.items:
             yield self.wait()
@@ -261,7 +261,8 @@ class Medium:
 
 def poisson_source(env: simpy.Environment, medium: Medium, source: int,
                    destinations: tuple[int, ...], rate: float, bits: float,
-                   rng: np.random.Generator, start: float = 0.0) -> Iterator[Any]:
+                   rng: np.random.Generator, start: float = 0.0
+                   ) -> Generator[simpy.Event, Any, None]:
     """SimPy process: Poisson packets (``rate`` per second) from ``source``.
 
     Background traffic (``step = -1``): exponential gaps drawn from ``rng``.

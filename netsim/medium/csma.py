@@ -26,8 +26,10 @@ CCA + turnaround = one unit backoff period).
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any
+
+import simpy
 
 from netsim.medium.core import REASON_ACCESS_FAILURE, REASON_COLLISION, Medium, Packet
 from netsim.medium.registry import register_mac
@@ -63,7 +65,7 @@ class CSMACA(Medium):
     def submit(self, packet: Packet) -> None:
         self.queues[packet.source].put(packet)
 
-    def _node(self, i: int) -> Iterator[Any]:
+    def _node(self, i: int) -> Generator[simpy.Event, Any, None]:
         env, rng = self.env, self.rng
         queue = self.queues[i]
         while True:

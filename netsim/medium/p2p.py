@@ -9,8 +9,10 @@ A broadcast is one copy per out-link.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any
+
+import simpy
 
 from netsim.medium.core import Medium, Packet, TransmitQueue
 from netsim.medium.registry import register_mac
@@ -44,7 +46,7 @@ class PointToPoint(Medium):
             self.link_queue(packet.source, d).put(
                 Packet(packet.source, (d,), packet.step, packet.created, packet.bits))
 
-    def _serve(self, queue: TransmitQueue) -> Iterator[Any]:
+    def _serve(self, queue: TransmitQueue) -> Generator[simpy.Event, Any, None]:
         env = self.env
         while True:
             packet = yield from queue.get()

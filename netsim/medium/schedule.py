@@ -18,7 +18,7 @@ per source).
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Sequence
+from collections.abc import Generator, Sequence
 from typing import Any
 
 import simpy
@@ -93,7 +93,7 @@ class MediumRun:
                                                stream(seed, "network/medium", "background",
                                                       name)))
 
-    def _traffic(self) -> Iterator[Any]:
+    def _traffic(self) -> Generator[simpy.Event, Any, None]:
         env, medium = self.env, self.medium
         jitter, rng = self.jitter, self._jitter_rng
         submit = medium.submit

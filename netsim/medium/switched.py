@@ -12,8 +12,10 @@ the uplink, and all but ``switch_buffer + 1`` are dropped on a full buffer.
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from typing import Any
+from collections.abc import Generator
+from typing import Any, cast
+
+import simpy
 
 from netsim.medium.core import Medium, Packet, TransmitQueue
 from netsim.medium.registry import register_mac
@@ -52,18 +54,21 @@ class SwitchedNetwork(Medium):
                              Packet(packet.source, (d,), packet.step, packet.created,
                                     packet.bits))
 
-    def _uplink(self, queue: TransmitQueue) -> Iterator[Any]:
+    def _arrived(self, event: simpy.Event) -> None:
+        self._forward(cast(Packet, event.value))
+
+    def _uplink(self, queue: TransmitQueue) -> Generator[simpy.Event, Any, None]:
         env = self.env
         while True:
             packet = yield from queue.get()
             yield env.timeout(packet.bits / self.bit_rate)
             if self.propagation > 0:
-                arrive = env.timeout(self.propagation)
-                arrive.callbacks.append(lambda _e, p=packet: self._forward(p))
+                arrive = env.timeout(self.propagation, packet)
+                arrive.callbacks.append(self._arrived)
             else:
                 self._forward(packet)
 
-    def _port(self, queue: TransmitQueue) -> Iterator[Any]:
+    def _port(self, queue: TransmitQueue) -> Generator[simpy.Event, Any, None]:
         env = self.env
         while True:
             packet = yield from queue.get()

@@ -15,8 +15,10 @@ close to it for a packet made just after its slot began.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator
+from collections.abc import Generator
 from typing import Any
+
+import simpy
 
 from netsim.medium.core import Medium, Packet
 from netsim.medium.registry import register_mac
@@ -50,7 +52,7 @@ class TDMA(Medium):
             wake, self._wake = self._wake, None
             wake.succeed()
 
-    def _frames(self) -> Iterator[Any]:
+    def _frames(self) -> Generator[simpy.Event, Any, None]:
         env = self.env
         slots = len(self.schedule)
         m = 0

@@ -647,6 +647,26 @@ class _FirstRow:
         Nn, R = self.Nn, self.R
         buf = np.empty(((q + R) * Nn, *X.shape[1:]), dtype=np.result_type(X.dtype, float))
         buf[q * Nn :] = X
+        if self.kind == "bsr" and buf.dtype == np.float64:
+            # scipy's own CSR kernel, the one ``S @ x`` calls (the same sums in the same
+            # order: bit for bit), straight into the buffer: the Python-level dispatch
+            # of ``@`` cost several times the product in ARPACK's many small products
+            from scipy.sparse._sparsetools import csr_matvec, csr_matvecs
+
+            S = self._S
+            rows, cols = S.shape
+            indptr, indices, data = S.indptr, S.indices, S.data
+            width = buf.shape[1] if buf.ndim == 2 else 0
+            for t in range(q - 1, -1, -1):
+                dst = buf[t * Nn : (t + 1) * Nn]
+                dst.fill(0.0)  # the kernels add into their output
+                src = buf[(t + 1) * Nn : (t + 1 + R) * Nn]
+                if width:
+                    csr_matvecs(rows, cols, width, indptr, indices, data, src.ravel(),
+                                dst.ravel())
+                else:
+                    csr_matvec(rows, cols, indptr, indices, data, src, dst)
+            return buf[: R * Nn]
         for t in range(q - 1, -1, -1):
             buf[t * Nn : (t + 1) * Nn] = self.apply(buf[(t + 1) * Nn : (t + 1 + R) * Nn])
         return buf[: R * Nn]

@@ -419,9 +419,14 @@ def _delay_analytics(scenario: Scenario, gains: GainDesign
     delays = fixed_delay_matrix(scenario)
     timing = scenario.timing
     if timing is not None and not timing.neutral:  # netsim.timedkernel: measured verdicts
+        from netsim.timedanalysis import lifted_summary
+
+        lifted = lifted_summary(scenario, gains, delays)  # exact where it applies
         delays = None
-        out["time"] = {"note": timing.analytics_note(),
-                       "summary_lines": [f"analytics: {timing.analytics_note()}"]}
+        out["time"] = {"note": timing.analytics_note(), **lifted,
+                       "summary_lines": [f"analytics: {timing.analytics_note()}",
+                                         *(lifted.get("summary_lines")
+                                           or [f"analytics: {lifted.get('lifted_note')}"])]}
     if delays is not None and scenario.n_agents * plant.n_states * (tau + 1) <= _EXACT_MAX_SIZE:
         depth = int(delays.max())
         out["realised_delays"] = {

@@ -933,23 +933,26 @@ def theorem4_check(steps: int = 200, trials: int = 0, seed: int = 0,
     """Theorem 4 (C.1), (C.2) checked with the exact covariance recursion.
 
     (C.1): the DKFE's MSE is bounded once one sink's selection probabilities satisfy
-    (71)-(72). Default instance ``c1``: Example 2 with delays (1, 14) (with the printed
-    pi, sink 1 satisfies (71)-(72) at d_1 = 1 and sink 2 fails them at d_2 = 14, see
-    :func:`netsim.models.dkfe.sink_delay_table`). Checked: (57) tr P(t) <= tr Xi_ii(t) at
-    every step, and the CSE of a sink satisfying (71)-(72) converges to its own steady
-    state (:func:`netsim.models.dkfe.stationary_fusion` of that sink alone, within
-    0.1 %), so tr P(t) stays below a convergent sequence while the other CSE grows.
+    (71)-(72). Default instance ``c1``: Example 1's plant with two sinks, gamma_11 = 0.5
+    for both, delays (0, 1) (:func:`two_sink_example1`): the same probabilities satisfy
+    (71)-(72) at d = 0 and fail them at d = 1 (:func:`netsim.models.dkfe.gamma_delay_table`).
+    (Example 2 with d = (1, 14) is such an instance too, but ten times as costly.)
+    Checked: (57) tr P(t) <= tr Xi_ii(t) at every step, and the CSE of a sink
+    satisfying (71)-(72) converges to its own steady state
+    (:func:`netsim.models.dkfe.stationary_fusion` of that sink alone, within 0.1 %), so
+    tr P(t) stays below a convergent sequence while the other CSE grows.
     (C.2): every sink satisfies (71)-(72) and (77) (default ``c2``: Example 2 as
     printed, d = (1, 2)): P(t) converges to one limit from x(0) ~ N(0, I) and
     N(0, 100 I), equal to the steady state computed independently. The control
-    (default: Example 2 with d = (14, 14), no sink satisfies (71)-(72); outside the
-    theorem) shows that the test sees growth. ``trials`` > 1 adds the lock-step Monte
-    Carlo MSE of the DKFE at the last step beside the exact tr P.
+    (default: the two-sink instance with d = (1, 1), no sink satisfies (71)-(72);
+    outside the theorem) shows that the test sees growth. ``trials`` > 1 adds the
+    lock-step Monte Carlo MSE of the DKFE at the last step beside the exact tr P.
     """
     if steps < 8:
         raise ValueError("steps must be at least 8")
     cases = [_theorem4_case("C.1", "one sink satisfies (71)-(72): the DKFE's MSE is bounded",
-                            c1 if c1 is not None else dk.example2(delays=(1, 14)), steps,
+                            c1 if c1 is not None else two_sink_example1((0.5, 0.5), (0, 1)),
+                            steps,
                             trials, seed, False),
              _theorem4_case("C.2", "every sink satisfies (71)-(72) and (77): P(t) converges "
                             "to a unique limit", c2 if c2 is not None else dk.example2(),
@@ -957,8 +960,8 @@ def theorem4_check(steps: int = 200, trials: int = 0, seed: int = 0,
     if with_control:
         cases.append(_theorem4_case(
             "control", "no sink satisfies (71)-(72) (outside the theorem)",
-            control if control is not None else dk.example2(delays=(14, 14)), steps, 0, seed,
-            False))
+            control if control is not None else two_sink_example1((0.5, 0.5), (1, 1)), steps,
+            0, seed, False))
     return Theorem4Check(int(steps), cases)
 
 
@@ -977,6 +980,8 @@ class Remark1Check:
     buffered: int  # selections that arrived before their slot and waited
     reordered: int  # selections overtaken by a later one on the same link
     messages: int
+    #: per sink (1-based): {arrival lag (usable step - sent step): count}
+    arrival_lags: dict[int, dict[int, int]] = field(default_factory=dict)
 
     @property
     def identical(self) -> bool:
@@ -986,6 +991,8 @@ class Remark1Check:
         return {"delays": list(self.delays), "steps": self.steps, "trials": self.trials,
                 "max_abs_difference": self.max_abs_difference, "buffered": self.buffered,
                 "reordered": self.reordered, "messages": self.messages,
+                "arrival_lags": {str(k): {str(a): b for a, b in v.items()}
+                                 for k, v in self.arrival_lags.items()},
                 "identical": self.identical}
 
     def format_text(self) -> str:
@@ -1004,6 +1011,7 @@ def remark1_check(delays: tuple[int, ...] = (3, 2), steps: int = 40, trials: int
     setup = dk.example2(delays=delays)
     covs = covariances_for(setup)
     worst, buffered, reordered, messages = 0.0, 0, 0, 0
+    lags: dict[int, dict[int, int]] = {i + 1: {} for i in range(setup.n_sinks)}
     for t in range(int(trials)):
         s = child_sequence(seed, "trial", t)
         fixed = run_fusion_trial(setup, s, steps, covariances=covs)
@@ -1013,13 +1021,16 @@ def remark1_check(delays: tuple[int, ...] = (3, 2), steps: int = 40, trials: int
         messages += len(varying.arrivals)
         buffered += sum(1 for (i, sent), usable in varying.arrivals.items()
                         if usable < sent + setup.delays[i])
+        for (i, sent), usable in varying.arrivals.items():
+            lags[i + 1][usable - sent] = lags[i + 1].get(usable - sent, 0) + 1
         for i in range(setup.n_sinks):
             order = sorted((u, s_) for (j, s_), u in varying.arrivals.items() if j == i)
             sent_order = [s_ for _, s_ in order]
             reordered += sum(1 for k in range(1, len(sent_order))
                              if sent_order[k] < max(sent_order[:k]))
     return Remark1Check(tuple(int(d) for d in delays), int(steps), int(trials), worst,
-                        buffered, reordered, messages)
+                        buffered, reordered, messages,
+                        {k: dict(sorted(v.items())) for k, v in lags.items()})
 
 
 def readings_report(quick: bool = False) -> tuple[dict[str, Any], str]:

@@ -318,3 +318,70 @@ def test_readings_report_quick_builds_text_and_json():
     assert "(94)" in text and "Theorem 4" in text and "Remark 1" in text
     assert data["theorem4"]["c1_holds"] and data["remark1"]["identical"]
     assert data["eq94_readings"]["matching"] == []
+
+
+# ---------------------------------------------------------------------------
+# the claims and reproduce items (netsim.papers.dkfe)
+# ---------------------------------------------------------------------------
+
+
+def _context(**cache):
+    from netsim.claims.core import Context
+
+    ctx = Context(seed=0)
+    ctx.cache.update({f"dkfe-issue31:{k}": v for k, v in cache.items()})
+    return ctx
+
+
+def test_new_claims_and_items_are_registered_with_their_jobs():
+    from netsim.claims import REGISTRY
+    from netsim.reproduce.items import items
+
+    for cid in ("D-eq94-readings", "D-thm2-delays", "D-theorem4", "D-remark1"):
+        claim = REGISTRY[cid]
+        assert claim.paper == "dkfe" and all(s.startswith("dkfe-issue31:")
+                                             for s in claim.searches)
+    ids = {i.id for i in items()}
+    assert {"dkfe-eq94-readings", "dkfe-gamma-delay", "dkfe-dimension", "dkfe-theorem4",
+            "dkfe-remark1"} <= ids
+
+
+def test_eq94_claim_verdict_follows_the_enumeration():
+    from netsim.claims.core import PROVED, REFUTED
+    from netsim.papers._dkfe_readings import check_eq94_readings
+
+    data = dk.eq94_readings(("categorical", "uniform-r-of-n"), (), delay_readings=(),
+                            marginal_search=False).to_dict()
+    out = check_eq94_readings(_context(eq94=data))
+    assert out.verdict == REFUTED and "uniform-r-of-n at 0.1261" in out.summary
+    # a reading that gives the printed weights turns the verdict
+    hit = dict(data, matching=["uniform-r-of-n"])
+    assert check_eq94_readings(_context(eq94=hit)).verdict == PROVED
+
+
+def test_theorem2_delays_claim_refutes_a_feasible_lmi_with_a_diverging_chain():
+    from netsim.claims.core import PROVED, REFUTED
+    from netsim.papers._dkfe_readings import check_theorem2_delays
+
+    g = dk.gamma_delay_table((0.6,), (0, 1), resolution=20, lmis=False).to_dict()
+    for c in g["cells"]:
+        c["lmi71_72"] = c["radius"] < 1  # as cvxpy found (tested above)
+    s = dk.sink_delay_table(delays=(0, 1), lmis=False).to_dict()
+    for r in s["rows"]:
+        r["lmi71_72"] = r["radius"] < 1
+    assert check_theorem2_delays(_context(gamma=g, sinks=s)).verdict == PROVED
+    bad = {**g, "cells": [dict(c, radius=1.5) if c["d"] == 0 else c for c in g["cells"]]}
+    assert check_theorem2_delays(_context(gamma=bad, sinks=s)).verdict == REFUTED
+
+
+def test_theorem4_and_remark1_claims_on_small_runs():
+    from netsim.claims.core import PROVED, REFUTED
+    from netsim.papers._dkfe_readings import check_remark1, check_theorem4
+
+    t = nf.theorem4_check(steps=60, c1=nf.two_sink_example1((0.5, 0.2)),
+                          c2=nf.two_sink_example1((0.5, 0.6)), with_control=False).to_dict()
+    assert check_theorem4(_context(theorem4=t)).verdict == PROVED
+    assert check_theorem4(_context(theorem4=dict(t, c1_holds=False))).verdict == REFUTED
+    r = nf.remark1_check(steps=15, trials=1).to_dict()
+    assert check_remark1(_context(remark1=r)).verdict == PROVED
+    assert check_remark1(_context(remark1=dict(r, identical=False))).verdict == REFUTED

@@ -4,7 +4,10 @@ Its claims (``D-*``: Table I, Theorems 2-3 with conditions (74)-(77), the printe
 (83), (88), (93)-(95) and Figs. 6-8), the counted search of Theorem 2 / (75)-(76) over
 random one-sink instances, the Monte Carlo job ``fusion:SCALE:TRIALS`` the figure claims
 read, and the reproduce items Table I, Figs. 3-8 and Example 2 (built in
-:mod:`netsim.papers._dkfe_figures`), all declared in :data:`PAPER` at the end. The
+:mod:`netsim.papers._dkfe_figures`), all declared in :data:`PAPER` at the end. Issue 31
+adds the readings of (94), (71)-(72) against the delay, Theorem 4 and Remark 1 as claims
+and, with the r_i sweep, as reproduce items (:mod:`netsim.papers._dkfe_readings`; their
+computations run as the jobs ``dkfe-issue31:NAME``). The
 estimator is :mod:`netsim.fusion` and :mod:`netsim.models.dkfe`.
 """
 
@@ -40,6 +43,19 @@ from netsim.papers._dkfe_figures import (
     build_fig34,
     build_table1,
 )
+from netsim.papers._dkfe_readings import (
+    JOB,
+    build_dimension,
+    build_eq94_readings,
+    build_gamma_delay,
+    build_remark1,
+    build_theorem4,
+    check_eq94_readings,
+    check_remark1,
+    check_theorem2_delays,
+    check_theorem4,
+)
+from netsim.papers._dkfe_readings import job as _issue31_job
 from netsim.reproduce.items import Item
 
 __all__ = ["PAPER", "DKFE", "TEXT_FILE", "DkfeInstance", "dkfe_numbers", "search_dkfe",
@@ -461,6 +477,34 @@ CLAIMS = (
           "the difference between the DKFE and the SDKFE estimates converges to zero",
           ("Example 2, d = (1, 2)",), "figure", check_dkfe_fig8,
           searches=("fusion:1:20",)),
+    Claim("D-eq94-readings", DKFE, "eq. (94), Example 2, eqs. (11)-(23)",
+          "the printed weights (94) are Algorithm 1's steady-state weights under one of the "
+          "readings of Example 2's selection model that netsim enumerates (categorical, "
+          "independent Bernoulli and other selection laws, deterministic schedules, the "
+          "covariance that enters, the delays (d_1, d_2) in 0..3, the labelling of "
+          "Omega_1, Omega_2)",
+          ("Example 2", "a match: every entry within 0.01 and >= 12 of Omega_1's 16 entries "
+           "to 4 decimals"), "printed", check_eq94_readings, searches=(f"{JOB}:eq94",)),
+    Claim("D-thm2-delays", DKFE, "Theorem 2, eqs. (71)-(72), with delays",
+          "if (71)-(72) are feasible for the delay d_i and the selection probabilities, "
+          "Xi_ii(t) converges (the conditions are delay-dependent; Table I shows d_i = 0 "
+          "only)",
+          ("Example 1, gamma_11 = 0, 0.1, ..., 1, d_1 = 0..3",
+           "Example 2 with the printed pi, d_i = 0..15",
+           "M_i(1,1) read from the proof's (121)"), "theorem", check_theorem2_delays,
+          searches=(f"{JOB}:gamma", f"{JOB}:sinks")),
+    Claim("D-theorem4", DKFE, "Theorem 4, (C.1)-(C.2)",
+          "(C.1) selection probabilities of one sink satisfying (71)-(72) make the DKFE's "
+          "MSE bounded; (C.2) all sinks satisfying (71)-(72) and (77) give the SDKFE (P(t) "
+          "converges to a unique limit)",
+          ("(C.1): Example 1's plant with two sinks, gamma_11 = 0.5 each, d = (0, 1)",
+           "(C.2): Example 2, d = (1, 2)"), "theorem",
+          check_theorem4, searches=(f"{JOB}:theorem4",)),
+    Claim("D-remark1", DKFE, "Remark 1, eqs. (19)-(20)",
+          "time-varying delays d_i(t) <= d_i^u buffered at the FC to the bound reduce to the "
+          "constant-delay model (9), so (15) and the DKFE apply unchanged",
+          ("Example 2, bounds d = (3, 2), delays uniform in 0..d_i - 1 link steps",),
+          "theorem", check_remark1, searches=(f"{JOB}:remark1",)),
 )
 
 _DKFE_X0 = "x(0) ~ N(0, I) is our choice: the paper gives no initial statistics."
@@ -541,6 +585,48 @@ ITEMS = (
           "(79) prints P^-1 I_a^T Xi^-1; we use P I_a^T Xi^-1, the limit of (31)."),
          ("D-cond77",),
          build_example2),
+    Item("dkfe-eq94-readings", DKFE, "eq. (94), readings",
+         "Readings of Example 2's selection model and the distance of their steady-state "
+         "weights to the printed (94).",
+         "Algorithm 1 gives the steady-state weighting matrices (94) for the categorical "
+         "selection (91) with d_1 = 1, d_2 = 2.",
+         ("The paper's model is read in many ways here (the selection law, the covariance "
+          "that enters, the delays, the labelling); our own reading is 'categorical'.",
+          "Steady states with steady-state local gains (the limit Theorem 3 speaks of)."),
+         ("D-eq94", "D-eq94-readings"),
+         build_eq94_readings),
+    Item("dkfe-gamma-delay", DKFE, "(71)-(72) against d",
+         "Theorem 2's conditions (71)-(72) over gamma_11 and the delay d_1 (Example 1), and "
+         "per sink over d_i (Example 2).",
+         "(71)-(72) are delay- and probability-dependent LMIs; Table I covers d_1 = 0 only.",
+         ("Not in the paper: it gives (71)-(72) no table with delays.",
+          "(71)-(72) solved with cvxpy; M_i(1,1) read from the proof's (121)."),
+         ("D-thm2-delays", "D-table1"),
+         build_gamma_delay),
+    Item("dkfe-dimension", DKFE, "r_i sweep",
+         "The steady fusion error against the number r_i of components each sink sends "
+         "(Example 2).",
+         "Only r_i < n components are sent (bandwidth); the paper fixes r_1 = r_2 = 2.",
+         ("Not in the paper: the selection is uniform over the r-subsets (the paper gives "
+          "probabilities for r = 2 only); r = 4 is the reference without reduction.",),
+         ("D-eq94-readings",),
+         build_dimension),
+    Item("dkfe-theorem4", DKFE, "Theorem 4",
+         "tr P(t) and tr Xi_ii(t) when one sink, both or neither satisfy (71)-(72).",
+         "(C.1) one sink's probabilities from (71)-(72) bound the DKFE's MSE; (C.2) all "
+         "sinks' from (71)-(72) and (77) give the SDKFE.",
+         ("Our instances: (C.1) Example 1's plant with two sinks (gamma_11 = 0.5, d = (0, 1)); "
+          "(C.2) Example 2, d = (1, 2); the control: the two sinks with d = (1, 1).",
+          _DKFE_X0),
+         ("D-theorem4",),
+         build_theorem4),
+    Item("dkfe-remark1", DKFE, "Remark 1",
+         "Time-varying delays buffered at the fusion centre to their bound.",
+         "Prolonging each time-varying delay to its upper bound reduces (19) to (20), the "
+         "structure of (9), so (15) still applies.",
+         ("Our delays: uniform in 0..d_i - 1 link steps (the paper gives no law).",),
+         ("D-remark1",),
+         build_remark1, seeded=True),
 )
 
 
@@ -558,5 +644,5 @@ PAPER = register_paper(Paper(
     claims=CLAIMS,
     items=ITEMS,
     searches=(Search("D-cond75", search_dkfe),),
-    jobs={"fusion": _fusion_job},
+    jobs={"fusion": _fusion_job, JOB: _issue31_job},
 ))

@@ -532,14 +532,21 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
             interrupt.check()  # a requested Ctrl-C stops here, between chunks
             k1 = min(k0 + chunk_steps, K + 1)
             c = k1 - k0
-            worst = consensus_chunk(k0, k1, *args, sq_chunk, est_chunk, record_estimates,
+            direct = outputs.all_alive  # written straight into the record
+            sq_out = outputs.sq[k0:k1] if direct else sq_chunk
+            est_out = (outputs.estimates[k0:k1] if direct and outputs.estimates is not None
+                       else est_chunk)
+            worst = consensus_chunk(k0, k1, *args, sq_out, est_out, record_estimates,
                                     acc, prior, res)
             last = k1 - 1
-            if outputs.all_alive and worst <= outputs.threshold_sq and worst < np.inf:
-                outputs.sq[k0:k1] = sq_chunk[:c]
+            if direct and worst <= outputs.threshold_sq and worst < np.inf:
+                continue  # every error of the chunk finite and within the threshold
+            if direct:  # recorded again step by step below, with the divergence rule
+                sq_chunk[:c] = sq_out
+                sq_out[...] = np.nan
                 if outputs.estimates is not None:
-                    outputs.estimates[k0:k1] = est_chunk[:c]
-                continue
+                    est_chunk[:c] = est_out
+                    est_out[...] = np.nan
             alive = True
             for k in range(k0, k1):
                 alive = outputs.record_errors(

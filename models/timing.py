@@ -39,12 +39,15 @@ from netsim.models.continuous import ContinuousModel
 from netsim.models.triggers import TRIGGER_KINDS, TriggerSpec
 
 __all__ = ["TIME_KEYS", "TRIGGER_KEYS", "TimeError", "ClockDistribution", "TimeSpec",
-           "parse_time", "plant_table_with_continuous"]
+           "parse_time", "plant_table_with_continuous", "MIN_PERIOD_FRACTION", "MAX_OFFSET",
+           "MAX_DRIFT_PPM"]
 
 TIME_KEYS = {"Ac", "Qc", "periods", "phases", "offset", "drift_ppm", "jitter", "seed",
              "trigger"}
 TRIGGER_KEYS = {"kind", "threshold", "every"}
 _DISTRIBUTIONS = {"uniform": ({"low", "high"}, set()), "normal": ({"std"}, {"mean"})}
+#: Shortest sampling period accepted, as a fraction of run.sample_period.
+MIN_PERIOD_FRACTION = 1e-3
 #: Largest |offset| (time units) and |drift| (ppm) accepted.
 MAX_OFFSET = 1e9
 MAX_DRIFT_PPM = 1e5
@@ -339,9 +342,10 @@ def parse_time(table: Any, A: np.ndarray, Q: np.ndarray, period: float,
     for i, p in enumerate(periods):
         if not p > 0:
             raise TimeError("time.periods", f"agent {i}'s period must be > 0, got {p:g}")
-        if p < 1e-6 * period:
-            raise TimeError("time.periods", f"agent {i}'s period {p:g} is below 1e-6 "
-                                            "run.sample_period (too many events)")
+        if p < MIN_PERIOD_FRACTION * period:
+            raise TimeError("time.periods", f"agent {i}'s period {p:g} is below "
+                                            f"{MIN_PERIOD_FRACTION:g} run.sample_period "
+                                            "(too many events)")
     phases = _per_agent(table.get("phases", 0.0), "time.phases", n_agents)
     offset = _distribution(table.get("offset", 0.0), "time.offset", n_agents, MAX_OFFSET)
     drift = _distribution(table.get("drift_ppm", 0.0), "time.drift_ppm", n_agents,

@@ -54,12 +54,14 @@ from netsim.models.continuous import ContinuousModel
 from netsim.models.plant import LinearPlant
 
 __all__ = ["TimedSimulation", "SampleRecord", "run_timed_trial", "timed_engine_note",
-           "TIMED_FALLBACK_NOTE", "cannot_run_timed"]
+           "TIMED_FALLBACK_NOTE", "cannot_run_timed", "MAX_EVENTS"]
 
 #: The one line the engine selection prints for a scenario with a ``[time]`` table.
 TIMED_FALLBACK_NOTE = ("the [time] table (clocks, asynchronous sampling, triggers) runs on "
                        "the event kernel only; the vectorised engine does not model it")
 
+#: Most sampling events one timed trial may hold (the timeline is built up front).
+MAX_EVENTS = 2e7
 #: Env times within this many base periods of a whole number are that number.
 _SNAP = 1e-9
 
@@ -467,6 +469,12 @@ def run_timed_trial(scenario: Any, family: Any, gains: Any, trial_seed: Any,
     from netsim.models.seeding import stream
 
     timing = scenario.timing
+    # samples of all agents over the run (drift at most 10 %, MAX_DRIFT_PPM)
+    events = (steps + 1) + sum(1.1 * steps * scenario.sample_period / p + 1
+                               for p in timing.periods)
+    if events > MAX_EVENTS:
+        raise ValueError(f"time.periods: {events:.3g} sampling events over {steps} steps "
+                         f"exceed {MAX_EVENTS:.0e} (longer periods or fewer steps)")
     context = FamilyContext(scenario, gains, trial_seed, family.name)
     form = TIMED_FORMS.get(family.name) if family.source == "builtin" else None
     plans = form(context) if form is not None else family.agents(context)

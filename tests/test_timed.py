@@ -511,3 +511,10 @@ def test_lifted_radius_matches_the_noise_free_decay():
             assert measured == pytest.approx(lifted.rho_per_period, rel=1e-2)
         else:
             assert measured == pytest.approx(1.04, rel=2e-3)
+
+
+def test_too_many_sampling_events_is_one_line():
+    _, timed = _pair({"periods": [0.001, 1.0, 1.0, 1.0]}, steps=100000)
+    with pytest.raises(ValueError, match="^time.periods: .* exceed") as info:
+        run_trial(timed, "compensated", scenario_gains(timed), 0)
+    assert "\n" not in str(info.value)

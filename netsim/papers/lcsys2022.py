@@ -77,6 +77,7 @@ from netsim.papers._consensus import (
     lcsys_instance,
     rho_row,
 )
+from netsim.papers._design_claims import check_block, check_discussion5
 from netsim.reproduce.items import (
     BuildContext,
     Item,
@@ -742,6 +743,18 @@ CLAIMS = (
     Claim("L-corollary1", LCSYS, "Corollary 1, Section III-A",
           "for observable (P kron A, D_C-bar) a block-diagonal K with rho(A-hat) < 1 can be "
           "designed (LMI)", ("Lemma 1",), "theorem", check_corollary1),
+    Claim("L-discussion5", LCSYS, "Discussion 5 (Section III-D)",
+          "gains redesigned by the LMI (13) against (I-KD_C)(P kron A^(tau1+1)), i.e. with "
+          "rho(A-hat_tau1) < 1, give a stable delayed closed loop (10) for every tau-bar "
+          "<= tau1", (_L_HYP[0], "K block-diagonal with rho((I-KD_C)(P kron A^(tau1+1))) "
+                      "< 1 (nothing asks rho(A-hat) < 1)", _L_HYP[2]), "theorem",
+          check_discussion5),
+    Claim("L-block", LCSYS, "Discussion 1, eqs. (15)-(16)",
+          "with unknown delays bounded by tau-bar, updating every tau-bar+1 steps by (15)-(16) "
+          "is a delay-free estimator with system matrix A^(tau-bar+1): stable iff "
+          "rho((I-KD_C)(P kron A^(tau-bar+1))) < 1, its stability analysis as in Theorem 1",
+          (_L_HYP[0], "delays bounded by tau-bar, unknown, possibly time-varying"),
+          "theorem", check_block),
     Claim("L-rho", LCSYS, "Section IV",
           f"the LMI gains give rho(A-hat) = {LCSYS_RHO:g}", (_NOT_PRINTED,), "printed",
           check_printed_rho, {"rho_delay_free": LCSYS_RHO}, bench=_rho_row),

@@ -53,6 +53,19 @@ crossover. The largest crossover over the shapes is the recommended threshold.
     python benchmarks/spectral_radius.py --crossover      # about 30 s idle
     python benchmarks/spectral_radius.py --crossover --json
 
+Krylov reuse mode (``--krylov-reuse``, issue 34: "reuse Krylov bases across the gamma
+grid"): the local gain design's grid (``LOCAL_GAMMAS``, one ARPACK radius per gamma of
+the delay-free loop) on ``examples/geometric-100k.toml`` shrunk to ``--reuse-agents``
+agents (default 2,000: ``N n = 12,000``, the largest size the design still searches),
+three ways in one run: **cold** (each gamma from the seeded random start vector, as
+:func:`netsim.models.augmented._arpack_rho` runs it), **warm-1** (ARPACK's ``v0`` = the
+previous gamma's top Ritz vector, real plus imaginary part) and **warm-k** (``v0`` = the
+sum of the previous gamma's ``k`` Ritz vectors). It prints per gamma the CPU seconds
+(``time.process_time``), the operator applications and the radius, and the totals; the
+radii must agree to 1e-12.
+
+    python benchmarks/spectral_radius.py --krylov-reuse [--reuse-agents 2000]
+
 Progress goes to stderr; stdout holds the table (or, with ``--json``, exactly one
 JSON object and no table).
 """
@@ -291,6 +304,71 @@ def print_crossover(summary: dict[str, Any]) -> None:
           f"(current {summary['current_threshold']})")
 
 
+def run_krylov_reuse(agents: int) -> dict[str, Any]:
+    """ARPACK on the local design's gamma grid: cold vs warm-started (see the docstring)."""
+    import time
+    import tomllib
+
+    from netsim.estimators import gains as G
+    from netsim.models import augmented as aug
+    from netsim.models.scenario import parse_scenario
+    from scipy.sparse.linalg import LinearOperator, eigs
+
+    path = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))),
+                        "examples", "geometric-100k.toml")
+    with open(path, "rb") as fh:
+        data = tomllib.load(fh)
+    scale = (data["network"]["agents"] / agents) ** 0.5  # the same mean degree
+    data["network"]["agents"] = data["plant"]["sensors"] = agents
+    data["network"]["radius"] *= scale
+    scenario = parse_scenario(data, f"geometric-100k shrunk to {agents} agents")
+    P = scenario.weights_sparse
+    A = np.asarray(scenario.plant.A, dtype=float)
+    C = [np.atleast_2d(np.asarray(Ci, dtype=float)) for Ci in scenario.plant.C]
+    unit: dict[int, np.ndarray] = {}
+    for Ci in C:
+        if id(Ci) not in unit:
+            unit[id(Ci)] = G._gain_from_effective(Ci.T @ np.linalg.pinv(Ci @ Ci.T), Ci)[0]
+    q, k = aug.ARPACK_POWER, aug.ARPACK_K
+    modes: dict[str, list[dict[str, Any]]] = {}
+    for mode in ("cold", "warm-1", "warm-k"):
+        previous = None
+        rows = []
+        for gamma in G.LOCAL_GAMMAS:
+            L = [gamma * unit[id(Ci)] for Ci in C]
+            row = aug._FirstRow(aug._gain_blocks(L, C), P, None, A[None])
+            D = row.Nn
+            count = [0]
+
+            def apply(X: np.ndarray, row: Any = row, count: list[int] = count) -> np.ndarray:
+                count[0] += 1
+                return row.companion_power(X, q)
+
+            op = LinearOperator((D, D), matvec=apply, matmat=apply, dtype=float)
+            v0 = (np.random.default_rng(0).standard_normal(D) if previous is None
+                  else previous)
+            log(f"krylov reuse: {mode}, gamma {gamma} ...")
+            start = time.process_time()
+            with aug._single_threaded_blas():
+                vals, vecs = eigs(op, k=k, which="LM", tol=aug.ARPACK_TOL,
+                                  ncv=min(aug.ARPACK_NCV, D), v0=v0,
+                                  maxiter=aug.ARPACK_MAXITER)
+            cpu = time.process_time() - start
+            top = int(np.argmax(np.abs(vals)))
+            if mode == "warm-1":
+                previous = vecs[:, top].real + vecs[:, top].imag
+            elif mode == "warm-k":
+                previous = (vecs.real + vecs.imag).sum(axis=1)
+            rows.append({"gamma": gamma, "cpu_s": cpu, "applications": count[0],
+                         "power": q, "rho": float(np.max(np.abs(vals))) ** (1.0 / q)})
+        modes[mode] = rows
+    cold = [r["rho"] for r in modes["cold"]]
+    return {"agents": agents, "states": int(P.shape[0]) * A.shape[0], "modes": modes,
+            "totals": {m: sum(r["cpu_s"] for r in rows) for m, rows in modes.items()},
+            "max_abs_diff": max(abs(r["rho"] - c) for rows in modes.values()
+                                for r, c in zip(rows, cold, strict=True))}
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(
         description="Structured (ARPACK) vs dense spectral radius of the augmented closed loop.",
@@ -335,8 +413,26 @@ def main(argv: list[str] | None = None) -> int:
                     help="crossover: tau step (default 2)")
     ap.add_argument("--crossover-shapes", default="homogeneous,heterogeneous",
                     help="crossover shapes (homogeneous: N=4, n=6; heterogeneous: N=10, n=3)")
+    ap.add_argument("--krylov-reuse", action="store_true",
+                    help="measure ARPACK warm starts across the local design's gamma grid")
+    ap.add_argument("--reuse-agents", type=int, default=2000,
+                    help="krylov reuse: agents of the shrunk geometric example (2000)")
     ap.add_argument("--_dense-worker", dest="dense_worker", help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
+
+    if args.krylov_reuse:
+        reuse = run_krylov_reuse(args.reuse_agents)
+        if args.json:
+            print(json.dumps(reuse, indent=2))
+        else:
+            for mode, rows in reuse["modes"].items():
+                for r in rows:
+                    print(f"{mode:7} gamma {r['gamma']:.1f}: {r['cpu_s']:6.3f} s CPU, "
+                          f"{r['applications']:4d} applications of M^{r['power']}, "
+                          f"rho {r['rho']:.15f}")
+                print(f"{mode:7} total {reuse['totals'][mode]:.3f} s CPU")
+            print(f"largest |rho - rho cold| {reuse['max_abs_diff']:.2e}")
+        return 0
 
     if args.dense_worker is not None:
         print(json.dumps(dense_worker(json.loads(args.dense_worker))))

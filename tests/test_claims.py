@@ -51,8 +51,9 @@ def test_registry_entries_are_complete():
     assert papers == {"LCSYS2022", "delay-tolerant", "aoi", "dkfe"}
     for c in REGISTRY.values():
         assert c.statement and c.where and c.kind in ("theorem", "printed", "figure")
-    assert [c.id for c in select(["aoi"])] == ["A-theorem1", "A-lemma3", "A-lemma5",
-                                            "A-corollary1", "A-naive-growth"]
+    assert [c.id for c in select(["aoi"])] == ["A-theorem1", "A-lemma2", "A-lemma3",
+                                            "A-lemma4", "A-lemma5", "A-corollary1",
+                                            "A-naive-growth"]
     with pytest.raises(ValueError):
         select(["no-such-claim"])
 

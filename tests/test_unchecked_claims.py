@@ -343,3 +343,64 @@ def test_convergence_counts_an_ill_conditioned_deadbeat_run_at_its_round_off_flo
     assert conv is not None and conv <= 5 + 2 * 2 * 1 * 1
     report = run_monte_carlo(sc, families=["aoi"]).estimators["aoi"].report
     assert report["converged_at"] is None  # the fixed 1e-9 misses it
+
+
+# -- the registered claims ----------------------------------------------------------------
+
+
+def test_the_new_claims_are_registered_under_their_papers():
+    from netsim.claims import REGISTRY
+    from netsim.reproduce import ITEMS
+
+    papers = {"L-discussion5": "LCSYS2022", "L-block": "LCSYS2022",
+              "T-discussion5": "delay-tolerant", "A-lemma2": "aoi", "A-lemma4": "aoi"}
+    for cid, paper in papers.items():
+        c = REGISTRY[cid]
+        assert c.paper == paper and c.check is not None and c.kind == "theorem"
+    item = next(it for it in ITEMS if it.id == "aoi-convergence-time")
+    assert item.paper == "aoi" and "A-corollary1" in item.claims
+
+
+def test_discussion5_check_refutes_with_a_verified_counterexample(tmp_path):
+    """The check's counterexample, recomputed with the hand-built matrix of (10), and its
+    scenario file, which netsim loads."""
+    from netsim.api import load_scenario
+    from netsim.claims import REFUTED, REGISTRY, Context
+
+    ctx = Context(seed=0, instances=20, out=tmp_path)
+    ctx.cache["lcsys-redesigned"] = {}  # our instance's LMI redesigns: not needed here
+    out = REGISTRY["L-discussion5"].run(ctx)
+    assert out.verdict == REFUTED and out.counterexample["verification"]["confirmed"]
+    cx = out.counterexample
+    P, A, C, L = scalar(cx["a"], cx["P"], cx["c"], cx["k"])
+    tau = cx["tau"]
+    M = closed_loop_by_hand(P, A, C, L, homogeneous_link_delays(P, tau)) if tau else \
+        (np.diag([1 - k * c * c for k, c in zip(cx["k"], cx["c"], strict=True)]) @ P
+         * cx["a"])
+    assert rho(M) == pytest.approx(cx["exact_rho"], rel=1e-9) and rho(M) > 1
+    hat = np.diag([1 - k * c * c for k, c in zip(cx["k"], cx["c"], strict=True)]) @ P \
+        * cx["a"] ** (cx["tau1"] + 1)
+    assert rho(hat) < 1  # the hypothesis
+    sc = load_scenario(cx["scenario"])
+    assert sc.n_agents == len(cx["c"])
+
+
+@pytest.mark.parametrize("cid, prefill", [
+    ("L-block", {"lcsys-block": {}, "lcsys": {}}),
+    ("T-discussion5", {"tolerant-switching": {"tau": 10, "rho_hat": 0.5, "growth": 0.9,
+                                              "homogeneous_exact": 0.9}}),
+    ("A-lemma2", {"aoi-lemmas-example": {"lemma_2": {"events": 0, "violations": []},
+                                         "lemma_4": {"checked": 0, "max_residual": 0.0,
+                                                     "violations": []}}}),
+])
+def test_a_search_cut_short_by_the_budget_is_undecided(cid, prefill):
+    from netsim.models.augmented import TauStar
+
+    from netsim.claims import REGISTRY, UNDECIDED, Context
+
+    ctx = Context(seed=0, budget=0.0)
+    ctx.cache.update(prefill)
+    if "lcsys" in prefill:  # our instance's tau* scan, not needed here
+        ctx.cache["lcsys"] = {"star": TauStar(2, (), (0.5, 0.7, 0.9, 1.1))}
+    out = REGISTRY[cid].run(ctx)
+    assert out.verdict == UNDECIDED and "cut short" in out.reason

@@ -30,6 +30,7 @@ from netsim.claims.core import (
 from netsim.claims.search import DEFAULT_INSTANCES, Found, random_search
 from netsim.claims.searches import SLOW_SEARCH_SHARE
 from netsim.papers import Paper, Search, register_paper
+from netsim.papers._aoi_lemmas import CONVERGENCE_ITEM, check_aoi_lemma2, check_aoi_lemma4
 from netsim.reproduce.items import (
     BuildContext,
     Item,
@@ -401,9 +402,19 @@ CLAIMS = (
           "exponentially at any desired rate rho",
           _AOI_HYP[:2] + ("rate design: A_jj - L_j C_jj with distinct real eigenvalues, "
                           "rho_1 < ... < rho_N < rho",), "theorem", check_aoi_theorem1),
+    Claim("A-lemma2", AOI, "Lemma 2",
+          "a non-source node adopts the source's value (index 1) at every step at which "
+          "the source is its in-neighbour", ("the rules (7)-(14); no assumption on the "
+                                             "graphs",),
+          "theorem", check_aoi_lemma2),
     Claim("A-lemma3", AOI, "Lemma 3",
           "every freshness index is triggered (finite) by step (N-1)T", _AOI_HYP[:1],
           "theorem", check_aoi_lemma3, searches=("A-corollary1",)),
+    Claim("A-lemma4", AOI, "Lemma 4, eq. (18)",
+          "a non-source estimate with freshness index m >= 1 is the source's estimate m "
+          "steps old propagated by A_jj, plus the lower substates of nodes v(t) != j "
+          "(eq. 18)", ("the rules (7)-(14); no assumption on the graphs",), "theorem",
+          check_aoi_lemma4),
     Claim("A-lemma5", AOI, "Lemma 5",
           "from step (N-1)T on every freshness index is at most 2(N-1)T", _AOI_HYP[:1],
           "theorem", check_aoi_lemma5, searches=("A-corollary1",)),
@@ -433,6 +444,7 @@ ITEMS = (
           "The third panel (freshness-index observer, Section 4) is ours, for comparison."),
          ("A-naive-growth", "A-corollary1"),
          _build_aoi_fig2, seeded=True),
+    CONVERGENCE_ITEM,
 )
 
 PAPER = register_paper(Paper(

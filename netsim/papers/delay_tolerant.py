@@ -57,6 +57,7 @@ from netsim.papers._consensus import (
     lcsys_instance,
     rho_row,
 )
+from netsim.papers._design_claims import check_tolerant_discussion5
 from netsim.papers.lcsys2022 import LCSYS_RHO, LCSYS_TAU_STAR, ours_rho
 from netsim.reproduce.items import (
     BuildContext,
@@ -509,6 +510,13 @@ CLAIMS = (
     Claim("T-decay", TOLERANT, "eq. (17)",
           "longer delays result in a lower decay rate of the error (13)", _T_HYP, "theorem",
           check_tolerant_decay, bench=_c_decay_t),
+    Claim("T-discussion5", TOLERANT, "Discussion 5 (Section III-D)",
+          "gains designed by the LMI (16) for the delay-free nN matrix A-hat need no "
+          "knowledge of the delays P-bar[k]: the delayed error (13) stays stable under "
+          "unknown time-varying delays (Assumption 2)",
+          (_T_HYP[0], "K from the LMI (16) at rate 1 (rho(A-hat) < 1)", _T_HYP[2],
+           "here rho(A) <= 1, so that (13) is the error recursion (see T-theorem1)"),
+          "theorem", check_tolerant_discussion5),
     Claim("T-rho", TOLERANT, "Section V",
           f"the LMI gains give rho(A-hat) = {TOLERANT_RHO:g}", (_NOT_PRINTED,), "printed",
           check_tolerant_printed, {"rho_delay_free": TOLERANT_RHO}, bench=_rho_row),

@@ -10,9 +10,13 @@ asserted, except that the anchor's squared errors agree):
    ``run_trials(..., engine="vectorised")``, interleaved, best of ``--repeat`` (at
    least 3), and the largest difference of the squared errors relative to their
    round-off scale 2 ||e|| ||x|| (``agree`` below 1e-12). In the same rounds the
-   engine runs the batch with asynchronous random delays too, and both are set against
-   the arithmetic floor (:func:`floor_flops_per_trial_step` at the DGEMM rate of this
-   thread, :func:`dgemm_peak`).
+   engine runs the batch with asynchronous random delays too, a numba loop written
+   from the same equations (:data:`NUMBA_SOURCE`, :func:`numba_anchor`; "numba not
+   installed" when it is not) runs both batches, the engine runs both with its numpy
+   step and (numba installed) its compiled step (``NETSIM_NUMBA=1``), every result is
+   checked against the numpy step's, and all are set against the arithmetic floor
+   (:func:`floor_flops_per_trial_step` at the DGEMM rate of this thread,
+   :func:`dgemm_peak`).
 1. **Engine ratio** (in this process): trial-steps per second of
    ``netsim.runner.run_trials(..., engine="vectorised")`` over ``engine="events"`` for
    the compensated estimator at N = 4, 32, 128 (random strongly-connected graph,

@@ -564,6 +564,8 @@ class _FirstRow:
 
         N, n = G.shape[0], G.shape[1]
         self.N, self.n, self.R = N, n, B.shape[0]
+        #: :meth:`_csr_power`'s buffers and views per (power, columns, thread)
+        self._plans: dict[tuple[int, int, int], Any] = {}
         self.Nn = N * n
         if sp.issparse(P):
             # sparse P (large N): ``index`` is per stored entry in CSR order, or None
@@ -645,31 +647,54 @@ class _FirstRow:
         """
         X = np.asarray(X)
         Nn, R = self.Nn, self.R
+        kind = X.dtype.kind  # float64 products (np.result_type costs several us here)
+        if self.kind == "bsr" and X.ndim <= 2 and (kind in "biu" or (
+                kind == "f" and X.dtype.itemsize <= 8)):
+            return self._csr_power(X, q)
         buf = np.empty(((q + R) * Nn, *X.shape[1:]), dtype=np.result_type(X.dtype, float))
         buf[q * Nn :] = X
-        if self.kind == "bsr" and buf.dtype == np.float64:
-            # scipy's own CSR kernel, the one ``S @ x`` calls (the same sums in the same
-            # order: bit for bit), straight into the buffer: the Python-level dispatch
-            # of ``@`` cost several times the product in ARPACK's many small products
-            from scipy.sparse._sparsetools import csr_matvec, csr_matvecs
-
-            S = self._S
-            rows, cols = S.shape
-            indptr, indices, data = S.indptr, S.indices, S.data
-            width = buf.shape[1] if buf.ndim == 2 else 0
-            for t in range(q - 1, -1, -1):
-                dst = buf[t * Nn : (t + 1) * Nn]
-                dst.fill(0.0)  # the kernels add into their output
-                src = buf[(t + 1) * Nn : (t + 1 + R) * Nn]
-                if width:
-                    csr_matvecs(rows, cols, width, indptr, indices, data, src.ravel(),
-                                dst.ravel())
-                else:
-                    csr_matvec(rows, cols, indptr, indices, data, src, dst)
-            return buf[: R * Nn]
         for t in range(q - 1, -1, -1):
             buf[t * Nn : (t + 1) * Nn] = self.apply(buf[(t + 1) * Nn : (t + 1 + R) * Nn])
         return buf[: R * Nn]
+
+    def _csr_power(self, X: np.ndarray, q: int) -> np.ndarray:
+        """:meth:`companion_power` of the ``"bsr"`` row on float64 data.
+
+        It calls scipy's own CSR kernel (``csr_matvec``/``csr_matvecs``, the ones
+        ``S @ x`` calls: the same sums in the same order, bit for bit) straight into the
+        power buffer; the Python-level dispatch of ``@`` cost several times the product
+        itself in ARPACK's many small products. The buffer and its ``q`` (source,
+        target) views are kept per ``(q, columns)`` and thread; the result is a copy.
+        """
+        key = (q, X.shape[1] if X.ndim == 2 else 0, threading.get_ident())
+        plan = self._plans.get(key)
+        if plan is None:
+            from scipy.sparse._sparsetools import csr_matvec, csr_matvecs
+
+            Nn, R = self.Nn, self.R
+            width = key[1]
+            buf = np.empty(((q + R) * Nn, *X.shape[1:]), dtype=np.float64)
+            S = self._S
+            rows, cols = S.shape
+            if width:
+                head = (rows, cols, width, S.indptr, S.indices, S.data)
+                kernel = csr_matvecs
+                views = [(buf[(t + 1) * Nn : (t + 1 + R) * Nn].reshape(-1),
+                          buf[t * Nn : (t + 1) * Nn].reshape(-1))
+                         for t in range(q - 1, -1, -1)]
+            else:
+                head = (rows, cols, S.indptr, S.indices, S.data)
+                kernel = csr_matvec
+                views = [(buf[(t + 1) * Nn : (t + 1 + R) * Nn], buf[t * Nn : (t + 1) * Nn])
+                         for t in range(q - 1, -1, -1)]
+            plan = (buf, buf[q * Nn :], buf[: R * Nn], kernel, head, views)
+            self._plans[key] = plan
+        _, tail, result, kernel, head, views = plan
+        tail[...] = X
+        for src, dst in views:
+            dst.fill(0.0)  # the kernels add into their output
+            kernel(*head, src, dst)
+        return result.copy()
 
     def companion_apply(self, X: np.ndarray) -> np.ndarray:
         """Apply the block companion matrix (first row, identity shift below) to ``X``."""

@@ -31,6 +31,8 @@ BASE = {
 
 def _scenario(**medium):
     data = copy.deepcopy(BASE)
+    if medium.get("model", "csma") != "csma":  # the CSMA/CA-only keys of BASE
+        data["network"]["medium"] = {"model": medium["model"]}
     data["network"]["medium"].update(medium)
     return parse_scenario(data, "test")
 
@@ -145,8 +147,9 @@ def test_cli_bad_medium_is_one_stderr_line(tmp_path):
 def test_bench_sweep_resizes_a_medium_scenario_with_a_sensors_key():
     """netsim bench sweep --sizes on examples/csma-32.toml (plant.sensors = 32): each cell
     has the requested number of agents on the same medium."""
-    from netsim.bench.variants import sweep_variant
     from netsim.models.scenario import read_scenario_data
+
+    from netsim.bench.variants import sweep_variant
 
     path = ROOT / "examples" / "csma-32.toml"
     data = read_scenario_data(path)
@@ -154,3 +157,19 @@ def test_bench_sweep_resizes_a_medium_scenario_with_a_sensors_key():
         s = sweep_variant(data, str(path), {"agents": agents})
         assert s.n_agents == agents and s.medium is not None
         assert s.medium.n_agents == agents
+
+
+@pytest.mark.parametrize("model", ["point-to-point", "switched", "tdma", "can", "aloha"])
+def test_every_medium_runs_on_both_engines_alike(model):
+    """Each MAC model through a scenario: the engines agree, and what is dropped is
+    dropped for the medium's reasons."""
+    scenario = _scenario(model=model, **({"bit_rate": 2e4} if model in (
+        "point-to-point", "switched") else {}))
+    events = netsim.run(scenario, engine="events", estimators=["compensated"], steps=15,
+                        trials=1)
+    vector = netsim.run(scenario, engine="vectorised", estimators=["compensated"],
+                        steps=15, trials=1)
+    a, b = events["compensated"], vector["compensated"]
+    np.testing.assert_allclose(a.squared_errors, b.squared_errors, rtol=1e-9, atol=1e-12)
+    assert [sorted(d) for d in a.drops] == [sorted(d) for d in b.drops]
+    assert all(reason.startswith("medium: ") for d in a.drops for *_, reason in d)

@@ -564,8 +564,8 @@ class _FirstRow:
 
         N, n = G.shape[0], G.shape[1]
         self.N, self.n, self.R = N, n, B.shape[0]
-        #: :meth:`_csr_power`'s buffers and views per (power, columns, thread)
-        self._plans: dict[tuple[int, int, int], Any] = {}
+        #: :meth:`_csr_power`'s vector buffer and views per (power, thread)
+        self._plans: dict[tuple[int, int], Any] = {}
         self.Nn = N * n
         if sp.issparse(P):
             # sparse P (large N): ``index`` is per stored entry in CSR order, or None
@@ -663,37 +663,41 @@ class _FirstRow:
         It calls scipy's own CSR kernel (``csr_matvec``/``csr_matvecs``, the ones
         ``S @ x`` calls: the same sums in the same order, bit for bit) straight into the
         power buffer; the Python-level dispatch of ``@`` cost several times the product
-        itself in ARPACK's many small products. The buffer and its ``q`` (source,
-        target) views are kept per ``(q, columns)`` and thread; the result is a copy.
+        itself in ARPACK's many small products. For a vector the buffer and its ``q``
+        (source, target) views are kept per ``(q, thread)`` and the result is a copy; a
+        block ``(D, m)`` gets a fresh buffer and a view of it (no second copy of a
+        possibly large block).
         """
-        key = (q, X.shape[1] if X.ndim == 2 else 0, threading.get_ident())
+        from scipy.sparse._sparsetools import csr_matvec, csr_matvecs
+
+        Nn, R = self.Nn, self.R
+        S = self._S
+        rows, cols = S.shape
+        if X.ndim == 2:
+            width = X.shape[1]
+            buf = np.empty(((q + R) * Nn, width), dtype=np.float64)
+            buf[q * Nn :] = X
+            for t in range(q - 1, -1, -1):
+                dst = buf[t * Nn : (t + 1) * Nn]
+                dst.fill(0.0)  # the kernels add into their output
+                csr_matvecs(rows, cols, width, S.indptr, S.indices, S.data,
+                            buf[(t + 1) * Nn : (t + 1 + R) * Nn].reshape(-1),
+                            dst.reshape(-1))
+            return buf[: R * Nn]
+        key = (q, threading.get_ident())
         plan = self._plans.get(key)
         if plan is None:
-            from scipy.sparse._sparsetools import csr_matvec, csr_matvecs
-
-            Nn, R = self.Nn, self.R
-            width = key[1]
-            buf = np.empty(((q + R) * Nn, *X.shape[1:]), dtype=np.float64)
-            S = self._S
-            rows, cols = S.shape
-            if width:
-                head = (rows, cols, width, S.indptr, S.indices, S.data)
-                kernel = csr_matvecs
-                views = [(buf[(t + 1) * Nn : (t + 1 + R) * Nn].reshape(-1),
-                          buf[t * Nn : (t + 1) * Nn].reshape(-1))
-                         for t in range(q - 1, -1, -1)]
-            else:
-                head = (rows, cols, S.indptr, S.indices, S.data)
-                kernel = csr_matvec
-                views = [(buf[(t + 1) * Nn : (t + 1 + R) * Nn], buf[t * Nn : (t + 1) * Nn])
-                         for t in range(q - 1, -1, -1)]
-            plan = (buf, buf[q * Nn :], buf[: R * Nn], kernel, head, views)
+            buf = np.empty((q + R) * Nn, dtype=np.float64)
+            views = [(buf[(t + 1) * Nn : (t + 1 + R) * Nn], buf[t * Nn : (t + 1) * Nn])
+                     for t in range(q - 1, -1, -1)]
+            plan = (buf[q * Nn :], buf[: R * Nn], (rows, cols, S.indptr, S.indices, S.data),
+                    views)
             self._plans[key] = plan
-        _, tail, result, kernel, head, views = plan
+        tail, result, head, views = plan
         tail[...] = X
         for src, dst in views:
-            dst.fill(0.0)  # the kernels add into their output
-            kernel(*head, src, dst)
+            dst.fill(0.0)
+            csr_matvec(*head, src, dst)
         return result.copy()
 
     def companion_apply(self, X: np.ndarray) -> np.ndarray:

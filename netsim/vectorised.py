@@ -176,9 +176,10 @@ class _Outputs:
     """Per-step recording with the kernel's divergence rule (agent-major arrays)."""
 
     def __init__(self, K: int, N: int, T: int, n: int, threshold: float,
-                 record_estimates: bool) -> None:
+                 record_estimates: bool, filled: bool = True) -> None:
         self.K = K
-        self.sq = np.full((K + 1, T, N), np.nan)
+        # (not filled: the caller writes every step's errors or fills NaN itself)
+        self.sq = np.full((K + 1, T, N), np.nan) if filled else np.empty((K + 1, T, N))
         self.estimates = np.full((K + 1, T, N, n), np.nan) if record_estimates else None
         self.diverged_at = np.full(T, -1, dtype=np.int64)
         self.alive = np.ones(T, dtype=bool)
@@ -512,7 +513,11 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
     meas = np.ascontiguousarray(batch.measurements, dtype=float)
     # (K+1, n, T) flat: the trials innermost
     states = np.ascontiguousarray(batch.states.transpose(0, 2, 1), dtype=float).reshape(-1)
-    outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
+    # the errors' record is filled with NaN only from the first chunk with a divergence
+    # on, or after the last step run (the chunks before write every entry)
+    outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates,
+                       filled=False)
+    filled = False
     chunk_steps = max(1, min(64, 200_000 // max(1, N * T)))
     sq_chunk = np.empty((chunk_steps, T, N))
     est_chunk = np.empty((chunk_steps, T, N, n) if record_estimates else (1, 1, 1, 1))
@@ -547,6 +552,9 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
                 if outputs.estimates is not None:
                     est_chunk[:c] = est_out
                     est_out[...] = np.nan
+            if not filled:  # (a chunk not written directly comes after this one)
+                outputs.sq[k1:] = np.nan
+                filled = True
             alive = True
             for k in range(k0, k1):
                 alive = outputs.record_errors(
@@ -556,6 +564,8 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
                     break
             if not alive:
                 break
+    if not filled:
+        outputs.sq[last + 1:] = np.nan
     return outputs, np.arange(last + 1)
 
 

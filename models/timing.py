@@ -38,12 +38,14 @@ from netsim.models.clocks import Clock
 from netsim.models.continuous import ContinuousModel
 from netsim.models.triggers import TRIGGER_KINDS, TriggerSpec
 
-__all__ = ["TIME_KEYS", "TRIGGER_KEYS", "TimeError", "ClockDistribution", "TimeSpec",
+__all__ = ["TIME_KEYS", "TRIGGER_KEYS", "SYNC_KEYS", "TimeError", "ClockDistribution",
+           "SyncSpec", "TimeSpec",
            "parse_time", "plant_table_with_continuous", "MIN_PERIOD_FRACTION", "MAX_OFFSET",
            "MAX_DRIFT_PPM"]
 
 TIME_KEYS = {"Ac", "Qc", "periods", "phases", "offset", "drift_ppm", "jitter", "seed",
-             "trigger"}
+             "trigger", "sync"}
+SYNC_KEYS = {"period", "reference"}
 TRIGGER_KEYS = {"kind", "threshold", "every"}
 _DISTRIBUTIONS = {"uniform": ({"low", "high"}, set()), "normal": ({"std"}, {"mean"})}
 #: Shortest sampling period accepted, as a fraction of run.sample_period.
@@ -206,6 +208,27 @@ def _check_psd(Q: np.ndarray, key: str) -> None:
 
 
 @dataclass(frozen=True)
+class SyncSpec:
+    """A validated ``[time.sync]`` table: a periodic two-way exchange with the parent on
+    a shortest-path tree from the reference agent (:mod:`netsim.timedkernel`).
+
+    Parameters
+    ----------
+    period : float
+        Local time between an agent's exchanges.
+    reference : int
+        The agent whose clock the others follow.
+    """
+
+    period: float
+    reference: int = 0
+
+    def describe(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {"period": self.period, "reference": self.reference}
+
+
+@dataclass(frozen=True)
 class TimeSpec:
     """A validated ``[time]`` table (see the module docstring).
 
@@ -232,6 +255,7 @@ class TimeSpec:
     jitter: tuple[float, ...] = ()
     seed: int = 0
     trigger: TriggerSpec = field(default_factory=TriggerSpec)
+    sync: SyncSpec | None = None
 
     @property
     def n_agents(self) -> int:
@@ -259,8 +283,8 @@ class TimeSpec:
     @property
     def neutral(self) -> bool:
         """Whether the table changes nothing: the base grid, neutral clocks, every update
-        sent (the step kernel's run and its analytics apply as they are)."""
-        return self.synchronous_grid and self.trigger.neutral
+        sent, no synchronisation (the step kernel's run and its analytics apply)."""
+        return self.synchronous_grid and self.trigger.neutral and self.sync is None
 
     def analytics_note(self) -> str:
         """Why the step model's exact analyses do not decide a run under this table."""
@@ -269,7 +293,8 @@ class TimeSpec:
             ("read jitter", any(self.jitter)),
             ("asynchronous sampling", any(p != self.model.period for p in self.periods)
              or any(self.phases)),
-            (f"a {self.trigger.kind} trigger", not self.trigger.neutral)) if on]
+            (f"a {self.trigger.kind} trigger", not self.trigger.neutral),
+            ("clock synchronisation", self.sync is not None)) if on]
         return (f"[time] with {', '.join(what) or 'no change'}: the exact analyses (eqs. 9, "
                 "11, the joint system) are the step model's (one clock, one grid, every "
                 "update sent) and do not decide these runs; the verdicts are measured "
@@ -284,6 +309,7 @@ class TimeSpec:
             "jitter": list(self.jitter), "seed": self.seed,
             "trigger": {"kind": self.trigger.kind, "threshold": self.trigger.threshold,
                         "every": self.trigger.every},
+            **({"sync": self.sync.describe()} if self.sync is not None else {}),
         }
 
 
@@ -358,4 +384,26 @@ def parse_time(table: Any, A: np.ndarray, Q: np.ndarray, period: float,
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise TimeError("time.seed", f"must be an integer >= 0, got {seed!r}")
     trigger = _parse_trigger(table.get("trigger", {}))
-    return TimeSpec(model, periods, phases, offset, drift, jitter, int(seed), trigger)
+    sync = _parse_sync(table["sync"], n_agents, period) if "sync" in table else None
+    return TimeSpec(model, periods, phases, offset, drift, jitter, int(seed), trigger, sync)
+
+
+def _parse_sync(value: Any, n_agents: int, base: float) -> SyncSpec:
+    if not isinstance(value, dict):
+        raise TimeError("time.sync", f"expected a table, got {value!r}")
+    for k in value:
+        if k not in SYNC_KEYS:
+            raise TimeError(f"time.sync.{k}", "unknown key; allowed: "
+                                              f"{', '.join(sorted(SYNC_KEYS))}")
+    if "period" not in value:
+        raise TimeError("time.sync.period", "is missing")
+    period = _finite(value["period"], "time.sync.period")
+    if period < MIN_PERIOD_FRACTION * base:
+        raise TimeError("time.sync.period", f"must be >= {MIN_PERIOD_FRACTION:g} "
+                                            f"run.sample_period, got {period:g}")
+    reference = value.get("reference", 0)
+    if isinstance(reference, bool) or not isinstance(reference, int) or not (
+            0 <= reference < n_agents):
+        raise TimeError("time.sync.reference", f"must be an agent 0..{n_agents - 1}, got "
+                                               f"{reference!r}")
+    return SyncSpec(period, int(reference))

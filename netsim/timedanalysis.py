@@ -101,6 +101,8 @@ def why_not(scenario: Any, delays: np.ndarray | None) -> str:
         return "clock drift or read jitter (the event sequence is not periodic)"
     if not timing.trigger.neutral:
         return "a trigger (whether a message is sent depends on the estimates)"
+    if timing.sync is not None:
+        return "clock synchronisation (the corrections depend on the link delays drawn)"
     if delays is None:
         return "delays not fixed"
     if scenario.topology is not None:

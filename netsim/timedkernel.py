@@ -167,8 +167,10 @@ class TimedSimulation(Simulation):
 
     def __init__(self, plant: LinearPlant, model: ContinuousModel, clocks: Sequence[Clock],
                  agents: Sequence[AgentSpec], delay_model: Any, plant_rng: np.random.Generator,
-                 clock_rng: np.random.Generator, **options: Any) -> None:
+                 clock_rng: np.random.Generator, *, sync: Any = None,
+                 sync_graph: Any = None, **options: Any) -> None:
         keep_messages = bool(options.pop("record_messages", False))
+        link_models = options.get("link_models")
         # Message objects always (no lean path): the stamp is looked up per delivery
         super().__init__(plant, agents, delay_model, plant_rng, record_messages=True,
                          **options)
@@ -190,6 +192,19 @@ class TimedSimulation(Simulation):
                 raise ValueError(f"agent {i}'s estimator {kind.__module__}.{kind.__qualname__}"
                                  " has no step_at(t, y, elapsed, transition): it cannot run "
                                  "asynchronously")
+        #: Each agent's clock correction (added to its readings; clock synchronisation).
+        self.corrections = [0.0] * len(self.agents)
+        self.sync = None if sync is None else _ClockSync(self, sync, sync_graph, delay_model,
+                                                          link_models,
+                                                          options.get("availability"))
+
+    def read(self, i: int, t_true: float) -> float:
+        """Agent i's clock reading at true time t (jitter and its correction included)."""
+        return self.clocks[i].read(t_true, self.clock_rng) + self.corrections[i]
+
+    def local(self, i: int, t_true: float) -> float:
+        """Agent i's jitter-free corrected clock at true time t."""
+        return self.clocks[i].local(t_true) + self.corrections[i]
 
     def _deliver(self, message: Message) -> None:
         estimator = self.agents[message.receiver].estimator
@@ -206,6 +221,8 @@ class TimedSimulation(Simulation):
         """Simulate true time 0 .. ``steps`` T and return the record on the report grid."""
         run = _TimedRun(self, steps)
         self.env.process(run.process())
+        if self.sync is not None:
+            self.sync.start(steps * self.sample_period)
         with np.errstate(over="ignore", invalid="ignore"):
             self.env.run(until=run.done)
             result = run.result()
@@ -327,8 +344,7 @@ class _TimedRun:
         sim = self.sim
         spec = sim.agents[i]
         estimator = spec.estimator
-        clock = sim.clocks[i]
-        local = clock.read(t_true, sim.clock_rng)
+        local = sim.read(i, t_true)
         previous = self.last_local[i]
         elapsed = 0.0 if previous is None else local - previous
         transition = sim.model.transition(elapsed)
@@ -365,7 +381,7 @@ class _TimedRun:
             estimate = np.asarray(estimator.estimate, dtype=float)
             previous = self.last_local[i]
             if not self.sampled_now[i] and previous is not None:
-                ahead = sim.clocks[i].local(t_true) - previous
+                ahead = sim.local(i, t_true) - previous
                 estimate = sim.model.transition(ahead) @ estimate
             self.estimates[k, i] = estimate
             used: dict[int, int] = {}
@@ -424,6 +440,7 @@ class _TimedRun:
             "clocks": [{"offset": c.offset, "drift_ppm": c.drift_ppm, "jitter": c.jitter,
                         "period": c.period, "phase": c.phase} for c in sim.clocks],
             "sample_record": record,
+            **({"sync": sim.sync.summary(last * self.period)} if sim.sync is not None else {}),
         }
         return TrialResult(
             states=self.states,
@@ -442,6 +459,125 @@ class _TimedRun:
             drops=list(sim._drops) if sim.record_delays else None,
             extras={"timing": timing},
         )
+
+
+class _SyncPacket:
+    """One leg of a two-way exchange travelling hop by hop (see :class:`_ClockSync`)."""
+
+    __slots__ = ("kind", "origin", "path", "hop", "t1", "t2", "t3", "c1")
+
+    def __init__(self, kind: str, origin: int, path: list[int], t1: float,
+                 t2: float = math.nan, t3: float = math.nan, c1: float = 0.0) -> None:
+        self.kind, self.origin, self.path, self.hop = kind, origin, path, 0
+        self.t1, self.t2, self.t3 = t1, t2, t3
+        #: the origin's correction when it stamped t1 (exchanges may overlap)
+        self.c1 = c1
+
+
+class _ClockSync:
+    """Periodic two-way clock synchronisation over the scenario's links.
+
+    Every agent but the reference has a parent: its in-neighbour on a shortest-path
+    tree from the reference. Every ``period`` of its own clock it sends a request to
+    its parent (stamp t1, its corrected clock), along the shortest path of links; the
+    parent stamps its arrival t2 and replies at once (t3 = t2) on the link parent ->
+    agent; on the reply's arrival (t4) the agent adds
+    theta = ((t2 - t1) - (t4 - t3)) / 2 to its correction (t1 taken into the frame of
+    its current correction, since exchanges may overlap). With path delays d_req and
+    d_rep the corrected clock then trails its parent's by (d_req - d_rep) / 2 (the
+    residual offset of an asymmetric exchange), plus what drift adds until the next one.
+    Sync messages use links of their own with each link's delay model and losses (not
+    its buffer), are counted apart from the estimates and are not traced.
+    """
+
+    def __init__(self, sim: TimedSimulation, spec: Any, graph: Any, delay_model: Any,
+                 link_models: Any, availability: Any) -> None:
+        import networkx as nx
+
+        from netsim.links import ConfiguredLink, Link, resolve_link
+
+        self.sim = sim
+        self.spec = spec
+        self.links: dict[tuple[int, int], Link] = {}
+        for j, i in graph.edges:
+            delays, model = resolve_link(delay_model, int(j), int(i), link_models)
+            link: Link
+            if model is not None:
+                link = ConfiguredLink(sim.env, int(j), int(i), delays, self._arrive,
+                                      sim.sample_period, sim.calendar)
+                link.configure(model)
+            else:
+                link = Link(sim.env, int(j), int(i), delays, self._arrive, sim.sample_period,
+                            sim.calendar)
+            link.availability = availability
+            self.links[(int(j), int(i))] = link
+        ref = spec.reference
+        tree = nx.bfs_tree(graph, ref)
+        self.parent = {int(i): int(next(iter(tree.predecessors(i)))) for i in tree.nodes
+                       if i != ref}
+        self.request_path = {i: [int(v) for v in nx.shortest_path(graph, i, p)]
+                             for i, p in self.parent.items()}
+        self.exchanges = 0
+
+    def start(self, horizon: float) -> None:
+        """Start every non-reference agent's request process (before the run)."""
+        for i in self.parent:
+            self.sim.env.process(self._requests(i, horizon))
+
+    def _requests(self, i: int, horizon: float):
+        sim = self.sim
+        clock = sim.clocks[i]
+        schedule = Clock(clock.offset, clock.drift_ppm, 0.0, self.spec.period, 0.0)
+        for t in sample_times(schedule, horizon)[0].tolist():
+            if t <= 0:
+                continue
+            when = t / sim.sample_period
+            if when > sim.env.now:
+                yield sim.env.timeout(when - sim.env.now)
+            self._send(_SyncPacket("req", i, self.request_path[i], sim.read(i, t),
+                                   c1=sim.corrections[i]))
+
+    def _send(self, packet: _SyncPacket) -> None:
+        here, there = packet.path[packet.hop], packet.path[packet.hop + 1]
+        self.links[(here, there)].send(len(self.sim.stamps[here]), packet)  # type: ignore[arg-type]
+
+    def _arrive(self, message: Message) -> None:
+        packet = message.payload
+        assert isinstance(packet, _SyncPacket)
+        packet.hop += 1
+        if packet.hop < len(packet.path) - 1:  # forward along the path
+            self._send(packet)
+            return
+        sim = self.sim
+        now = sim.env.now * sim.sample_period
+        here = packet.path[-1]
+        if packet.kind == "req":
+            t2 = sim.read(here, now)
+            reply = _SyncPacket("rep", packet.origin, [here, packet.origin], packet.t1, t2, t2,
+                                packet.c1)
+            self._send(reply)
+            return
+        t4 = sim.read(here, now)
+        # t1 in the frame of the current correction (a reply of an earlier exchange may
+        # have moved it since)
+        t1 = packet.t1 + (sim.corrections[here] - packet.c1)
+        theta = ((packet.t2 - t1) - (t4 - packet.t3)) / 2.0
+        sim.corrections[here] += theta
+        self.exchanges += 1
+
+    def summary(self, t_end: float) -> dict[str, Any]:
+        """Exchanges, sync messages, final corrections and residual offsets at t_end
+        (each agent's corrected clock minus the reference's)."""
+        sim = self.sim
+        ref = sim.local(self.spec.reference, t_end)
+        return {
+            "exchanges": self.exchanges,
+            "messages_sent": sum(link.sent for link in self.links.values()),
+            "messages_dropped": sum(link.dropped for link in self.links.values()),
+            "corrections": list(sim.corrections),
+            "residual_offsets": [sim.local(i, t_end) - ref for i in range(len(sim.agents))],
+            "parent": {str(i): p for i, p in self.parent.items()},
+        }
 
 
 def _measure(sensors: tuple[int, ...], n_sensors: int) -> Any:
@@ -497,5 +633,6 @@ def run_timed_trial(scenario: Any, family: Any, gains: Any, trial_seed: Any,
         divergence_threshold=scenario.divergence_threshold,
         record_delays=record_delays, record_messages=record_messages, observer=observer,
         availability=None if topology is None else topology.is_up,
+        sync=timing.sync, sync_graph=scenario.graph if timing.sync is not None else None,
     )
     return simulation.run(steps)

@@ -518,3 +518,40 @@ def test_too_many_sampling_events_is_one_line():
     with pytest.raises(ValueError, match="^time.periods: .* exceed") as info:
         run_trial(timed, "compensated", scenario_gains(timed), 0)
     assert "\n" not in str(info.value)
+
+
+# -- clock synchronisation ------------------------------------------------------------
+
+@pytest.mark.parametrize("edges, residual", [
+    # directed ring 0->1->2->3->0, every link 2 T (delay 1 step): agent i's request to
+    # its parent i-1 goes round the ring (3 links, 6 T), the reply takes one (2 T): each
+    # level trails its parent by (6 T - 2 T) / 2 = 2 T, so 0, 2, 4, 6 from the reference
+    (None, [0.0, 2.0, 4.0, 6.0]),
+    # both directions on every link: symmetric exchanges leave no residual
+    ([[0, 1], [1, 2], [2, 3], [3, 0], [1, 0], [2, 1], [3, 2], [0, 3]], [0.0] * 4),
+])
+def test_two_way_sync_residual_offsets_by_hand(edges, residual):
+    data = _data("lcsys2022-homogeneous", 120)
+    data["delays"] = {"model": "homogeneous", "tau": 1}
+    if edges is not None:
+        data["network"] = {"topology": "edges", "agents": 4, "edges": edges}
+    data["time"] = {"offset": [0.0, 0.3, -0.2, 0.1], "sync": {"period": 5.0}}
+    timed = parse_scenario(data, "test")
+    r = run_trial(timed, "compensated", scenario_gains(timed), child_sequence(1, "trial", 0))
+    sync = r.extras["timing"]["sync"]
+    assert sync["exchanges"] > 3 * 10
+    np.testing.assert_allclose(sync["residual_offsets"], residual, atol=1e-9)
+
+
+@pytest.mark.parametrize("table, key", [
+    ({"sync": {"reference": 0}}, "time.sync.period"),
+    ({"sync": {"period": 5.0, "reference": 9}}, "time.sync.reference"),
+    ({"sync": {"period": 5.0, "master": 0}}, "time.sync.master"),
+    ({"sync": 3}, "time.sync"),
+])
+def test_bad_sync_settings_name_their_key(table, key):
+    data = _data()
+    data["time"] = table
+    with pytest.raises(ScenarioError) as info:
+        parse_scenario(data, "test")
+    assert info.value.key == key

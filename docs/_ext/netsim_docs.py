@@ -130,8 +130,9 @@ MEANINGS: dict[str, str] = {
     "options": "one table per estimator family, e.g. [options.aoi], [options.fusion]; "
                "each family checks its own keys",
     "time": "agent clocks (offset, drift_ppm, jitter), asynchronous sampling of a "
-            "continuous plant (Ac, Qc, periods, phases) and [time.trigger] "
-            "(send-on-delta, periodic); docs: Clocks, asynchronous sampling and triggers",
+            "continuous plant (Ac, Qc, periods, phases), [time.trigger] "
+            "(send-on-delta, periodic) and [time.sync] (two-way clock synchronisation); "
+            "docs: Clocks, asynchronous sampling and triggers",
     "run.steps": "number of steps K",
     "run.trials": "Monte Carlo trials M",
     "run.seed": "root seed of the trial randomness: initial states, noise, "

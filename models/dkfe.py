@@ -19,6 +19,12 @@ What is here (numpy/cvxpy mathematics only; the estimators are in
   Theorem 2's LMIs (71)-(72) (:func:`lmi_theorem2`, see below), beside the exact
   mean-square stability test :func:`second_moment_radius` (ours).
 - :class:`UniformLinkDelays`: bounded time-varying link delays for Remark 1.
+- Issue 31: :func:`stationary_fusion` (steady Xi, P, weights under any selection law,
+  deterministic schedules or formula variant; an engine independent of
+  :class:`netsim.estimators.fusion.FusionCovariance`), :func:`eq94_readings` (every
+  reading of the selection model tried for (94); none gives the printed weights, see
+  below), :func:`gamma_delay_table` and :func:`sink_delay_table` ((71)-(72) against the
+  delay), :func:`dimension_sweep` (the transmitted dimension r_i).
 
 Timing (how the paper's d_i maps onto the kernel)
 -------------------------------------------------
@@ -99,16 +105,23 @@ Example 2 (d_1 = 1, d_2 = 2):
   weights do sum to I. Our Xi (cross-covariances included) is confirmed by Monte Carlo
   (tests/test_fusion.py) and its diagonal blocks by the paper's own recursion (45),
   (55) to 1e-11, so the difference lies in the paper's cross-covariances (56) or its
-  implementation; we could not reproduce (94) with other delay pairs or with
-  independent Bernoulli selections (the claim after (22)). Our steady traces:
+  implementation. :func:`eq94_readings` enumerates 49 readings (eleven selection laws,
+  seven formula variants, every delay pair (d_1, d_2) in 0..3 for the categorical and
+  Bernoulli laws, relabellings, a search over the categorical laws with the printed
+  marginals (92)): none comes within 0.01, none gets one entry of Omega_1 to four
+  decimals; categorical 0.1326, uniform pair 0.1261, independent Bernoulli (the claim
+  after (22)) 0.2241, the closest law with the marginals (92) found about 0.119, and
+  Algorithm 1's Omega_i(t) at finite t at best 0.1132. Our steady traces:
   tr P = 1.5318 (DKFE), tr Xi_11 = 2.0802, tr Xi_22 = 2.6639, ODKFE tr P_o = 0.5720,
   centralised Kalman filter 0.1350.
 - Q_w (86) has rank one (Q_w = q q^T, q = (0.2, 0.5, 0.3, 0.4)); (58) still holds.
 
-Example 1 with delays (not in the paper): for d_1 = 1 or 2 the compensating estimate
-is mean-square unstable for every gamma_11 in {0.1, 0.3, 0.5, 0.7, 0.9} (exact radius
->= 1.02), although (77) holds for some of them (e.g. 0.78 at d_1 = 1, gamma_11 = 0.5):
-(77) alone is not sufficient, as Theorem 3 (which also asks for (71)-(72)) implies.
+Example 1 with delays (not in the paper, :func:`gamma_delay_table`): (71)-(72) hold for
+gamma_11 in [0.3600, 0.8264] at d_1 = 0, only in [0.5904, 0.6830] at d_1 = 1 (e.g. not at
+0.5, where the exact radius is 1.2207 although (77) gives 0.78), and for no gamma_11 at
+d_1 = 2, 3 (smallest radius 1.2135, 1.5795): (77) alone is not sufficient, as Theorem 3
+(which also asks for (71)-(72)) implies. Example 2's sinks keep (71)-(72) up to d_1 = 13
+and d_2 = 12 with the printed probabilities (:func:`sink_delay_table`).
 
 Other findings in the text: (64) has typos in the noise zeta^c_i (A^{d_i} H_i w where
 (I - H_i) w belongs, and K_i missing in front of v_i; they do not enter any stability

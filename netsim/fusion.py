@@ -25,6 +25,11 @@ delays from ``"delays/dkfe-link/<i>-<L>"``.
 
 Example 2's steady-state weights differ from the printed (94) by up to 0.1326; the
 comparison with every printed number is in the docstring of :mod:`netsim.models.dkfe`.
+Issue 31: :func:`eq94_transient` (Algorithm 1's weights at finite t against (94)),
+:func:`theorem4_check` (Theorem 4 on the exact covariance recursion),
+:func:`remark1_check` (time-varying delays buffered to the bound against the constant
+bound) and :func:`readings_report` (with the readings of (94), the gamma x d table and
+the r_i sweep of :mod:`netsim.models.dkfe`).
 Traces (``--trace``) are not supported for these runs: the payloads are selections, not
 estimates.
 """

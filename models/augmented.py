@@ -693,11 +693,11 @@ class _FirstRow:
             plan = (buf[q * Nn :], buf[: R * Nn], (rows, cols, S.indptr, S.indices, S.data),
                     views)
             self._plans[key] = plan
-        tail, result, head, views = plan
+        tail, result, (rows, cols, indptr, indices, data), views = plan
         tail[...] = X
         for src, dst in views:
             dst.fill(0.0)
-            csr_matvec(*head, src, dst)
+            csr_matvec(rows, cols, indptr, indices, data, src, dst)
         return result.copy()
 
     def companion_apply(self, X: np.ndarray) -> np.ndarray:

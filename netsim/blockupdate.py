@@ -40,7 +40,7 @@ __all__ = ["BlockPrediction", "block_prediction", "block_scenario", "block_growt
            "BLOCK_MARGIN"]
 
 #: Instances of :func:`search_block` per requested instance (a netsim run each).
-BLOCK_SHARE = 1 / 16
+BLOCK_SHARE = 1 / 8
 #: Blocks (of tau + 1 steps) each run of the search lasts.
 BLOCKS = 40
 #: Distance from 1 (per block) that makes a prediction, and a measurement, decisive.

@@ -57,7 +57,7 @@ REDESIGN_TAU1_MAX = 6
 #: Steps of the realised delay sequence of :func:`switching_growth_on` in the search.
 SWITCHING_STEPS = 200
 #: Instances of :func:`search_tolerant_design` per requested instance (an LMI each).
-TOLERANT_DESIGN_SHARE = 1 / 16
+TOLERANT_DESIGN_SHARE = 1 / 8
 
 REDESIGN_FAMILY = ("random scalar plants, N 2..4, a ~ U(-2, 2), K_i ~ U(-1, 3), tau1 1..6, "
                    "rho(A-hat_tau1) <= 0.99")
@@ -65,7 +65,8 @@ REDESIGN_HARD_FAMILY = ("scalar N = 2, self-loops undelayed, a = +-1 or +-U(1, 2
                         "tau1 1..6, rho(A-hat_tau1) <= 0.99")
 TOLERANT_DESIGN_FAMILY = ("random systems N 2..4, n 2..3, one output per agent, rho(A) "
                           "in [0.9, 1], LMI (16) gains, realised delays uniform in 0..tau "
-                          "(tau 1..6, freshest arrival), 200 steps")
+                          "(tau 1..6, freshest arrival), 200 steps, and the fixed patterns "
+                          "every link at tau, one link at tau")
 
 
 def homogeneous_link_delays(P: ArrayLike, tau: int) -> np.ndarray:
@@ -201,8 +202,9 @@ def _redesign_hypotheses(x: RedesignInstance) -> str | None:
 
 def _redesign_judge(x: RedesignInstance) -> dict[str, Any] | None:
     """The smallest ``tau <= tau1`` with exact rho ``>= 1 + MARGIN``, or None (``violated``:
-    ``delay-free`` for ``tau = 0``, the delay-free estimator itself unstable, else
-    ``delayed``)."""
+    ``delay-free`` for ``tau = 0``, the delay-free estimator itself unstable; else
+    ``delayed, rho(A-hat) < 1`` when the delay-free design is stable too (also a
+    counterexample to Theorem 1), ``delayed`` when it is not)."""
     from netsim.claims.search import MARGIN
 
     if x.hypotheses() is not None:
@@ -213,7 +215,9 @@ def _redesign_judge(x: RedesignInstance) -> dict[str, Any] | None:
             return {"tau1": x.tau1, "tau": t, "exact_rho": r, "rho_hat_tau": rep.rho_hat[t],
                     "rho_hat_tau1": rep.rho_hat[x.tau1],
                     "rho_delay_free": rep.rho_hat[0],
-                    "violated": ["delay-free" if t == 0 else "delayed"]}
+                    "violated": ["delay-free" if t == 0 else
+                                 "delayed" if rep.rho_hat[0] >= 1.0 else
+                                 "delayed, rho(A-hat) < 1"]}
     return None
 
 
@@ -239,7 +243,9 @@ def search_redesign(seed: Any = 0, instances: int = 400, deadline: float = math.
     (:func:`netsim.claims.search._random_instance`, ``_hard_instance``, gains
     ``K_i ~ U(-1, 3)``), each with ``tau1`` drawn in ``1..6``, counted when Discussion 5's
     hypotheses hold (:meth:`RedesignInstance.hypotheses`); a counterexample is a
-    ``tau <= tau1`` whose exact rho of (10) is ``>= 1 + MARGIN``; the first is shrunk.
+    ``tau <= tau1`` whose exact rho of (10) is ``>= 1 + MARGIN``; the first is shrunk,
+    keeping its kind of violation (``violated``: delay-free, delayed with rho(A-hat) < 1,
+    delayed with rho(A-hat) >= 1).
 
     Returns
     -------
@@ -253,8 +259,28 @@ def search_redesign(seed: Any = 0, instances: int = 400, deadline: float = math.
         Phase(REDESIGN_HARD_FAMILY, max(1, int(instances) // 2),
               _redesign_draw(lambda r: _hard_instance(r, k_range=(-1.0, 3.0)))),
     ]
-    return counted_search("L-discussion5", phases, _redesign_judge, _redesign_simpler,
-                          seed=seed, deadline=deadline)
+    found = counted_search("L-discussion5", phases, _redesign_judge, _redesign_simpler,
+                           seed=seed, deadline=deadline)
+    first = found.first
+    if first is not None and found.details is not None \
+            and found.details["violated"] != first["violated"]:
+        # shrinking changed the kind of violation (e.g. rounding pushed rho(A-hat) over
+        # 1): shrink the first hit again, keeping its kind
+        from netsim.claims.search import ScalarInstance, shrink
+
+        kind = first["violated"]
+
+        def same_kind(x: RedesignInstance) -> dict[str, Any] | None:
+            d = _redesign_judge(x)
+            return d if d is not None and d["violated"] == kind else None
+
+        start = RedesignInstance(ScalarInstance(
+            float(first["a"]), tuple(tuple(float(v) for v in r) for r in first["P"]),
+            tuple(float(v) for v in first["c"]), tuple(float(v) for v in first["k"])),
+            int(first["tau1"]))
+        small = shrink(start, same_kind, _redesign_simpler)
+        found.instance, found.details = small, _redesign_judge(small)
+    return found
 
 
 # -- delay-tolerant Discussion 5 --------------------------------------------------------------
@@ -307,28 +333,34 @@ class SwitchingReport:
         (:func:`netsim.models.augmented.closed_loop_sequence_growth`, exponentiated).
     homogeneous_exact : float
         Exact spectral radius of the eq. (11) matrix with every link at ``tau``.
+    single_link_exact : float
+        The largest exact spectral radius over the fixed patterns with one link at
+        ``tau`` and the others at 0 (0: not computed).
     """
 
     tau: int
     rho_hat: float
     growth: float
     homogeneous_exact: float
+    single_link_exact: float = 0.0
 
     @property
     def worst(self) -> float:
-        """The larger of the two."""
-        return max(self.growth, self.homogeneous_exact)
+        """The largest of the three."""
+        return max(self.growth, self.homogeneous_exact, self.single_link_exact)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form."""
         return {"tau": self.tau, "rho_hat": self.rho_hat, "growth": self.growth,
-                "homogeneous_exact": self.homogeneous_exact}
+                "homogeneous_exact": self.homogeneous_exact,
+                "single_link_exact": self.single_link_exact}
 
 
 def switching_growth_on(P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike],
                         L: Sequence[ArrayLike], tau: int,
                         patterns: Sequence[ArrayLike], *,
-                        full_max: int | None = None) -> SwitchingReport:
+                        full_max: int | None = None,
+                        single_links: bool = False) -> SwitchingReport:
     """Delay-tolerant Discussion 5 on one instance and one delay sequence.
 
     Parameters
@@ -342,6 +374,10 @@ def switching_growth_on(P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike],
     full_max : int, optional
         Passed to :func:`netsim.models.augmented.closed_loop_sequence_growth` (0: track
         a random block of vectors instead of the whole product, for large ``N n tau``).
+    single_links : bool
+        Also the exact rho of every fixed pattern with one link at ``tau`` and the others
+        at 0 (the heterogeneous patterns that break the papers' bounds in the scalar
+        examples); 0 when not computed.
 
     Returns
     -------
@@ -352,8 +388,16 @@ def switching_growth_on(P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike],
                                                   compensated=False, **kw))
     hom = float(augmented_spectral_radius(P, A, C, L, homogeneous_link_delays(P, tau),
                                           int(tau), compensated=False))
+    single = 0.0
+    if single_links:
+        P_arr = np.asarray(P)
+        for i, j in np.argwhere((P_arr != 0) & ~np.eye(P_arr.shape[0], dtype=bool)):
+            d = np.zeros(P_arr.shape, dtype=int)
+            d[i, j] = int(tau)
+            single = max(single, float(augmented_spectral_radius(
+                P, A, C, L, d, int(tau), compensated=False)))
     return SwitchingReport(int(tau), float(delay_free_spectral_radius(P, A, C, L)),
-                           growth, hom)
+                           growth, hom, single)
 
 
 def simulate_switching_error(P: ArrayLike, A: ArrayLike, C: Sequence[ArrayLike],
@@ -416,8 +460,9 @@ class TolerantDesignInstance:
                                        np.random.default_rng(self.delay_seed))
 
     def report(self) -> SwitchingReport:
-        """:func:`switching_growth_on` on the instance."""
-        return switching_growth_on(*self.matrices(), self.tau, self.patterns())
+        """:func:`switching_growth_on` on the instance (single-link patterns included)."""
+        P, A, C, L = self.matrices()
+        return switching_growth_on(P, A, C, L, self.tau, self.patterns(), single_links=True)
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-safe form."""
@@ -455,7 +500,8 @@ def _tolerant_design_draw(rng: np.random.Generator) -> TolerantDesignInstance | 
 
 
 def _tolerant_design_judge(x: TolerantDesignInstance) -> dict[str, Any] | None:
-    """A realised growth or homogeneous exact rho ``>= 1 + MARGIN``, else None."""
+    """A realised growth, or the exact rho of every link at tau or of one link at tau,
+    ``>= 1 + MARGIN``, else None."""
     from netsim.claims.search import MARGIN
 
     rep = x.report()
@@ -468,7 +514,8 @@ def search_tolerant_design(seed: Any = 0, instances: int = 400,
 
     ``max(1, instances * TOLERANT_DESIGN_SHARE)`` random systems (each an LMI solve):
     :data:`TOLERANT_DESIGN_FAMILY`; a counterexample is a realised growth of the switched
-    eq. (11) product, or an exact rho with every link at tau, ``>= 1 + MARGIN``.
+    eq. (11) product, or an exact rho with every link at tau or with one link at tau and
+    the others at 0, ``>= 1 + MARGIN``.
 
     Returns
     -------

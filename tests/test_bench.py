@@ -152,7 +152,8 @@ def test_parser_registration():
     assert args.bench_command == "delay-tolerance" and args.json and args.workers == 2
     with pytest.raises(CommandError, match="name a benchmark"):
         cmd_bench(parser.parse_args(["bench"]))
-    assert set(PRESETS) == {"lcsys2022-fig1", "delay-tolerant-fig1", "delay-tolerant-fig2"}
+    assert set(PRESETS) == {"lcsys2022-fig1", "lcsys2022-baselines", "delay-tolerant-fig1",
+                            "delay-tolerant-fig2"}
     assert PRESETS["lcsys2022-fig1"].trials == 100
     assert PRESETS["lcsys2022-fig1"].taus == (0, 3, 8, 19)
     assert PRESETS["delay-tolerant-fig2"].delays == ("time-varying", "synchronous",

@@ -57,7 +57,8 @@ def add_bench_parser(subparsers: Any) -> Any:
                     "homogeneous,heterogeneous,time-varying)")
     dt.add_argument("--estimators", help="comma-separated estimator families: registered "
                     "('netsim estimators' lists them), module:attribute of your own, or an "
-                    "installed entry point (default: the scenario's run.estimators)")
+                    "installed entry point (default: the preset's, else the scenario's "
+                    "run.estimators)")
     dt.add_argument("--trials", type=int, help="Monte Carlo trials per cell (default: the "
                     "preset's, else the scenario's)")
     dt.add_argument("--steps", type=int, help="steps per trial (default: the preset's, else "
@@ -93,6 +94,8 @@ def add_bench_parser(subparsers: Any) -> Any:
     sw.add_argument("--sizes", help="comma-separated numbers of agents (agent i carries "
                     "sensor i mod m of the base plant)")
     sw.add_argument("--seeds", help="comma-separated run seeds")
+    sw.add_argument("--losses", help="comma-separated loss probabilities p in [0, 1]: every "
+                    "link loses each message with probability p ([links] loss, Bernoulli)")
     sw.add_argument("--offsets", help="comma-separated clock-offset bounds o: each agent's "
                     "offset uniform in [-o, o] ([time] table; the event kernel runs it)")
     sw.add_argument("--drifts", help="comma-separated clock-drift standard deviations, ppm "
@@ -258,7 +261,10 @@ def _cmd_delay_tolerance(args: Any) -> int:
     taus = _ints(args.taus, "--taus") or list(preset.taus if preset else (0, 3, 8, 19))
     delays = _names(args.delays, "--delays", list(DELAY_MODELS)) or list(
         preset.delays if preset else ("homogeneous", "heterogeneous", "time-varying"))
-    declared = _families(args.estimators, scenario)
+    chosen = args.estimators
+    if chosen is None and preset is not None and preset.families:
+        chosen = ",".join(preset.families)
+    declared = _families(chosen, scenario)
     families = [f.name for f in declared]
     trials = args.trials or (preset.trials if preset else scenario.trials)
     steps = args.steps or (preset.steps if preset else scenario.steps)
@@ -369,12 +375,15 @@ def _cmd_sweep(args: Any) -> int:
         "topology": _names(args.topologies, "--topologies", ["cycle", "random", "geometric"]),
         "agents": agents,
         "seed": _ints(args.seeds, "--seeds"),
+        "loss": _floats(args.losses, "--losses"),
         "offset": _floats(args.offsets, "--offsets"),
         "drift_ppm": _floats(args.drifts, "--drifts"),
         "threshold": _floats(args.thresholds, "--thresholds"),
     }
     if agents and min(agents) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
+    if axes["loss"] and max(axes["loss"]) > 1:
+        raise CommandError(f"--losses: probabilities must be in [0, 1], got {args.losses!r}")
     families = _names(args.estimators, "--estimators", None) or list(FAMILIES)
     # the results file is resumed and the CSV regenerated from it: neither needs --force,
     # but neither may be a link, an input or the other output

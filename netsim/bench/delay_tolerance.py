@@ -146,7 +146,8 @@ def run_delay_tolerance(
         "preset": None if preset is None else {
             "name": preset.name, "description": preset.description, "focus": preset.focus,
             "trials": preset.trials, "steps": preset.steps, "taus": list(preset.taus),
-            "delays": list(preset.delays)},
+            "delays": list(preset.delays),
+            **({"families": list(preset.families)} if preset.families else {})},
         "scenario": scenario.summary(),
         "fingerprint": fingerprint,
         "gains": None if gains is None else {

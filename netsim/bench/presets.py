@@ -43,7 +43,25 @@ NO_DELAY = "none"
 
 @dataclass(frozen=True)
 class Preset:
-    """A built-in benchmark: a paper's simulation study (declared by its paper module)."""
+    """A built-in benchmark: a paper's simulation study (declared by its paper module).
+
+    Attributes
+    ----------
+    name, scenario : str
+        The preset's name and its scenario (built-in name or file).
+    taus : tuple of int
+        Delay bounds of the grid.
+    delays : tuple of str
+        Delay settings (:data:`DELAY_MODELS`).
+    trials, steps : int
+    focus : str
+        The family the study is about (the one a claim check runs).
+    description : str
+    claims : tuple of str
+        Claim ids whose bench rows are checked on the report.
+    families : tuple of str
+        The families to run (empty: the scenario's ``run.estimators``).
+    """
 
     name: str
     scenario: str
@@ -54,6 +72,7 @@ class Preset:
     focus: str
     description: str
     claims: tuple[str, ...]
+    families: tuple[str, ...] = ()
 
 
 def delay_settings() -> dict[str, tuple[str, str]]:

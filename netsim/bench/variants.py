@@ -68,8 +68,9 @@ def scenario_data(name_or_path: str) -> tuple[dict[str, Any], str]:
 def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> Scenario:
     """The scenario of one sweep cell: ``delays`` (a delay setting or ``delays.model``),
     ``tau``, ``topology``, ``agents`` (agent i carries sensor i mod m of the base plant),
-    ``seed`` (run seed), and the ``[time]`` axes (:mod:`netsim.models.timing`): ``offset``
-    (clock offsets uniform in [-o, o]), ``drift_ppm`` (drifts N(0, s^2) ppm),
+    ``seed`` (run seed), ``loss`` (every link loses each message with this probability,
+    Bernoulli, ``[links] loss``), and the ``[time]`` axes (:mod:`netsim.models.timing`):
+    ``offset`` (clock offsets uniform in [-o, o]), ``drift_ppm`` (drifts N(0, s^2) ppm),
     ``threshold`` (a send-on-delta trigger)."""
     from netsim.models.scenario import parse_scenario
 
@@ -106,6 +107,9 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
             delays["model"] = "homogeneous"
     if "seed" in params:
         data.setdefault("run", {})["seed"] = int(params["seed"])
+    if float(params.get("loss", 0.0)) > 0:  # every link loses each message w.p. loss
+        links = data["links"] = dict(data.get("links") or {})
+        links["loss"] = {"model": "bernoulli", "p": float(params["loss"])}
     _time_axes(data, params)
     return parse_scenario(data, source)
 

@@ -78,6 +78,11 @@ from netsim.papers._consensus import (
     rho_row,
 )
 from netsim.papers._design_claims import check_block, check_discussion5
+from netsim.papers._lcsys2022_experiments import (
+    BASELINES_PRESET,
+    build_baselines,
+    build_loss,
+)
 from netsim.reproduce.items import (
     BuildContext,
     Item,
@@ -800,6 +805,7 @@ PRESETS = (
         claims=("L-rho", "L-tau-star", "L-eq26", "L-stable-0-3-8", "L-hom-19",
                 "L-het-19", "L-decay"),
     ),
+    BASELINES_PRESET,
 )
 
 _LCSYS_SYSTEM = ("The paper does not print A, C, P or K (n = 6, N = 4): we use our own "
@@ -819,6 +825,25 @@ ITEMS = (
          ("L-rho", "L-tau-star", "L-eq26", "L-stable-0-3-8", "L-hom-19", "L-het-19",
           "L-decay", "L-theorem1"),
          _build_lcsys_fig1),
+    Item("lcsys2022-baselines", LCSYS, "Experiment: MSE and decay vs delay bound",
+         "Not in the paper: steady-state MSE and error decay factor per step against the "
+         "delay bound, every estimator on the same axes (homogeneous fixed and asynchronous "
+         "time-varying delays).",
+         "Theorem 1: the compensating estimator (4)-(5) is stable for every tau-bar <= tau*; "
+         "eq. (14), Section III-C: longer delays decay more slowly. The paper shows only its "
+         "own estimator (Fig. 1) and compares it with no other filter.",
+         (_LCSYS_SYSTEM,),
+         ("L-theorem1", "L-decay", "T-theorem1"),
+         build_baselines),
+    Item("lcsys2022-loss", LCSYS, "Experiment: packet loss",
+         "Not in the paper: steady-state MSE against the probability p that a link loses a "
+         "message (Bernoulli, every link), every estimator on the same axes, heterogeneous "
+         "fixed delays tau-bar = 3.",
+         "Assumption 2: every delay is bounded by tau-bar (no loss); the paper says nothing "
+         "of lost messages.",
+         (_LCSYS_SYSTEM,),
+         (),
+         build_loss),
     Item("lcsys2022-calibrated", LCSYS, "Section IV (calibrated)",
          "rho(A-hat) = 0.64, tau* = 10; eq. (26) bounds 0.74, 0.94, 1.45 at tau = 3, 8, 19; "
          "homogeneous tau = 19 marginally unstable (rho = 1), heterogeneous tau = 19 stable.",

@@ -174,10 +174,12 @@ def bench_data(ctx: BuildContext, preset_name: str) -> dict[str, Any]:
 
         preset = presets()[preset_name]
         scenario = resolve_scenario(preset.scenario)
+        extra: dict[str, Any] = ({"families": list(preset.families)} if preset.families
+                                 else {})
         return run_delay_tolerance(
             scenario, taus=preset.taus, delays=preset.delays, trials=ctx.trials,
             steps=preset.steps, seed=scenario.seed, preset=preset, workers=ctx.workers,
-            executor="serial" if ctx.workers == 1 else "local", progress=False)
+            executor="serial" if ctx.workers == 1 else "local", progress=False, **extra)
 
     return ctx.cached(f"bench:{preset_name}", make)
 

@@ -182,7 +182,9 @@ def build_baselines(ctx: BuildContext) -> ItemResult:
         ours.append(f"{t['family']}, {t['setting']}: stable for tau-bar = "
                     f"{t['stable_taus']} (largest from 0 on: {t['measured_max']}; "
                     f"predicted: {t['predicted'] if t['predicted'] is not None else '-'})")
-    distributed = [f for f in families if f not in ("centralized-kf", "local-kf")]
+    traits = data.get("family_traits") or {}
+    # the filters that exchange messages (the registry's delay_free: none, or centralised)
+    distributed = [f for f in families if not (traits.get(f) or {}).get("delay_free")]
     for setting in settings:
         best = []
         for tau in taus:

@@ -28,6 +28,12 @@ Past estimates are kept in a ring as deep as the largest lag k - s any receiver 
 :func:`_consensus_run`), so the neighbour sum of LCSYS2022 eq. (4) is one gather and
 one sparse product per step, whatever the delays; squared errors and the divergence
 test are computed a chunk of steps at a time.
+
+That numpy step is the default and the reference (the same seed gives the same
+numbers, bit for bit). ``NETSIM_NUMBA=1`` or ``kernel="numba"`` runs the consensus
+step compiled instead (:mod:`netsim.lockstep_numba`, the optional extra
+``netsim[numba]``; :func:`choose_kernel`): the same recursion with the additions
+grouped per lag, equal to the numpy step's to round-off.
 """
 
 from __future__ import annotations

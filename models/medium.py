@@ -29,7 +29,9 @@ Models (``model = ...``; the MAC models of :mod:`netsim.medium`):
   O-QPSK PHY) parameters by default; one collision domain (every node hears every other);
 * ``can``: CAN bus, priority arbitration (lowest identifier wins), frames of at most
   ``frame_payload_bytes`` data bytes with worst-case bit stuffing;
-* ``aloha``: slotted ALOHA, a backlogged node transmits in a slot with probability ``p``.
+* ``aloha``: slotted ALOHA, a backlogged node transmits in a slot with probability ``p``;
+* ``ns3``: the optional ns-3 delay source (the ``ns3`` package): an 802.11b ad hoc
+  network in ns-3 (:mod:`netsim.medium.ns3source`).
 
 Times are in seconds (``bit_rate`` in bit/s); ``time_unit`` is the number of seconds in
 one time unit of ``run.sample_period`` (default 1: Ts is in seconds).
@@ -119,7 +121,15 @@ MEDIUM_PARAMETERS: dict[str, dict[str, Any]] = {
             "priorities": None, "frame_payload_bytes": 8},
     "aloha": {"bit_rate": 250e3, "header_bytes": 17, "addressing": "broadcast",
               "slot": None, "p": None, "max_attempts": 0},
+    # the optional ns-3 delay source (netsim.medium.ns3source): 802.11b ad hoc; header:
+    # UDP 8 + IPv4 20 + LLC/SNAP 8 + MAC 24 + FCS 4 = 64 bytes (the PHY preamble aside)
+    "ns3": {"bit_rate": None, "header_bytes": 64, "addressing": "broadcast",
+            "data_mode": "DsssRate11Mbps", "spacing": 5.0, "horizon": 200},
 }
+
+#: ns-3 802.11b data modes and their bit rates.
+NS3_DATA_MODES = {"DsssRate1Mbps": 1e6, "DsssRate2Mbps": 2e6, "DsssRate5_5Mbps": 5.5e6,
+                  "DsssRate11Mbps": 11e6}
 
 #: Names accepted for ``network.medium.model``.
 MEDIUM_MODELS = tuple(MEDIUM_PARAMETERS)
@@ -284,6 +294,19 @@ def parse_medium(table: Any, *, n_agents: int, n_states: int,
                               f"{', '.join(sorted(allowed))}")
     params = {**COMMON_PARAMETERS, **own, **table}
     params["model"] = model
+    if model == "ns3":
+        params["data_mode"] = _choice(params["data_mode"], f"{key}.data_mode",
+                                      tuple(NS3_DATA_MODES))
+        if "bit_rate" in table:
+            raise MediumError(f"{key}.bit_rate", "is set by data_mode for model 'ns3'")
+        params["bit_rate"] = NS3_DATA_MODES[params["data_mode"]]
+        params["spacing"] = _num(params["spacing"], f"{key}.spacing", minimum=0, strict=True)
+        params["horizon"] = _num(params["horizon"], f"{key}.horizon", minimum=1, integer=True)
+        if params["addressing"] != "broadcast":
+            raise MediumError(f"{key}.addressing", "model 'ns3' sends broadcasts only")
+        if params["background_rate"]:
+            raise MediumError(f"{key}.background_rate", "no background traffic with model "
+                              "'ns3'")
 
     def k_(name: str) -> str:
         return f"{key}.{name}"

@@ -26,7 +26,7 @@ def _medium(model: str, n_nodes: int, outs: list[list[int]], seed: int = 0, **pa
 
 
 def test_every_model_of_the_table_has_a_mac():
-    assert set(MEDIUM_MODELS) == set(MAC_MODELS)
+    assert set(MEDIUM_MODELS) - {"ns3"} == set(MAC_MODELS)  # ns3: netsim.medium.ns3source
 
 
 def _batch_se(x: np.ndarray, batches: int = 20) -> float:

@@ -166,7 +166,7 @@ MEANINGS: dict[str, str] = {
     "network.radius": "geometric topology: the connection radius (default: grown "
                       "until the graph is strongly connected)",
     "network.medium": "a simulated network that makes the delays and losses: model "
-                      "(point-to-point, switched, tdma, csma, can, aloha) and its "
+                      "(point-to-point, switched, tdma, csma, can, aloha, ns3) and its "
                       "parameters (docs: Delays made by the network)",
     "delays.model": "how link delays are made (see below)",
     "delays.tau": "the delay bound tau-bar, in steps",

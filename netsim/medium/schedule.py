@@ -144,6 +144,11 @@ class MediumRun:
 
 
 def simulate_medium(spec: MediumSpec, links: Sequence[tuple[int, int]], sample_period: float,
-                    seed: SeedLike) -> MediumRun:
-    """The registered simulator of :mod:`netsim.models.medium` (a fresh :class:`MediumRun`)."""
+                    seed: SeedLike) -> Any:
+    """The registered simulator of :mod:`netsim.models.medium`: a fresh :class:`MediumRun`,
+    or for ``model = "ns3"`` a :class:`netsim.medium.ns3source.Ns3Run`."""
+    if spec.model == "ns3":
+        from netsim.medium.ns3source import Ns3Run
+
+        return Ns3Run(spec, links, sample_period, seed)
     return MediumRun(spec, links, sample_period, seed)

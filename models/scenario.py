@@ -525,6 +525,9 @@ class Scenario:
             raise ScenarioError(
                 "delays.tau", "cannot override tau: the [links] table sets the link delays"
             )
+        if self.medium is not None:
+            raise ScenarioError("delays.tau", "cannot override tau: [network.medium] makes "
+                                "the link delays")
         if model == "none":
             model = "homogeneous"
         return replace(self, delays=replace(self.delays, model=model, tau=int(tau)))

@@ -173,3 +173,9 @@ def test_every_medium_runs_on_both_engines_alike(model):
     np.testing.assert_allclose(a.squared_errors, b.squared_errors, rtol=1e-9, atol=1e-12)
     assert [sorted(d) for d in a.drops] == [sorted(d) for d in b.drops]
     assert all(reason.startswith("medium: ") for d in a.drops for *_, reason in d)
+
+
+def test_tau_cannot_be_overridden_on_a_medium():
+    with pytest.raises(ScenarioError, match="^delays.tau: cannot override tau: "
+                       r"\[network.medium\]"):
+        _scenario().with_tau(2)

@@ -90,6 +90,8 @@ __all__ = [
     "FreshnessObserver",
     "NaiveConsensusObserver",
     "TIE_RULES",
+    "CONVERGED_RTOL",
+    "converged_tolerance",
 ]
 
 #: The dummy value omega of a freshness index ("infinite delay": nothing heard yet).
@@ -953,11 +955,24 @@ def _growth(errors: np.ndarray) -> float:
     return float(np.exp(slope))
 
 
-def _converged_at(errors: np.ndarray, states: np.ndarray, diverged: bool) -> int | None:
+def converged_tolerance(scenario: Any) -> float:
+    """Relative error under which an agent of ``scenario`` counts as exact.
+
+    :data:`CONVERGED_RTOL`, or the deadbeat design's round-off floor
+    ``1e3 eps conditioning`` (:attr:`SourceGains.conditioning`) when that is larger:
+    large gains amplify rounding, and a fixed tolerance below the floor would call a
+    run unconverged although its error reached the floor.
+    """
+    floor = 1e3 * float(np.finfo(float).eps) * aoi_design(scenario).gains.conditioning
+    return max(CONVERGED_RTOL, floor)
+
+
+def _converged_at(errors: np.ndarray, states: np.ndarray, diverged: bool,
+                  rtol: float = CONVERGED_RTOL) -> int | None:
     if diverged:
         return None
     scale = np.maximum(np.linalg.norm(states, axis=1), np.finfo(float).tiny)
-    ok = np.all(errors <= CONVERGED_RTOL * scale[:, None], axis=1)
+    ok = np.all(errors <= rtol * scale[:, None], axis=1)
     if not ok[-1] or len(ok) < 2:
         return None
     bad = np.flatnonzero(~ok)
@@ -984,7 +999,8 @@ def aoi_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
     """The aoi paper's numbers of one family over its trials (``TrialResult``s).
 
     ``verdict``: ``diverged at step k``; ``converged at step k`` (noise-free runs only:
-    every agent within CONVERGED_RTOL ||x[k]|| from step k to the end, finite-time
+    every agent within ``converged_tolerance(scenario) ||x[k]||`` from step k to the
+    end, finite-time
     convergence); else from the growth factor g per step of the largest agent error
     over the second half: ``diverging`` (g^half > 2), ``converging`` (g^half < 1/2) or
     ``bounded``. For ``aoi``: the step by which every index was triggered (Lemma 3) and
@@ -1001,8 +1017,9 @@ def aoi_report(context: FamilyContext, trials: Sequence[Any]) -> dict[str, Any]:
     with np.errstate(invalid="ignore", divide="ignore"):
         rel = _nanmax(errs / np.maximum(states, np.finfo(float).tiny)[:, :, None],
                       axis=(0, 2))
-    conv = [_converged_at(e, t.states, t.diverged_at is not None) if noise_free else None
-            for e, t in zip(errs, trials, strict=True)]
+    rtol = converged_tolerance(scenario) if noise_free else CONVERGED_RTOL
+    conv = [_converged_at(e, t.states, t.diverged_at is not None, rtol) if noise_free
+            else None for e, t in zip(errs, trials, strict=True)]
     known = [c for c in conv if c is not None]
     converged_at = max(known) if conv and len(known) == len(conv) else None
     growths = [_growth(e) for e in errs]

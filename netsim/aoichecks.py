@@ -470,11 +470,10 @@ def _converged_at(scenario: Any) -> tuple[int | None, float]:
     ``CONVERGED_RTOL`` or, if larger, the deadbeat design's round-off floor
     ``1e3 eps conditioning`` (large gains amplify rounding; the report's fixed tolerance
     would call such a run unconverged although its error reached the floor)."""
-    from netsim.estimators.aoi import CONVERGED_RTOL, aoi_design
+    from netsim.estimators.aoi import converged_tolerance
     from netsim.runner import run_monte_carlo
 
-    tol = max(CONVERGED_RTOL,
-              1e3 * float(np.finfo(float).eps) * aoi_design(scenario).gains.conditioning)
+    tol = converged_tolerance(scenario)
     res = run_monte_carlo(scenario, families=["aoi"], keep_trials=True)
     trial = res.runs["aoi"][0]
     if trial.diverged_at is not None:

@@ -347,7 +347,8 @@ def test_convergence_times_reads_the_runs_and_is_seeded():
 def test_convergence_counts_an_ill_conditioned_deadbeat_run_at_its_round_off_floor():
     """Deadbeat gains with a large transient: the error falls to ~2e-9 ||x|| by step 7
     (bound 9) and stays there (round-off times the gains), above the aoi report's fixed
-    1e-9; the experiment's tolerance is the design's floor 1e3 eps conditioning."""
+    1e-9; the experiment's tolerance, and the aoi report's, is the design's floor
+    1e3 eps conditioning."""
     from netsim.estimators.aoi import aoi_design
 
     from netsim.aoichecks import _converged_at
@@ -359,7 +360,8 @@ def test_convergence_counts_an_ill_conditioned_deadbeat_run_at_its_round_off_flo
     assert tol == pytest.approx(1e3 * np.finfo(float).eps * cond) and tol > 1e-9
     assert conv is not None and conv <= 5 + 2 * 2 * 1 * 1
     report = run_monte_carlo(sc, families=["aoi"]).estimators["aoi"].report
-    assert report["converged_at"] is None  # the fixed 1e-9 misses it
+    assert report["converged_at"] == conv  # a fixed 1e-9 would miss it (None)
+    assert report["verdict"] == f"converged at step {conv}"
 
 
 # -- the registered claims ----------------------------------------------------------------

@@ -20,7 +20,8 @@ registers it here (:func:`register_medium_simulator`) when it is imported.
 
 Models (``model = ...``; the MAC models of :mod:`netsim.medium`):
 
-* ``point-to-point``: every link is its own wire with a FIFO transmit queue at the sender;
+* ``point-to-point``: every link is its own wire with a FIFO transmit queue at the sender
+  (``per_link``: a bit rate and a propagation delay of its own for listed links);
 * ``switched``: output-queued switch; each node's uplink and each output port run at
   ``bit_rate`` and an output port holds ``switch_buffer`` packets;
 * ``tdma``: a shared medium with a repeating slot schedule (one slot per entry of
@@ -103,7 +104,8 @@ COMMON_PARAMETERS: dict[str, Any] = {
 
 #: Each model's own parameters and its defaults of the common ones (seconds, bit/s).
 MEDIUM_PARAMETERS: dict[str, dict[str, Any]] = {
-    "point-to-point": {"bit_rate": 1e6, "header_bytes": 38, "addressing": "unicast"},
+    "point-to-point": {"bit_rate": 1e6, "header_bytes": 38, "addressing": "unicast",
+                       "per_link": None},
     "switched": {"bit_rate": 100e6, "header_bytes": 38, "addressing": "unicast",
                  "switch_buffer": 64, "switch_policy": "drop-tail"},
     "tdma": {"bit_rate": 250e3, "header_bytes": 17, "addressing": "broadcast",
@@ -213,7 +215,12 @@ class MediumSpec:
 
     def describe(self) -> dict[str, Any]:
         """JSON-ready parameters plus the packet size and transmission time."""
-        out = {k: (list(v) if isinstance(v, tuple) else v) for k, v in self.params.items()}
+        out: dict[str, Any] = {k: (list(v) if isinstance(v, tuple) else v)
+                               for k, v in self.params.items()}
+        per_link = self.params.get("per_link")
+        if isinstance(per_link, dict):
+            out["per_link"] = [{"from": j, "to": i, "bit_rate": r, "propagation": p}
+                               for (j, i), (r, p) in sorted(per_link.items())]
         out["packet_bits"] = self.packet_bits
         out["transmission_time"] = self.transmission_time
         return out
@@ -255,6 +262,40 @@ def _agent_list(value: Any, key: str, n_agents: int, *, permutation: bool = Fals
     if permutation and len(set(out)) != len(out):
         raise MediumError(key, "an agent is listed twice")
     return tuple(out)
+
+
+def _per_link(value: Any, key: str, n_agents: int
+              ) -> dict[tuple[int, int], tuple[float | None, float | None]]:
+    """``per_link = [{from, to, bit_rate, propagation}, ...]`` of a point-to-point medium:
+    (j, i) -> (bit rate or None, propagation or None), None: the medium's."""
+    if value is None:
+        return {}
+    if not isinstance(value, list):
+        raise MediumError(key, "expected a list of {from, to, bit_rate, propagation} tables")
+    out: dict[tuple[int, int], tuple[float | None, float | None]] = {}
+    for e, entry in enumerate(value):
+        where = f"{key}[{e}]"
+        if not isinstance(entry, dict):
+            raise MediumError(where, f"expected a table, got {entry!r}")
+        for k in entry:
+            if k not in ("from", "to", "bit_rate", "propagation"):
+                raise MediumError(f"{where}.{k}", "unknown key; allowed: from, to, bit_rate, "
+                                  "propagation")
+        for k in ("from", "to"):
+            if k not in entry:
+                raise MediumError(f"{where}.{k}", "is missing")
+        j = int(_num(entry["from"], f"{where}.from", minimum=0, integer=True))
+        i = int(_num(entry["to"], f"{where}.to", minimum=0, integer=True))
+        if j >= n_agents or i >= n_agents:
+            raise MediumError(where, f"agent index out of range 0..{n_agents - 1}")
+        if (j, i) in out:
+            raise MediumError(where, f"link {j} -> {i} is listed twice")
+        rate = (None if "bit_rate" not in entry else
+                _num(entry["bit_rate"], f"{where}.bit_rate", minimum=0, strict=True))
+        prop = (None if "propagation" not in entry else
+                _num(entry["propagation"], f"{where}.propagation", minimum=0))
+        out[(j, i)] = (rate, prop)
+    return out
 
 
 def parse_medium(table: Any, *, n_agents: int, n_states: int,
@@ -331,6 +372,8 @@ def parse_medium(table: Any, *, n_agents: int, n_states: int,
     params["jitter"] = _num(params["jitter"], k_("jitter"), minimum=0)
     if params["bound"] is not None:
         params["bound"] = _num(params["bound"], k_("bound"), minimum=0, integer=True)
+    if model == "point-to-point":
+        params["per_link"] = _per_link(params["per_link"], k_("per_link"), n_agents)
     if model == "switched":
         params["switch_buffer"] = _num(params["switch_buffer"], k_("switch_buffer"), minimum=1,
                                        integer=True)

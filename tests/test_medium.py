@@ -265,3 +265,17 @@ def test_switched_burst_to_one_port_leaves_back_to_back_and_overflows_the_buffer
     delivered = np.sort(b["done"][~b["dropped"]])
     np.testing.assert_allclose(delivered, C * np.arange(2, buffer + 3), rtol=1e-12)
     assert int(b["dropped"].sum()) == (N - 1) - (buffer + 1)
+
+
+def test_point_to_point_links_have_their_own_rate_and_propagation():
+    """A lone packet on a link takes its serialisation time plus its propagation, with the
+    link's own values where ``per_link`` gives them."""
+    env, medium, rec = _medium("point-to-point", 3, [[1, 2], [], []], bit_rate=1e3,
+                               propagation=0.5,
+                               per_link=[{"from": 0, "to": 2, "bit_rate": 4e3,
+                                          "propagation": 0.125}])
+    medium.submit(Packet(0, (1, 2), -1, 0.0, 1000.0))
+    env.run(until=10.0)
+    b = rec.background_arrays()
+    done = dict(zip(b["destination"].tolist(), b["done"].tolist(), strict=True))
+    assert done == {1: pytest.approx(1.0 + 0.5), 2: pytest.approx(0.25 + 0.125)}

@@ -48,6 +48,10 @@ def _scenario(**medium):
     ({"model": "can", "priorities": [1, 1, 2, 3, 4, 5]}, "network.medium.priorities"),
     ({"model": "aloha", "p": 1.5}, "network.medium.p"),
     ({"payload_bytes": 200}, "network.medium.payload_bytes"),
+    ({"model": "point-to-point", "per_link": [{"from": 0, "to": 9}]},
+     "network.medium.per_link[0]"),
+    ({"model": "point-to-point", "per_link": [{"from": 0, "to": 1, "bit_rate": 0}]},
+     "network.medium.per_link[0].bit_rate"),
 ])
 def test_bad_medium_parameters_name_the_key_in_one_line(medium, key):
     with pytest.raises(ScenarioError) as err:

@@ -2,7 +2,8 @@
 
 Link (j, i) serialises its packets one after the other at ``bit_rate`` from a finite
 FIFO queue at the sender; a packet is received ``propagation`` seconds after its last
-bit leaves. With Poisson arrivals and one packet size this is the M/D/1 queue: mean wait
+bit leaves (``per_link`` entries give a link a rate and a propagation of its own).
+With Poisson arrivals and one packet size this is the M/D/1 queue: mean wait
 in the queue W = lambda S^2 / (2 (1 - rho)), rho = lambda S (Pollaczek-Khinchine).
 A broadcast is one copy per out-link.
 """
@@ -35,7 +36,10 @@ class PointToPoint(Medium):
         queue = self.links.get((sender, receiver))
         if queue is None:
             queue = self.links[(sender, receiver)] = self.queue()
-            self.env.process(self._serve(queue))
+            rate, prop = (self.params.get("per_link") or {}).get((sender, receiver),
+                                                                  (None, None))
+            self.env.process(self._serve(queue, self.bit_rate if rate is None else rate,
+                                         self.propagation if prop is None else prop))
         return queue
 
     def submit(self, packet: Packet) -> None:
@@ -46,9 +50,10 @@ class PointToPoint(Medium):
             self.link_queue(packet.source, d).put(
                 Packet(packet.source, (d,), packet.step, packet.created, packet.bits))
 
-    def _serve(self, queue: TransmitQueue) -> Generator[simpy.Event, Any, None]:
+    def _serve(self, queue: TransmitQueue, rate: float, propagation: float
+               ) -> Generator[simpy.Event, Any, None]:
         env = self.env
         while True:
             packet = yield from queue.get()
-            yield env.timeout(packet.bits / self.bit_rate)
-            self.deliver_all(packet, env.now + self.propagation)
+            yield env.timeout(packet.bits / rate)
+            self.deliver_all(packet, env.now + propagation)

@@ -42,6 +42,7 @@ from netsim.models.continuous import ContinuousModel
 from netsim.models.triggers import Trigger, TriggerSpec
 
 __all__ = ["TimedCompensatingEstimator", "TimedUncompensatedEstimator", "TIMED_FORMS",
+           "TIMED_CLASSES",
            "timed_agents", "takes_time"]
 
 #: Update operators cached per estimator (keys of lags seen); beyond, built afresh.
@@ -203,6 +204,10 @@ def timed_agents(context: Any, compensate: bool) -> list[Any]:
                                tuple(sorted(graph.successors(i)))))
     return plans
 
+
+#: Families with a timed form: name -> the timed estimator class.
+TIMED_CLASSES: dict[str, type[_TimedConsensus]] = {
+    cls.family: cls for cls in (TimedCompensatingEstimator, TimedUncompensatedEstimator)}
 
 #: Families with a timed form: name -> factory(context) of its agents.
 TIMED_FORMS = {

@@ -132,7 +132,7 @@ def lifted_analysis(scenario: Any, gains: Any, delays: np.ndarray, family: str
         When the map would exceed :data:`MAX_SLOTS`.
     """
     from netsim.estimators.consensus import ConsensusParameters
-    from netsim.estimators.timed import TimedCompensatingEstimator, TimedUncompensatedEstimator
+    from netsim.estimators.timed import TIMED_CLASSES
 
     timing = scenario.timing
     T = float(scenario.sample_period)
@@ -143,8 +143,10 @@ def lifted_analysis(scenario: Any, gains: Any, delays: np.ndarray, family: str
     if hyper is None:
         raise ValueError("the periods are not commensurate with T")
     H = float(hyper) * T
-    make = TimedCompensatingEstimator if family == "compensated" else \
-        TimedUncompensatedEstimator
+    if family not in TIMED_CLASSES:
+        raise ValueError(f"estimator family {family!r} has no timed form "
+                         f"(those with one: {', '.join(TIMED_CLASSES)})")
+    make = TIMED_CLASSES[family]
     plant, P, graph = scenario.plant, scenario.weights, scenario.graph
     # timed estimators: message stamps are local times (floats)
     agents: list[Any] = [make(ConsensusParameters(agent=i, weights=P[i], A=plant.A, C=plant.C[i],
@@ -242,7 +244,7 @@ def lifted_analysis(scenario: Any, gains: Any, delays: np.ndarray, family: str
         raise ValueError("the slots one hyperperiod later do not match (not periodic)")
     M = np.vstack([read(slot) for slot in later])
     rho = float(np.max(np.abs(np.linalg.eigvals(M)), initial=0.0))
-    forced = family != "compensated" or not timing.offset.zero
+    forced = not make.compensates or not timing.offset.zero
     return LiftedAnalysis(family, H / T, D, rho, rho ** (T / H), forced)
 
 

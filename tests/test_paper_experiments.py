@@ -83,3 +83,33 @@ def test_bench_sweep_refuses_a_bad_loss_probability(value, capsys, tmp_path):
                  "--out", str(tmp_path / "x.jsonl")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "--losses" in err[0]
+
+
+def test_a_sweep_preset_gives_the_sweep_its_axes_unless_given(tmp_path, capsys):
+    from netsim.bench.presets import SweepPreset, sweep_presets
+    from netsim.papers import Paper, register_paper, unregister_paper
+    from netsim.papers._lcsys2022_experiments import LOSSES
+
+    assert sweep_presets()["lcsys2022-loss"].axes == {"loss": LOSSES}
+    toy = SweepPreset("toy-sweep", _scalar_scenario(tmp_path), {"loss": (0.0, 0.4)},
+                      ("compensated", "centralized-kf"), 2, 30, "a toy sweep")
+    register_paper(Paper(key="toy-sweeps", title="toy", text_file="toy.txt", sweeps=(toy,)))
+    try:
+        code = main(["bench", "sweep", "toy-sweep", "--workers", "1", "--no-progress",
+                     "--out", str(tmp_path / "a.jsonl"), "--json"])
+        assert code == 0
+        rows = json.loads(capsys.readouterr().out)["rows"]
+        assert sorted(r["params"]["loss"] for r in rows) == [0.0, 0.4]
+        assert all(r["params"]["_trials"] == 2 and r["params"]["_steps"] == 30 for r in rows)
+        assert all(set(r["result"]["estimators"]) == {"compensated", "centralized-kf"}
+                   for r in rows)
+        # the command line overrides the preset's axes, estimators and trials
+        code = main(["bench", "sweep", "toy-sweep", "--losses", "0.2", "--estimators",
+                     "compensated", "--trials", "3", "--workers", "1", "--no-progress",
+                     "--out", str(tmp_path / "b.jsonl"), "--json"])
+        assert code == 0
+        (row,) = json.loads(capsys.readouterr().out)["rows"]
+        assert row["params"]["loss"] == 0.2 and row["params"]["_trials"] == 3
+        assert set(row["result"]["estimators"]) == {"compensated"}
+    finally:
+        unregister_paper("toy-sweeps")

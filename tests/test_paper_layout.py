@@ -133,7 +133,7 @@ def _build(ctx):
 
 @pytest.fixture
 def toy():
-    from netsim.bench.presets import Preset
+    from netsim.bench.presets import Preset, SweepPreset
     from netsim.claims import Claim
     from netsim.reproduce.items import Item
 
@@ -154,6 +154,8 @@ def toy():
                                  help="the toy bound", legend="toy (none)",
                                  prediction_legend="toy: none"),),
         delay_settings={"homogeneous": "Fig. 9"},
+        sweeps=(SweepPreset("toy-sweep", "lcsys2022-heterogeneous", {"loss": (0.0, 0.1)},
+                            ("compensated",), 2, 10, "a toy sweep"),),
     )
     register_paper(paper)
     yield paper
@@ -193,10 +195,11 @@ def test_a_registered_paper_reaches_the_bench(toy, tmp_path):
 
     from netsim.bench.claims import bench_rows, default_rows
     from netsim.bench.delay_tolerance import run_delay_tolerance
-    from netsim.bench.presets import delay_settings, presets
+    from netsim.bench.presets import delay_settings, presets, sweep_presets
     from netsim.claims.search import ScalarInstance, write_scenario
 
     assert presets()["toy-preset"] is toy.presets[0]
+    assert sweep_presets()["toy-sweep"] is toy.sweeps[0]
     assert bench_rows()["Z-claim"] is _row and default_rows()[-1] == "Z-claim"
     assert delay_settings()["homogeneous"][1].endswith("toy-paper Fig. 9)")
     p = toy.presets[0]

@@ -12,7 +12,7 @@ from typing import Any, overload
 from netsim.bench.delay_tolerance import run_delay_tolerance
 from netsim.bench.fmt import fmt_value as _f
 from netsim.bench.plots import plot_report
-from netsim.bench.presets import DELAY_MODELS, FAMILIES, presets
+from netsim.bench.presets import DELAY_MODELS, FAMILIES, presets, sweep_presets
 from netsim.bench.report import format_report
 from netsim.bench.scenario_sweep import run_scenario_sweep
 from netsim.models.jsonsafe import json_tree
@@ -87,7 +87,10 @@ def add_bench_parser(subparsers: Any) -> Any:
             "table is written in grid order at the end."
         ),
     )
-    sw.add_argument("scenario", help="built-in scenario name or TOML file")
+    sweeps = ", ".join(sweep_presets())
+    sw.add_argument("scenario", help="built-in scenario name or TOML file"
+                    + (f", or a sweep preset ({sweeps}: its axes, estimators, trials and "
+                       "steps unless given)" if sweeps else ""))
     sw.add_argument("--delays", help="comma-separated delay settings or delays.model values")
     sw.add_argument("--taus", help="comma-separated delay bounds")
     sw.add_argument("--topologies", help="comma-separated: cycle, random, geometric")
@@ -105,8 +108,8 @@ def add_bench_parser(subparsers: Any) -> Any:
                     "is reported ([time] table)")
     sw.add_argument("--estimators", help="comma-separated estimator families ('netsim "
                     f"estimators' lists them; default: {', '.join(FAMILIES)})")
-    sw.add_argument("--trials", type=int, default=10, help="trials per cell (default 10)")
-    sw.add_argument("--steps", type=int, default=200, help="steps per trial (default 200)")
+    sw.add_argument("--trials", type=int, help="trials per cell (default 10)")
+    sw.add_argument("--steps", type=int, help="steps per trial (default 200)")
     sw.add_argument("--seed", type=int, default=0, help="root seed (default 0)")
     sw.add_argument("--out", metavar="FILE.jsonl", required=True,
                     help="JSON-lines results file (resumed if it exists)")
@@ -365,8 +368,12 @@ def _cmd_sweep(args: Any) -> int:
     from netsim.models.scenario import ScenarioError
     from netsim.sweep import SweepInterrupted
 
-    for option in ("trials", "steps"):
-        if getattr(args, option) < 1:
+    preset = sweep_presets().get(args.scenario)
+    scenario = preset.scenario if preset is not None else args.scenario
+    trials = args.trials if args.trials is not None else (preset.trials if preset else 10)
+    steps = args.steps if args.steps is not None else (preset.steps if preset else 200)
+    for option, value in (("trials", trials), ("steps", steps)):
+        if value < 1:
             raise CommandError(f"--{option} must be a positive integer")
     taus, agents = _ints(args.taus, "--taus"), _ints(args.sizes, "--sizes")
     axes: dict[str, list[Any] | None] = {
@@ -380,20 +387,25 @@ def _cmd_sweep(args: Any) -> int:
         "drift_ppm": _floats(args.drifts, "--drifts"),
         "threshold": _floats(args.thresholds, "--thresholds"),
     }
+    if preset is not None:  # the preset's axes, unless given
+        for axis, values in preset.axes.items():
+            if axes.get(axis) is None:
+                axes[axis] = list(values)
+        agents, taus = axes.get("agents"), axes.get("tau")
     if agents and min(agents) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
     if axes["loss"] and max(axes["loss"]) > 1:
         raise CommandError(f"--losses: probabilities must be in [0, 1], got {args.losses!r}")
-    families = _names(args.estimators, "--estimators", None) or list(FAMILIES)
+    families = _names(args.estimators, "--estimators", None) or list(
+        preset.families if preset is not None and preset.families else FAMILIES)
     # the results file is resumed and the CSV regenerated from it: neither needs --force,
     # but neither may be a link, an input or the other output
-    _check_outputs(args.scenario, [("--out", args.out, False), ("--csv", args.csv, False)])
+    _check_outputs(scenario, [("--out", args.out, False), ("--csv", args.csv, False)])
     if agents:
-        _check_sweep_sizes(args.scenario, max(agents), max(taus or [0]),
-                           args.trials, args.steps)
+        _check_sweep_sizes(scenario, max(agents), max(taus or [0]), trials, steps)
     try:
         result = run_scenario_sweep(
-            args.scenario, axes=axes, trials=args.trials, steps=args.steps,
+            scenario, axes=axes, trials=trials, steps=steps,
             families=families, seed=args.seed, results=args.out, csv_path=args.csv,
             progress=not args.no_progress, description=f"sweep {args.scenario}",
             engine=args.engine, **_executor(args))

@@ -8,11 +8,12 @@ importing the bench does not import the papers.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 __all__ = ["DELAY_SETTINGS", "DELAY_MODELS", "FAMILIES", "NO_DELAY", "PRESETS",  # noqa: F822
-           "Preset", "presets", "delay_settings"]
+           "Preset", "SweepPreset", "presets", "sweep_presets", "delay_settings"]
 
 
 #: Estimator families benchmarked, in table order (the last one is the reference).
@@ -73,6 +74,41 @@ class Preset:
     description: str
     claims: tuple[str, ...]
     families: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class SweepPreset:
+    """A built-in ``netsim bench sweep``: a grid a paper module declares
+    (``Paper.sweeps``); the command line's axes, estimators, trials and steps override
+    the preset's.
+
+    Attributes
+    ----------
+    name, scenario : str
+        The preset's name and its base scenario (built-in name or file).
+    axes : mapping
+        Axis -> values (``delays``, ``tau``, ``topology``, ``agents``, ``seed``, ``loss``,
+        ``offset``, ``drift_ppm``, ``threshold``; :func:`netsim.bench.variants.sweep_variant`).
+    families : tuple of str
+        The families each cell runs.
+    trials, steps : int
+    description : str
+    """
+
+    name: str
+    scenario: str
+    axes: Mapping[str, tuple[Any, ...]]
+    families: tuple[str, ...]
+    trials: int
+    steps: int
+    description: str
+
+
+def sweep_presets() -> dict[str, SweepPreset]:
+    """Every paper's sweep presets by name, in registry order."""
+    from netsim.papers import papers
+
+    return {p.name: p for paper in papers() for p in paper.sweeps}
 
 
 def delay_settings() -> dict[str, tuple[str, str]]:

@@ -160,6 +160,8 @@ class Paper:
         Its figures and tables (``netsim reproduce``).
     presets : tuple of netsim.bench.presets.Preset
         Its bench presets (``netsim bench delay-tolerance PRESET``).
+    sweeps : tuple of netsim.bench.presets.SweepPreset
+        Its sweep presets (``netsim bench sweep PRESET``).
     bench_rows : tuple of BenchRow
         Its statements checked on a bench report.
     searches : tuple of Search
@@ -185,6 +187,7 @@ class Paper:
     claims: tuple[Any, ...] = ()
     items: tuple[Any, ...] = ()
     presets: tuple[Any, ...] = ()
+    sweeps: tuple[Any, ...] = ()
     bench_rows: tuple[BenchRow, ...] = ()
     searches: tuple[Search, ...] = ()
     jobs: Mapping[str, Callable[[str, int], Any]] = field(default_factory=dict)

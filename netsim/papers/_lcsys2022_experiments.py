@@ -9,11 +9,11 @@
   network), local Kalman filters (no communication) and the field's distributed filters
   ``kcf`` (Olfati-Saber 2009), ``ci`` (Battistelli & Chisci 2014) and ``diffkf``
   (Cattivelli & Sayed 2010).
-- **Packet loss** (item ``lcsys2022-loss``): the same families on the same plant with
-  the scenario's own heterogeneous fixed delays (tau-bar = 3), every link losing each
-  message independently with probability p (``[links] loss = {model = "bernoulli"}``),
-  steady MSE against p. The paper's Assumption 2 has no loss (a lost message is a delay
-  without bound), so nothing in it predicts these curves.
+- **Packet loss** (sweep preset and item ``lcsys2022-loss``): the same families on the
+  same plant with the scenario's own heterogeneous fixed delays (tau-bar = 3), every link
+  losing each message independently with probability p (``[links] loss = {model =
+  "bernoulli"}``), steady MSE against p. The paper's Assumption 2 has no loss (a lost
+  message is a delay without bound), so nothing in it predicts these curves.
 
 A run with fewer than :data:`FULL_TRIALS` trials (the tests' quick run) uses the short
 horizon :data:`QUICK_STEPS` and the coarse grids, and says so in the report.
@@ -26,7 +26,7 @@ from typing import Any
 
 import numpy as np
 
-from netsim.bench.presets import Preset
+from netsim.bench.presets import Preset, SweepPreset
 from netsim.reproduce.items import (
     BuildContext,
     ItemResult,
@@ -39,6 +39,7 @@ from netsim.reproduce.items import (
 
 __all__ = ["BASELINE_FAMILIES", "BASELINE_TAUS", "QUICK_TAUS", "LOSSES", "QUICK_LOSSES",
            "EXPERIMENT_STEPS", "QUICK_STEPS", "FULL_TRIALS", "MAX_TRIALS", "BASELINES_PRESET",
+           "LOSS_SWEEP",
            "build_baselines", "build_loss", "loss_variant", "loss_rows"]
 
 #: The families on the same axes: both consensus estimators, the references, the baselines.
@@ -74,6 +75,19 @@ BASELINES_PRESET = Preset(
                 "time-varying delays",
     claims=("L-theorem1", "L-decay", "T-theorem1"),
     families=BASELINE_FAMILIES,
+)
+
+
+LOSS_SWEEP = SweepPreset(
+    name="lcsys2022-loss",
+    scenario=_SCENARIO,
+    axes={"loss": LOSSES},
+    families=BASELINE_FAMILIES,
+    trials=MAX_TRIALS,
+    steps=EXPERIMENT_STEPS,
+    description="LCSYS2022 plant (our instance), not in the paper: steady MSE against the "
+                "Bernoulli loss probability of every link, heterogeneous fixed delays "
+                "tau-bar = 3, every family",
 )
 
 
@@ -224,26 +238,30 @@ def loss_variant(p: float, scenario: str = _SCENARIO) -> Any:
 
 
 def loss_rows(losses: tuple[float, ...], trials: int, steps: int,
-              families: tuple[str, ...] = BASELINE_FAMILIES) -> list[dict[str, Any]]:
-    """One ``netsim run`` per loss probability (same seed, same gains): per family the
-    verdict, the steady (or last trusted) MSE and the messages sent and delivered."""
-    from netsim.runner import run_monte_carlo, scenario_gains
+              families: tuple[str, ...] = BASELINE_FAMILIES,
+              workers: int = 1) -> list[dict[str, Any]]:
+    """The sweep preset ``lcsys2022-loss`` (``netsim bench sweep``, one cell per loss
+    probability, each a ``netsim run`` of every family with the scenario's seed and one
+    gain design): per family the verdict, the steady (or last trusted) MSE and the
+    messages sent and delivered."""
+    from netsim.bench.scenario_sweep import run_scenario_sweep
 
+    result = run_scenario_sweep(
+        LOSS_SWEEP.scenario, axes={"loss": list(losses)}, trials=trials, steps=steps,
+        families=list(families), seed=0, executor="serial" if workers == 1 else "local",
+        workers=workers, progress=False)
     out = []
-    gains = scenario_gains(loss_variant(0.0))
-    for p in losses:
-        scenario = loss_variant(p)
-        result = run_monte_carlo(scenario, steps=steps, trials=trials, seed=scenario.seed,
-                                 families=list(families), gains=gains)
-        for family, e in result.to_dict()["estimators"].items():
+    for row in result.rows:
+        p = float(row["params"]["loss"])
+        for family, e in row["result"]["estimators"].items():
             value, steady = _value(e)
             out.append({"loss": p, "family": family, "verdict": e["verdict"],
                         "steady_mse": value if steady else None,
                         "last_trusted_mse": e.get("last_trusted_mse"),
                         "growth_rate": e.get("growth_rate"),
-                        "sent": e["messages"]["sent"],
-                        "delivered": e["messages"]["delivered"]})
-    return out
+                        "sent": e["messages_sent"], "delivered": e["messages_delivered"]})
+    order = {f: i for i, f in enumerate(families)}
+    return sorted(out, key=lambda r: (r["loss"], order.get(r["family"], len(order))))
 
 
 def build_loss(ctx: BuildContext) -> ItemResult:
@@ -251,7 +269,8 @@ def build_loss(ctx: BuildContext) -> ItemResult:
     quick = _quick(ctx)
     losses = QUICK_LOSSES if quick else LOSSES
     trials, steps = _trials(ctx), QUICK_STEPS if quick else EXPERIMENT_STEPS
-    rows = ctx.cached("lcsys2022-loss", lambda: loss_rows(losses, trials, steps))
+    rows = ctx.cached("lcsys2022-loss",
+                      lambda: loss_rows(losses, trials, steps, workers=ctx.workers))
     keys = ("loss", "family", "verdict", "steady_mse", "last_trusted_mse", "growth_rate",
             "sent", "delivered")
     files = [write_csv(ctx.out / "lcsys2022-loss.csv", keys,

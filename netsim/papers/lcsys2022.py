@@ -80,6 +80,7 @@ from netsim.papers._consensus import (
 from netsim.papers._design_claims import check_block, check_discussion5
 from netsim.papers._lcsys2022_experiments import (
     BASELINES_PRESET,
+    LOSS_SWEEP,
     build_baselines,
     build_loss,
 )
@@ -880,6 +881,7 @@ PAPER = register_paper(Paper(
     claims=CLAIMS,
     items=ITEMS,
     presets=PRESETS,
+    sweeps=(LOSS_SWEEP,),
     bench_rows=(BenchRow("L-rho", _rho_row), BenchRow("L-tau-star", _c_tau_star),
                 BenchRow("L-eq26", _c_eq26), BenchRow("L-stable-0-3-8", _c_stable_038),
                 BenchRow("L-hom-19", _c_hom19), BenchRow("L-het-19", _c_het19),

@@ -69,10 +69,7 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
     acc : ((R + 1) n T,) ; prior : (n T,) ; res : ((m + 1) T,)
         Scratch.
 
-    Returns
-    -------
-    float
-        The largest squared error of the chunk (NaN if any is NaN).
+    The squared errors go to ``sq_out`` (the caller checks them for divergence).
     """
     depth, N, n, T = ring.shape
     R = powers.shape[0] - 1
@@ -87,8 +84,6 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
     sf = states
     uT = np.uint64(T)
     unT = np.uint64(n * T)
-    worst = 0.0
-    bad = False
     used = np.zeros(R + 1, dtype=np.bool_)
     lag = np.empty(T, dtype=np.int64)
     # the rows one blocked sum adds: offsets into rf (uniform terms) or af (lags)
@@ -198,10 +193,9 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
                 for t in range(T):
                     res[ro + np.uint64(t)] = meas[k, t, col]
                 for b in range(n):
-                    cb = C[i, o, b]
-                    pb = np.uint64(b) * uT
-                    for t in range(uT):
-                        res[ro + t] -= cb * pf[pb + t]
+                    rows[b] = np.uint64(b) * uT
+                    coef[b] = -C[i, o, b]
+                _blocked_sum(res, ro, uT, pf, rows, coef, n, True)
             sq = np.uint64(m) * uT  # the squared errors' row of res
             for t in range(uT):
                 res[sq + t] = 0.0
@@ -228,29 +222,40 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
                         diff = rf[oa + t] - sf[sa + t]
                         res[sq + t] += diff * diff
             for t in range(T):
-                total = res[sq + np.uint64(t)]
-                sq_out[c, t, i] = total
-                if total > worst:
-                    worst = total
-                elif total != total:
-                    bad = True
+                sq_out[c, t, i] = res[sq + np.uint64(t)]
             if record:
                 for t in range(T):
                     for a in range(n):
                         est_out[c, t, i, a] = ring[cur, i, a, t]
-    if bad:
-        return np.nan
-    return worst
 
 
 @numba.njit(inline="always")
 def _blocked_sum(out, at, width, src, rows, coef, count, add):  # type: ignore  # pragma: no cover
-    """out[at:at+width] (+)= sum_q coef[q] src[rows[q]:rows[q]+width], four rows a pass."""
+    """out[at:at+width] (+)= sum_q coef[q] src[rows[q]:rows[q]+width], up to eight rows
+    a pass."""
     q = 0
     first = not add
     while q < count:
         left = count - q
-        if left >= 4:
+        if left >= 8:
+            c0, c1, c2, c3 = coef[q], coef[q + 1], coef[q + 2], coef[q + 3]
+            c4, c5, c6, c7 = coef[q + 4], coef[q + 5], coef[q + 6], coef[q + 7]
+            r0, r1, r2, r3 = rows[q], rows[q + 1], rows[q + 2], rows[q + 3]
+            r4, r5, r6, r7 = rows[q + 4], rows[q + 5], rows[q + 6], rows[q + 7]
+            if first:
+                for t in range(width):
+                    out[at + t] = ((c0 * src[r0 + t] + c1 * src[r1 + t])
+                                   + (c2 * src[r2 + t] + c3 * src[r3 + t])
+                                   + ((c4 * src[r4 + t] + c5 * src[r5 + t])
+                                      + (c6 * src[r6 + t] + c7 * src[r7 + t])))
+            else:
+                for t in range(width):
+                    out[at + t] += ((c0 * src[r0 + t] + c1 * src[r1 + t])
+                                    + (c2 * src[r2 + t] + c3 * src[r3 + t])
+                                    + ((c4 * src[r4 + t] + c5 * src[r5 + t])
+                                       + (c6 * src[r6 + t] + c7 * src[r7 + t])))
+            q += 8
+        elif left >= 4:
             c0, c1, c2, c3 = coef[q], coef[q + 1], coef[q + 2], coef[q + 3]
             r0, r1, r2, r3 = rows[q], rows[q + 1], rows[q + 2], rows[q + 3]
             if first:

@@ -547,9 +547,9 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
             sq_out = outputs.sq[k0:k1] if direct else sq_chunk
             est_out = (outputs.estimates[k0:k1] if direct and outputs.estimates is not None
                        else est_chunk)
-            worst = consensus_chunk(k0, k1, *args, sq_out, est_out, record_estimates,
-                                    acc, prior, res)
+            consensus_chunk(k0, k1, *args, sq_out, est_out, record_estimates, acc, prior, res)
             last = k1 - 1
+            worst = float(sq_out[:c].max(initial=0.0))  # NaN when any error is NaN
             if direct and worst <= outputs.threshold_sq and worst < np.inf:
                 continue  # every error of the chunk finite and within the threshold
             if direct:  # recorded again step by step below, with the divergence rule

@@ -38,7 +38,7 @@ __all__ = ["consensus_chunk"]
 def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_j, term_w,  # type: ignore
                     term_link, chosen, send, uniform_d, compensate, x0_mean, meas,
                     offsets, sizes, C, L, states, sq_out, est_out, record, acc, prior,
-                    res):  # pragma: no cover - compiled
+                    res, ystep):  # pragma: no cover - compiled
     """Run steps k0 .. k1 - 1 of the consensus recursion for every agent and trial.
 
     Compiled by numba on the first call (or loaded from numba's on-disk cache).
@@ -66,7 +66,7 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
     states : ((K+1) n T,)
         The plant's states, (K+1, n, T) flattened: trials innermost.
     sq_out : (k1 - k0, T, N) ; est_out : (k1 - k0, T, N, n) (written when ``record``)
-    acc : ((R + 1) n T,) ; prior : (n T,) ; res : ((m + 1) T,)
+    acc : ((R + 1) n T,) ; prior : (n T,) ; res : ((m + 1) T,) ; ystep : (M T,)
         Scratch.
 
     The squared errors go to ``sq_out`` (the caller checks them for divergence).
@@ -94,6 +94,11 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
         c = k - k0
         prev = (k - 1) % depth
         cur = k % depth
+        # step k's measurements with the trials innermost (read row by row once)
+        M = meas.shape[2]
+        for t in range(T):
+            for col in range(M):
+                ystep[np.uint64(col) * uT + np.uint64(t)] = meas[k, t, col]
         for i in range(N):
             own = np.uint64(prev * N + i) * unT  # x^i(k - 1)
             # ---- eq. (4): the terms summed per lag r, then A^r on each sum
@@ -190,8 +195,9 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
             for o in range(sizes[i]):
                 col = offsets[i] + o
                 ro = np.uint64(o) * uT
-                for t in range(T):
-                    res[ro + np.uint64(t)] = meas[k, t, col]
+                yc = np.uint64(col) * uT
+                for t in range(uT):
+                    res[ro + t] = ystep[yc + t]
                 for b in range(n):
                     rows[b] = np.uint64(b) * uT
                     coef[b] = -C[i, o, b]

@@ -530,6 +530,7 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
     acc = np.zeros((R + 1) * n * T)  # per lag, (n, T) flat
     prior = np.empty(n * T)
     res = np.empty((Cp.shape[1] + 1) * T)  # the residuals and the squared errors
+    ystep = np.empty(meas.shape[2] * T)  # one step's measurements, trials innermost
     args = (ring, ring.reshape(-1), powers,
             np.ascontiguousarray(terms.diagonal, dtype=float), term_ptr,
             terms.j.astype(np.int64), np.ascontiguousarray(terms.weight, dtype=float),
@@ -547,7 +548,8 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
             sq_out = outputs.sq[k0:k1] if direct else sq_chunk
             est_out = (outputs.estimates[k0:k1] if direct and outputs.estimates is not None
                        else est_chunk)
-            consensus_chunk(k0, k1, *args, sq_out, est_out, record_estimates, acc, prior, res)
+            consensus_chunk(k0, k1, *args, sq_out, est_out, record_estimates, acc, prior, res,
+                            ystep)
             last = k1 - 1
             worst = float(sq_out[:c].max(initial=0.0))  # NaN when any error is NaN
             if direct and worst <= outputs.threshold_sq and worst < np.inf:

@@ -13,7 +13,10 @@ standing in for a neighbour from whom nothing has arrived (DESIGN.md). For each
 receiver the terms are first summed per lag r = k - s (an n x T accumulator per
 lag), then each lag's sum is multiplied by A^r: one n x n product per lag in use
 instead of one per term. With one delay d on every link that is two products per
-agent (the own prediction and A^(d+1)), the arithmetic floor's count.
+agent (the own prediction and A^(d+1)), the arithmetic floor's count; entries of A^r
+and C_i that are exactly zero are skipped (a zero times a finite estimate adds
+nothing; an estimate that is no longer finite belongs to a trial that has already
+diverged, whose later values are not recorded).
 
 It is used only when asked for (``NETSIM_NUMBA=1`` or ``run_batch(..., kernel=
 "numba")``, see :func:`netsim.vectorised.run_batch`): importing numba costs more
@@ -185,10 +188,17 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
                     for r in range(1, R + 1):
                         if used[r]:
                             for b in range(n):
-                                rows[count] = np.uint64(r * n + b) * uT
-                                coef[count] = powers[r, a, b]
-                                count += 1
-                    _blocked_sum(pf, np.uint64(a) * uT, uT, af, rows, coef, count, False)
+                                p = powers[r, a, b]
+                                if p != 0.0:  # structural zeros of A^r add nothing
+                                    rows[count] = np.uint64(r * n + b) * uT
+                                    coef[count] = p
+                                    count += 1
+                    if count:
+                        _blocked_sum(pf, np.uint64(a) * uT, uT, af, rows, coef, count,
+                                     False)
+                    else:
+                        for t in range(uT):
+                            pf[np.uint64(a) * uT + t] = 0.0
             # ---- eq. (5): x = prior + L_i (y - C_i prior) into slot k, and the
             # squared error ||x^i_k - x_k||^2 in the same pass
             out = np.uint64(cur * N + i) * unT
@@ -198,10 +208,13 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
                 yc = np.uint64(col) * uT
                 for t in range(uT):
                     res[ro + t] = ystep[yc + t]
+                count = 0
                 for b in range(n):
-                    rows[b] = np.uint64(b) * uT
-                    coef[b] = -C[i, o, b]
-                _blocked_sum(res, ro, uT, pf, rows, coef, n, True)
+                    if C[i, o, b] != 0.0:
+                        rows[count] = np.uint64(b) * uT
+                        coef[count] = -C[i, o, b]
+                        count += 1
+                _blocked_sum(res, ro, uT, pf, rows, coef, count, True)
             sq = np.uint64(m) * uT  # the squared errors' row of res
             for t in range(uT):
                 res[sq + t] = 0.0

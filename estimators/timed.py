@@ -76,9 +76,6 @@ class _TimedConsensus(_ConsensusBase):
                 self._blocks[lag] = block
         return block
 
-    def _neighbour_lags(self, t: float, elapsed: float) -> tuple[float | None, ...]:
-        raise NotImplementedError
-
     def step_at(self, t: float, y: np.ndarray, elapsed: float, transition: np.ndarray,
                 out: np.ndarray | None = None) -> np.ndarray:
         """Run the update at local time ``t`` with the measurement y (shape (m_i,)).
@@ -130,16 +127,37 @@ class _TimedConsensus(_ConsensusBase):
         self.last_step = (self.last_step or 0) + 1
         return self._estimate
 
+    def own_block(self, silent: tuple[bool, ...], transition: np.ndarray) -> np.ndarray:
+        """G_i = (I - L_i C_i)(p_ii + sum of the silent p_ij) Phi(h_i), shape (n, n).
+
+        ``silent[p]``: whether neighbour ``neighbours[p]`` has not been heard from (its
+        weight goes to the own term, DESIGN.md); ``transition`` is Phi(h_i).
+        """
+        own_weight = self._own_weight + sum(
+            w for (_, w), quiet in zip(self._neighbour_weights, silent, strict=True) if quiet)
+        return self._closed_loop.dot(own_weight * transition)
+
+    def neighbour_block(self, position: int, lag: float) -> np.ndarray:
+        """G_j = p_ij (I - L_i C_i) Phi(lag), shape (n, n), for neighbour
+        ``neighbours[position]`` at the lag the rule gives (:meth:`neighbour_lag`)."""
+        return self._neighbour_weights[position][1] * self._block(lag)
+
+    def neighbour_lag(self, t: Any, elapsed: float, stamp: Any) -> Any:
+        """The interval a neighbour's estimate stamped ``stamp`` is propagated over at
+        local time ``t`` (floats, or arrays of them elementwise)."""
+        raise NotImplementedError
+
+    def _neighbour_lags(self, t: float, elapsed: float) -> tuple[float | None, ...]:
+        return tuple(None if s is None else self.neighbour_lag(t, elapsed, s)
+                     for s in self._stamps)
+
     def _timed_operator(self, lags: tuple[float | None, ...], transition: np.ndarray
                         ) -> np.ndarray:
         """[G_i, G_j..., L_i]: G_i = (I - L C)(p_ii + silent p_ij) Phi(h_i), G_j = p_ij
         (I - L C) Phi(lag_j) (the same products, in the same order, as the step rule's
         operator, so one clock on one grid gives its numbers bit for bit)."""
-        own_weight = self._own_weight + sum(
-            w for (_, w), lag in zip(self._neighbour_weights, lags, strict=True) if lag is None)
-        own = self._closed_loop.dot(own_weight * transition)
-        blocks = [w * self._block(lag)
-                  for (_, w), lag in zip(self._neighbour_weights, lags, strict=True)
+        own = self.own_block(tuple(lag is None for lag in lags), transition)
+        blocks = [self.neighbour_block(p, lag) for p, lag in enumerate(lags)
                   if lag is not None]
         return np.concatenate([own, *blocks, self._L], axis=1)
 
@@ -163,8 +181,9 @@ class TimedCompensatingEstimator(_TimedConsensus):
     uses_timestamps = True
     compensates = True
 
-    def _neighbour_lags(self, t: float, elapsed: float) -> tuple[float | None, ...]:
-        return tuple(None if s is None else t - s for s in self._stamps)
+    def neighbour_lag(self, t: Any, elapsed: float, stamp: Any) -> Any:
+        """t - s_j: the stamp difference across the two clocks."""
+        return t - stamp
 
 
 class TimedUncompensatedEstimator(_TimedConsensus):
@@ -174,8 +193,9 @@ class TimedUncompensatedEstimator(_TimedConsensus):
     uses_timestamps = False
     compensates = False
 
-    def _neighbour_lags(self, t: float, elapsed: float) -> tuple[float | None, ...]:
-        return tuple(None if s is None else elapsed for s in self._stamps)
+    def neighbour_lag(self, t: Any, elapsed: float, stamp: Any) -> Any:
+        """h_i, the agent's own interval, whatever the stamp."""
+        return elapsed
 
 
 def timed_agents(context: Any, compensate: bool) -> list[Any]:

@@ -531,10 +531,13 @@ def _cmd_run(args: argparse.Namespace) -> int:
         raise CommandError(f"--engine {args.engine}: scenario {args.scenario}: {exc}"
                            ) from None
     note_kernel_fallbacks("run", kernel_fallbacks(args.engine, declared, scenario))
-    if scenario.timing is not None and args.engine == "auto":  # netsim.timedkernel
-        from netsim.timedkernel import TIMED_FALLBACK_NOTE
+    if scenario.timing is not None and args.engine == "auto":  # timed lockstep or kernel
+        from netsim.runner import timed_engine_line
 
-        sys.stderr.write(f"netsim run: note: {TIMED_FALLBACK_NOTE}\n")
+        line = timed_engine_line(args.engine, declared, scenario,
+                                 traced=args.trace is not None)
+        if line is not None:
+            sys.stderr.write(f"netsim run: note: {line}\n")
     trials = args.trials or scenario.trials
     trace_options = _trace_options(args)
     if args.trace is not None:

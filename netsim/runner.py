@@ -63,6 +63,7 @@ __all__ = [
     "family_of",
     "check_agents",
     "engines_for",
+    "timed_engine_line",
     "planned_engines",
     "kernel_fallbacks",
     "choose_engine",
@@ -223,24 +224,22 @@ def run_trial(
 
 
 def engines_for(engine: str, families: Sequence[str | EstimatorFamily],
-                scenario: Scenario | None = None) -> dict[str, str]:
+                scenario: Scenario | None = None, *, traced: bool = False) -> dict[str, str]:
     """The engine each family runs on: ``vectorised`` or ``events``.
 
     ``auto`` gives the vectorised engine to every family with a batched form and the
     event kernel to the others (:func:`kernel_fallbacks` names them); ``vectorised``
     refuses a family without one (ValueError); ``events`` runs all in the kernel. A
     scenario with a time-varying topology runs in the kernel (the lockstep engine
-    does not model links going up and down).
+    does not model links going up and down). A ``[time]`` scenario runs on the timed
+    lockstep (:mod:`netsim.timedlockstep`) where it can express the case and the run
+    is not traced, else on the timed kernel (:func:`_timed_engines`).
     """
     if engine not in ENGINES:
         raise ValueError(f"unknown engine {engine!r}; expected one of {', '.join(ENGINES)}")
     declared = [family_of(f, scenario) for f in families]
     if scenario is not None and scenario.timing is not None:  # netsim.timedkernel
-        if engine == "vectorised":
-            from netsim.timedkernel import TIMED_FALLBACK_NOTE
-
-            raise ValueError(f"{TIMED_FALLBACK_NOTE} (--engine events or auto)")
-        return {f.name: "events" for f in declared}
+        return _timed_engines(engine, declared, scenario, traced)
     if scenario is not None and scenario.topology is not None:
         if engine == "vectorised":
             raise ValueError("the vectorised engine does not model a time-varying "
@@ -255,6 +254,54 @@ def engines_for(engine: str, families: Sequence[str | EstimatorFamily],
     if engine == "events":
         return {f.name: "events" for f in declared}
     return {f.name: "vectorised" if f.vectorised else "events" for f in declared}
+
+
+def _timed_engines(engine: str, declared: Sequence[EstimatorFamily], scenario: Scenario,
+                   traced: bool) -> dict[str, str]:
+    """:func:`engines_for` of a ``[time]`` scenario: ``vectorised`` (the timed lockstep,
+    :mod:`netsim.timedlockstep`) for a family with a batched form whose case it
+    expresses, unless traced (traces of timed runs are the kernel's); ``--engine
+    vectorised`` on any other is one ValueError naming why."""
+    from netsim.timedlockstep import lockstep_refusal
+
+    if engine == "events":
+        return {f.name: "events" for f in declared}
+    why = ("a traced [time] run is written by the event kernel" if traced
+           else lockstep_refusal(scenario))
+    reasons = {f.name: why or (None if f.vectorised else "it has no batched form")
+               or lockstep_refusal(scenario, f) for f in declared}
+    if engine == "vectorised":
+        for name, reason in reasons.items():
+            if reason is not None:
+                raise ValueError(f"{reason} (family {name!r}: --engine events or auto)")
+    return {name: "events" if reason else "vectorised" for name, reason in reasons.items()}
+
+
+def timed_engine_line(engine: str, families: Sequence[str | EstimatorFamily],
+                      scenario: Scenario, *, traced: bool = False) -> str | None:
+    """The note a run of a ``[time]`` scenario prints about its engines (None for
+    another scenario, or when the request is invalid): which families run on the timed
+    lockstep and which on the kernel, and why."""
+    if scenario.timing is None:
+        return None
+    declared = [family_of(f, scenario) for f in families]
+    try:
+        engines = engines_for(engine, declared, scenario, traced=traced)
+    except ValueError:
+        return None
+    kernel = [name for name, e in engines.items() if e == "events"]
+    if not kernel:
+        return ("the [time] table runs on the vectorised engine (netsim.timedlockstep: "
+                "every trial samples at the same instants)")
+    from netsim.timedlockstep import lockstep_refusal
+
+    why = ("--engine events" if engine == "events" else
+           "a traced [time] run is written by the event kernel" if traced else
+           lockstep_refusal(scenario) or "; ".join(
+               filter(None, (lockstep_refusal(scenario, f) or
+                             (None if f.vectorised else f"{f.name!r} has no batched form")
+                             for f in declared if f.name in kernel))))
+    return (f"the [time] table runs {', '.join(kernel)} on the event kernel: {why}")
 
 
 def planned_engines(engine: str, families: Sequence[str | EstimatorFamily],
@@ -288,8 +335,8 @@ def choose_engine(engine: str, families: Sequence[str | EstimatorFamily], *,
     Raises ValueError for a request the chosen engine cannot serve. Both engines write
     the same traces, so ``traced`` does not change the choice.
     """
-    del traced  # both engines trace
-    chosen = set(engines_for(engine, families, scenario).values())
+    # both engines trace; a [time] scenario's traces are the timed kernel's
+    chosen = set(engines_for(engine, families, scenario, traced=traced).values())
     if len(chosen) == 1:
         return chosen.pop()
     return "vectorised" if not chosen else "mixed"
@@ -315,7 +362,14 @@ def run_trials(
     to keep.
     """
     declared = family_of(family)
-    if engines_for(engine, [declared])[declared.name] == "vectorised":
+    if scenario.timing is not None:  # the timed lockstep, or the timed kernel below
+        if engines_for(engine, [declared], scenario)[declared.name] == "vectorised":
+            from netsim.timedlockstep import run_timed_lockstep
+
+            return run_timed_lockstep(scenario, declared.name, gains, trial_seeds, steps,
+                                      record_delays=record_delays,
+                                      record_estimates=record_estimates, progress=progress)
+    elif engines_for(engine, [declared])[declared.name] == "vectorised":
         batched = declared.batched_form()
         return list(batched(scenario, declared.name, gains, trial_seeds, steps,
                             record_delays=record_delays, record_estimates=record_estimates,
@@ -847,7 +901,7 @@ def run_monte_carlo(
     else:
         declared = [family_of(f, scenario, "estimators") for f in families]
     families = tuple(f.name for f in declared)
-    engines = engines_for(engine, declared, scenario)
+    engines = engines_for(engine, declared, scenario, traced=trace is not None)
     engine = choose_engine(engine, declared, traced=trace is not None, scenario=scenario)
     budget.check_run(scenario, steps, trials, list(engines.values()), keep_trials=keep_trials)
     if trace is not None:

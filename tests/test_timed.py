@@ -279,9 +279,12 @@ def test_continuous_plant_given_directly():
 
 def test_engines_and_families_without_a_timed_form():
     _, timed = _pair({"periods": [1.0, 1.5, 1.0, 0.7]}, steps=10)
-    assert engines_for("auto", ["compensated"], timed) == {"compensated": "events"}
-    with pytest.raises(ValueError, match="event kernel only"):
-        engines_for("vectorised", ["compensated"], timed)
+    # every trial samples at the same instants: the timed lockstep (netsim.timedlockstep)
+    assert engines_for("auto", ["compensated"], timed) == {"compensated": "vectorised"}
+    _, jittery = _pair({"periods": [1.0, 1.5, 1.0, 0.7], "jitter": 1e-3}, steps=10)
+    assert engines_for("auto", ["compensated"], jittery) == {"compensated": "events"}
+    with pytest.raises(ValueError, match="time.jitter"):
+        engines_for("vectorised", ["compensated"], jittery)
     with pytest.raises(ValueError, match="cannot run asynchronously"):
         run_trial(timed, "block", scenario_gains(timed), 0)
 
@@ -375,7 +378,8 @@ def test_cli_run_reports_the_message_rate(tmp_path, capsys):
     captured = capsys.readouterr()
     data = json.loads(captured.out)
     # the engine selection says in one line why the kernel runs it
-    assert [line for line in captured.err.splitlines() if "event kernel only" in line]
+    assert [line for line in captured.err.splitlines()
+            if "on the event kernel: time.offset" in line]
     messages = data["estimators"]["compensated"]["messages"]
     assert 0 < messages["rate"] <= 1.0 / 0.9 + 1e-9  # at most one per (shortest) period
     assert "time" in data["scenario"]
@@ -428,7 +432,7 @@ def test_arrivals_meet_samples_regardless_of_rounding(monkeypatch):
 
 
 def test_bench_sweep_time_axes(tmp_path, capsys):
-    """netsim bench sweep --thresholds/--offsets: [time] cells run on the event kernel
+    """netsim bench sweep --thresholds/--offsets: [time] cells pick their engine
     (auto), and the message rate each cell reports is the broadcast count of an
     identical run_monte_carlo call divided by agents x duration."""
     import json
@@ -443,7 +447,9 @@ def test_bench_sweep_time_axes(tmp_path, capsys):
     rows = json.loads(capsys.readouterr().out)["rows"]
     rates = {row["params"]["threshold"]: row["result"]["estimators"]["compensated"]
              ["message_rate"] for row in rows}
-    assert rows[0]["params"]["_engine"] == "events"
+    # each [time] cell picks its engine (netsim.timedlockstep where it expresses the
+    # cell; this example's drawn clocks and trigger keep it on the kernel)
+    assert rows[0]["params"]["_engine"] == "auto"
     assert rates[1.0] < rates[0.0]
     from netsim.bench.variants import scenario_data, sweep_variant
     from netsim.runner import run_monte_carlo

@@ -194,11 +194,20 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], tria
     declared = [family_of(f, base, "--estimators") for f in families]
     from netsim.bench.variants import TIME_AXES
 
-    probe = base  # [time] cells run on the event kernel
-    if any(axes.get(k) for k in TIME_AXES):
+    probe = base
+    timed = any(axes.get(k) for k in TIME_AXES)
+    if timed:
         probe = sweep_variant(data, source, {k: 0.0 for k in TIME_AXES if axes.get(k)})
+        if engine == "vectorised":  # every [time] cell must be one the lockstep expresses
+            for k in TIME_AXES:
+                for value in axes.get(k) or ():
+                    choose_engine(engine, declared,
+                                  scenario=sweep_variant(data, source, {k: value}))
+    requested = engine
     engine = choose_engine(engine, declared, scenario=probe)
-    if engine == "mixed":  # each run picks per family (auto)
+    if engine == "mixed" or (timed and requested == "auto"):
+        # each run picks per family (auto); a [time] cell runs on the timed lockstep
+        # where it expresses the cell (fixed clocks, no trigger), else on the kernel
         engine = "auto"
     cells = grid(**{k: v for k, v in axes.items() if v})
     context = {"data": data, "source": source, "families": [f.key for f in declared],

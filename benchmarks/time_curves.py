@@ -3,10 +3,14 @@
 MSE and message rate against the send-on-delta threshold.
 
 Base scenario: ``lcsys2022-heterogeneous`` (n = 6, rho(A) = 1.04, N = 4 on the cycle,
-fixed heterogeneous delays in 0..3 steps, LMI gains), on the event kernel only (the
-vectorised engine does not model clocks or triggers; ``netsim.timedkernel``). Every
-point is a Monte Carlo run with the same trial seeds, so the curves differ only by the
-swept setting.
+fixed heterogeneous delays in 0..3 steps, LMI gains). Every point runs on the timed
+event kernel (``netsim.timedkernel``, the reference) and, where it can express the
+point, on the vectorised engine too (``netsim.timedlockstep``: fixed clocks, no
+trigger -- the offset sweep, its true-clock reference and threshold 0); the others
+(drifts drawn per trial, thresholds > 0) run on the kernel alone, and each row says
+which (column ``engines``: ``both`` with the largest relative difference of the two
+engines' MSE curves, or ``kernel``). Every point is a Monte Carlo run with the same
+trial seeds, so the curves differ only by the swept setting.
 
 * ``offset``: the agents' clock offsets o * (-1, 1, -1/2, 1/2) (o in units of T), no
   drift; compensated and uncompensated estimators. Each agent samples when its own
@@ -20,8 +24,10 @@ swept setting.
 Reported per point: the network MSE averaged over the window of steps (``--window``,
 default the second half), its value at the last step, the verdict (measured: the
 step model's exact analyses do not decide [time] runs) and the measured MSE growth
-per step; for the trigger also the message rate. Two PNGs (offset, trigger) are
-written with ``--plots DIR``.
+per step (all from the kernel's run); for the trigger also the message rate; the
+engines that ran it, with each engine's seconds and, for both, the vectorised
+engine's window MSE and the largest relative MSE difference. Two PNGs (offset,
+trigger) are written with ``--plots DIR``.
 
 Usage::
 
@@ -39,6 +45,7 @@ import copy
 import json
 import math
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -61,12 +68,19 @@ def _scenario(base: dict[str, Any], time_table: dict[str, Any]) -> Any:
 
 def _point(scenario: Any, gains: Any, families: list[str], steps: int, trials: int,
            seed: int, window: slice) -> dict[str, Any]:
+    """One point on the kernel, and on the vectorised engine where it expresses it."""
     from netsim.runner import run_monte_carlo
+    from netsim.timedlockstep import lockstep_refusal
 
-    result = run_monte_carlo(scenario, steps=steps, trials=trials, seed=seed,
-                             families=families, gains=gains, engine="events")
-    out = {}
-    for name, s in result.estimators.items():
+    why = lockstep_refusal(scenario)
+    results, seconds = {}, {}
+    for engine in ("events", "vectorised") if why is None else ("events",):
+        start = time.perf_counter()
+        results[engine] = run_monte_carlo(scenario, steps=steps, trials=trials, seed=seed,
+                                          families=families, gains=gains, engine=engine)
+        seconds[engine] = time.perf_counter() - start
+    out: dict[str, Any] = {}
+    for name, s in results["events"].estimators.items():
         mse = s.mse
         out[name] = {
             "window_mse": float(np.nanmean(mse[window])),
@@ -75,8 +89,25 @@ def _point(scenario: Any, gains: Any, families: list[str], steps: int, trials: i
             "growth_per_step": float(s.growth_rate),
             "message_rate": s.message_rate,
             "send_fraction": s.send_fraction,
+            "engines": list(results),
+            "seconds": seconds,
+            **({"kernel_only": why} if why is not None else {}),
         }
+        if "vectorised" in results:
+            other = results["vectorised"].estimators[name].mse
+            scale = np.maximum(np.abs(mse), np.finfo(float).tiny)
+            with np.errstate(invalid="ignore"):
+                rel = np.abs(other - mse) / scale
+            out[name]["vectorised_window_mse"] = float(np.nanmean(other[window]))
+            out[name]["max_relative_difference"] = float(np.nanmax(rel, initial=0.0))
     return out
+
+
+def _engines(row: dict[str, Any]) -> str:
+    """``both <largest relative difference>`` or ``kernel``."""
+    if "max_relative_difference" not in row:
+        return "kernel"
+    return f"both {row['max_relative_difference']:.0e}"
 
 
 def run(trials: int, steps: int, seed: int, window_from: int | None) -> dict[str, Any]:
@@ -92,8 +123,8 @@ def run(trials: int, steps: int, seed: int, window_from: int | None) -> dict[str
     both = ["compensated", "uncompensated"]
     report: dict[str, Any] = {"scenario": "lcsys2022-heterogeneous", "trials": trials,
                               "steps": steps, "seed": seed, "window": [start, steps],
-                              "engine": "events (the vectorised engine does not model "
-                                        "[time])",
+                              "engine": "events, and vectorised (netsim.timedlockstep) "
+                                        "where it expresses the point",
                               "offset": [], "drift": [], "trigger": []}
     for o in OFFSETS:
         offsets = [o * p for p in PATTERN]
@@ -136,7 +167,8 @@ def tables(report: dict[str, Any]) -> str:
         lines.append("")
         extra = f"  {'true clocks MSE':>16} {'verdict':>10}" if key == "offset" else ""
         lines.append(f"{label:>16}  {'compensated MSE':>16} {'verdict':>10} {'growth':>8}"
-                     f"  {'uncompensated MSE':>18} {'verdict':>10} {'growth':>8}{extra}")
+                     f"  {'uncompensated MSE':>18} {'verdict':>10} {'growth':>8}{extra}"
+                     f"  {'engines':>10}")
         for row in report[key]:
             c, u = row["compensated"], row["uncompensated"]
             x = row.get("offset", row.get("drift_ppm_std"))
@@ -145,15 +177,26 @@ def tables(report: dict[str, Any]) -> str:
                     if ref is not None else "")
             lines.append(f"{_fmt(x):>16}  {_fmt(c['window_mse']):>16} {c['verdict']:>10} "
                          f"{_fmt(c['growth_per_step']):>8}  {_fmt(u['window_mse']):>18} "
-                         f"{u['verdict']:>10} {_fmt(u['growth_per_step']):>8}{tail}")
+                         f"{u['verdict']:>10} {_fmt(u['growth_per_step']):>8}{tail}"
+                         f"  {_engines(c):>10}")
     lines.append("")
     lines.append(f"{'threshold':>10}  {'message rate':>12} {'sent/updates':>12} "
-                 f"{'compensated MSE':>16} {'verdict':>10} {'growth':>8}")
+                 f"{'compensated MSE':>16} {'verdict':>10} {'growth':>8}  {'engines':>10}")
     for row in report["trigger"]:
         c = row["compensated"]
         lines.append(f"{_fmt(row['threshold']):>10}  {_fmt(c['message_rate']):>12} "
                      f"{_fmt(c['send_fraction']):>12} {_fmt(c['window_mse']):>16} "
-                     f"{c['verdict']:>10} {_fmt(c['growth_per_step']):>8}")
+                     f"{c['verdict']:>10} {_fmt(c['growth_per_step']):>8}  {_engines(c):>10}")
+    points = [r["compensated"] for k in ("offset", "drift", "trigger") for r in report[k]]
+    points += [r["true_clocks"] for r in report["offset"]]
+    kernel = sum(p["seconds"]["events"] for p in points if "vectorised" in p["seconds"])
+    lockstep = sum(p["seconds"]["vectorised"] for p in points if "vectorised" in p["seconds"])
+    reasons = sorted({p["kernel_only"] for p in points if "kernel_only" in p})
+    lines.append("")
+    if lockstep > 0:
+        lines.append(f"points on both engines: kernel {kernel:.1f} s, vectorised "
+                     f"{lockstep:.1f} s ({kernel / lockstep:.1f}x)")
+    lines += [f"kernel only: {why}" for why in reasons]
     return "\n".join(lines)
 
 

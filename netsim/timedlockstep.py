@@ -24,7 +24,8 @@ their plant noise and the fate of their messages (delay, loss), both computed ah
   message the receiver holds (freshest time-stamp, or most recently arrived).
 
 What it cannot express runs on the kernel (:func:`lockstep_refusal` says why in one
-line): offsets or drifts drawn per trial, read jitter, a trigger, clock
+line): offsets or drifts drawn per trial, read jitter, a trigger that can hold a
+message back (a threshold of 0 sends every update: that one runs here), clock
 synchronisation, a time-varying topology, a ``[network.medium]``, link buffers, and
 families without a built-in timed form.
 
@@ -75,7 +76,9 @@ def lockstep_refusal(scenario: Any, family: Any = None) -> str | None:
     if any(timing.jitter):
         return ("time.jitter: the vectorised engine needs jitter-free clocks (each reading "
                 "is drawn per trial)")
-    if not timing.trigger.neutral:
+    trigger = timing.trigger
+    if not (trigger.neutral or (trigger.threshold == 0 and (
+            trigger.kind == "send-on-delta" or trigger.every == 1))):  # (0: sends always)
         return (f"time.trigger: the vectorised engine runs without a trigger (a "
                 f"{timing.trigger.kind} trigger decides from each trial's estimates, so "
                 "the trials send different messages)")
@@ -513,7 +516,8 @@ def _run_batch(scenario: Any, family: str, gains: Any, seeds: Sequence[SeedLike]
     dropped = np.zeros(T, dtype=np.int64)
     discarded = np.zeros(T, dtype=np.int64)
     reasons: list[dict[str, int]] = [{} for _ in range(T)]
-    drops: list[list[tuple[int, int, int, float, str]]] = [[] for _ in range(T)]
+    # per trial: (event, sender, receiver, sample index, drop time, reason)
+    drops: list[list[tuple[int, int, int, int, float, str]]] = [[] for _ in range(T)]
     for link in links:
         neighbour = link.sender in agents[link.receiver].neighbours
         s, d, lost, stale, lost_mask = _counts(link, end_limits, end_events,
@@ -574,11 +578,12 @@ def _run_batch(scenario: Any, family: str, gains: Any, seeds: Sequence[SeedLike]
             "clocks": [dict(c) for c in clock_list], "sample_record": record,
         }
         delays = None
-        dropped_list = None
+        dropped_list: list[tuple[int, int, int, float, str]] | None = None
         if t in wanted:
             delays = _effective_delays(agents, held, line, t, last, K, period, NOT_USED,
                                        NO_MESSAGE)
-            dropped_list = [entry[1:] for entry in sorted(drops[t])]
+            dropped_list = [(j, i, q, when, why)
+                            for _, j, i, q, when, why in sorted(drops[t])]
         results.append(TrialResult(
             states=st, measurements=[meas[:, rows] for rows in slices], estimates=mine,
             squared_errors=errors, effective_delays=delays,

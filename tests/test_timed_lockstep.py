@@ -84,10 +84,12 @@ CASES = {
     "offsets-async-delays": dict(
         time_table={"offset": [0.0, 0.3, -0.2, 0.5]},
         delays={"model": "asynchronous", "tau": 2, "seed": 5}),
-    # two commensurate periods with phases, offsets, Bernoulli losses
+    # two commensurate periods with phases, offsets, Bernoulli losses; a send-on-delta
+    # trigger of threshold 0 (it sends every update)
     "two-periods-loss": dict(
         time_table={"periods": [1.0, 0.5, 1.0, 0.5], "phases": [0.0, 0.25, 0.0, 0.1],
-                    "offset": [0.0, 0.1, 0.0, 0.7]},
+                    "offset": [0.0, 0.1, 0.0, 0.7],
+                    "trigger": {"kind": "send-on-delta", "threshold": 0.0}},
         links={"loss": {"model": "bernoulli", "p": 0.3}}),
     # fixed drifts, continuous latencies (gamma, in time units) with losses
     "drift-latency-loss": dict(
@@ -151,6 +153,7 @@ def test_same_seed_same_results_whatever_the_batch(monkeypatch):
     ({"drift_ppm": {"distribution": "normal", "std": 100.0}}, None, "time.drift_ppm"),
     ({"jitter": 1e-4}, None, "time.jitter"),
     ({"trigger": {"kind": "send-on-delta", "threshold": 0.05}}, None, "time.trigger"),
+    ({"trigger": {"kind": "periodic", "threshold": 0.0, "every": 2}}, None, "time.trigger"),
     ({"sync": {"period": 5.0}}, None, "time.sync"),
     ({"offset": [0.0, 0.1, 0.0, 0.0]}, {"buffer": {"capacity": 2, "policy": "drop-tail"}},
      "links"),

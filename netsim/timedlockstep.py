@@ -303,12 +303,15 @@ def _held(link: _LinkPlan, line: TimedTimeline, receiver_events: np.ndarray,
     return best.T.copy()
 
 
-def _counts(link: _LinkPlan, end_limit: np.ndarray, end_event: np.ndarray,
-            discards: bool) -> tuple[np.ndarray, ...]:
+def _counts(link: _LinkPlan, end_now: np.ndarray, end_limit: np.ndarray,
+            end_event: np.ndarray, discards: bool) -> tuple[np.ndarray, ...]:
     """Per trial: sent, delivered, dropped, discarded (freshest rule) by the trial's end,
-    and the dropped mask (T, M)."""
+    and the dropped mask (T, M). Delivered by the end: arrived by its instant, or
+    pending then and handed over early before its samples (``end_limit``)."""
     sent_mask = link.send_events[None, :] <= end_event[:, None]
-    arrived = link.delivered & (link.arrival <= end_limit[:, None])
+    early = (link.arrival <= end_limit[:, None]) & (
+        link.send_events[None, :] < end_event[:, None])
+    arrived = link.delivered & ((link.arrival <= end_now[:, None]) | early)
     dropped = ~link.delivered & sent_mask
     discarded = np.zeros(len(end_event), dtype=np.int64)
     if discards:
@@ -509,6 +512,7 @@ def _run_batch(scenario: Any, family: str, gains: Any, seeds: Sequence[SeedLike]
     # per trial: the last report and its event
     ends = np.where(diverged >= 0, diverged, K)
     end_events = line.report_rows[ends]
+    end_now = np.array([line.now[int(e)] for e in end_events.tolist()])
     end_limits = np.array([line.limit(int(e)) if line.sampling[int(e)] else line.now[int(e)]
                            for e in end_events.tolist()])
     sent = np.zeros(T, dtype=np.int64)
@@ -520,7 +524,7 @@ def _run_batch(scenario: Any, family: str, gains: Any, seeds: Sequence[SeedLike]
     drops: list[list[tuple[int, int, int, int, float, str]]] = [[] for _ in range(T)]
     for link in links:
         neighbour = link.sender in agents[link.receiver].neighbours
-        s, d, lost, stale, lost_mask = _counts(link, end_limits, end_events,
+        s, d, lost, stale, lost_mask = _counts(link, end_now, end_limits, end_events,
                                               timestamps and neighbour)
         sent += s
         delivered += d

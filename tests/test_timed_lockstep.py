@@ -97,7 +97,14 @@ CASES = {
                     "periods": [1.0, 1.1, 0.9, 1.2]},
         links={"delay": {"distribution": "gamma", "shape": 2.0, "scale": 0.6,
                          "shift": 0.4, "mode": "asynchronous"},
-               "loss": {"model": "bernoulli", "p": 0.2}, "bound": 5}),
+               "loss": {"model": "bernoulli", "p": 0.2}, "bound": 5},
+        steps=20),  # (every lag differs: one matrix exponential per lag on the kernel)
+    # constant latencies of half a period on half-period samplers: arrivals meet
+    # samples (counted as arrived, within the kernel's rounding tolerance)
+    "latencies-meeting-samples": dict(
+        time_table={"periods": [0.5, 1.0, 0.5, 1.5], "phases": [0.0, 0.3, 0.2, 0.0],
+                    "offset": [0.0, 0.2, 0.0, 0.0]},
+        links={"delay": {"distribution": "constant", "value": 0.5, "unit": "time"}}),
     # offsets of whole periods (the plant on the base grid), bursty losses and outages
     "whole-period-offsets-outages": dict(
         time_table={"offset": [0.0, 1.0, 0.0, 2.0]},

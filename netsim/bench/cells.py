@@ -305,7 +305,8 @@ def delay_tolerance_cell(params: dict[str, Any], seed: Any, context: dict[str, A
                                                         RECURSION_UNCOMPENSATED)
     seeds = [child_sequence(root, "trial", t) for t in range(trials)]
     engine = params.get("engine", "events")
-    if engine == "vectorised" and not family.vectorised:
+    if engine == "vectorised" and (not family.vectorised or variant.timing is not None):
+        # (a [time] variant: the timed lockstep where it expresses it, else the kernel)
         engine = engines_for("auto", [family], variant)[family.name]
     # trial 0's effective delays feed the realised growth rate
     results = run_trials(variant, family, gains if family.needs_gains else None,

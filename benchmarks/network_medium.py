@@ -51,29 +51,19 @@ FAMILIES = ["compensated", "uncompensated", "kcf", "ci", "diffkf", "local-kf",
             "centralized-kf"]
 
 
-def _medium(model: str, n_nodes: int, outs: list[list[int]], seed: int = 0, **params: Any):
-    import simpy
-    from netsim.models.medium import parse_medium
-
-    from netsim.medium import Recorder, mac_model
-
-    spec = parse_medium({"model": model, **params}, n_agents=n_nodes, n_states=1)
-    env = simpy.Environment()
-    rec = Recorder()
-    return env, mac_model(model)(env, spec.params, n_nodes, outs,
-                                 np.random.default_rng(seed), rec), rec
-
-
-def _batch_se(x: np.ndarray, batches: int = 20) -> float:
-    means = np.array([b.mean() for b in np.array_split(x, batches)])
-    return float(means.std(ddof=1) / math.sqrt(batches))
-
-
 def closed_forms() -> list[dict[str, Any]]:
     """Closed form vs simulation for every MAC model (larger samples than the tests)."""
     from netsim.models.medium import can_frame_bits
 
     from netsim.medium import Packet, poisson_source
+    from tests.test_medium import (
+        _batch_se,
+        _can_periodic,
+        _can_rta,
+        _first_collision_probability,
+        _first_transmission_collisions,
+        _medium,
+    )
 
     rows = []
     for rho in (0.5, 0.8, 0.9):
@@ -122,8 +112,6 @@ def closed_forms() -> list[dict[str, Any]]:
     rate, tau = 500e3, 2e-6
     data, T = [2, 4, 8, 8], [1.0e-3, 1.5e-3, 2.5e-3, 4.0e-3]
     Cs = [can_frame_bits(s) * tau for s in data]
-    from tests.test_medium import _can_periodic, _can_rta
-
     R = _can_rta(Cs, T, tau)
     for m in range(4):
         blocker = max(range(m + 1, 4), key=lambda k: Cs[k], default=None)
@@ -146,24 +134,8 @@ def closed_forms() -> list[dict[str, Any]]:
                      "random_phase_max": worst, "se": 0.0, "samples": 1})
     for n in (2, 4, 8):
         bursts = 4000
-        env, med, rec = _medium("csma", n, [[(i + 1) % n] for i in range(n)], seed=n)
-
-        def burst_source(n=n, env=env, med=med, bursts=bursts):
-            for k in range(bursts):
-                yield env.timeout(k * 0.1 - env.now)
-                for i in range(n):
-                    med.submit(Packet(i, ((i + 1) % n,), -1, env.now, 8 * 18))
-
-        env.process(burst_source())
-        env.run(until=bursts * 0.1)
-        b = rec.background_arrays()
-        which = np.floor(b["created"] / 0.1 + 0.5).astype(int)
-        hit = 0
-        for k in range(bursts):
-            first = np.argmin(np.where(which == k, b["done"], np.inf))
-            hit += bool(b["dropped"][first])
-        W = 8
-        p = 1 - sum(n / W * ((W - 1 - m) / W) ** (n - 1) for m in range(W))
+        hit = _first_transmission_collisions(n, bursts, seed=n)
+        p = _first_collision_probability(n, 8)
         rows.append({"model": "csma", "check": f"P(first transmission collides), {n} nodes",
                      "closed_form": p, "simulated": hit / bursts,
                      "se": math.sqrt(p * (1 - p) / bursts), "samples": bursts})

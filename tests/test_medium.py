@@ -196,13 +196,12 @@ def _first_collision_probability(n: int, W: int) -> float:
     return 1 - unique
 
 
-@pytest.mark.parametrize("n", [2, 4])
-def test_csma_ca_first_transmission_collides_as_the_backoff_combinatorics_say(n):
-    """802.15.4 defaults (macMinBE 3: W = 8): bursts of one broadcast frame per node at the
-    same instant on an idle channel."""
-    bursts = 1500
-    env, medium, rec = _medium("csma", n, [[(i + 1) % n] for i in range(n)], seed=n,
-                               max_backoffs=4)
+def _first_transmission_collisions(n: int, bursts: int, seed: int, **params) -> int:
+    """CSMA/CA on an idle channel: every 0.1 s each of ``n`` nodes gets one frame (to the
+    next node) at the same instant; how many of the ``bursts`` bursts' first transmission
+    was lost."""
+    env, medium, rec = _medium("csma", n, [[(i + 1) % n] for i in range(n)], seed=seed,
+                               **params)
 
     def bursts_process():
         for b in range(bursts):
@@ -219,6 +218,15 @@ def test_csma_ca_first_transmission_collides_as_the_backoff_combinatorics_say(n)
         rows = burst == k
         first = np.argmin(np.where(rows, b["done"], np.inf))
         collided += bool(b["dropped"][first])
+    return collided
+
+
+@pytest.mark.parametrize("n", [2, 4])
+def test_csma_ca_first_transmission_collides_as_the_backoff_combinatorics_say(n):
+    """802.15.4 defaults (macMinBE 3: W = 8): bursts of one broadcast frame per node at the
+    same instant on an idle channel."""
+    bursts = 1500
+    collided = _first_transmission_collisions(n, bursts, seed=n, max_backoffs=4)
     p = _first_collision_probability(n, 8)
     se = math.sqrt(p * (1 - p) / bursts)
     assert abs(collided / bursts - p) < 4 * se, (collided / bursts, p, se)

@@ -14,20 +14,19 @@ tends to the classic S = G e^(-G) with offered load G = N p as N grows.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Generator
 from typing import Any
 
 import simpy
 
-from netsim.medium.core import REASON_RETRY_LIMIT, Medium, Packet
+from netsim.medium.core import REASON_RETRY_LIMIT, SharedMedium
 from netsim.medium.registry import register_mac
 
 __all__ = ["SlottedAloha"]
 
 
 @register_mac
-class SlottedAloha(Medium):
+class SlottedAloha(SharedMedium):
     """p-persistent slotted ALOHA, one collision domain."""
 
     name = "aloha"
@@ -37,15 +36,7 @@ class SlottedAloha(Medium):
         self.slot = float(self.params["slot"])
         self.p = float(self.params["p"])
         self.max_attempts = int(self.params["max_attempts"])
-        self.queues = [self.queue() for _ in range(self.n_nodes)]
-        self._wake: Any = None
         self.env.process(self._slots())
-
-    def submit(self, packet: Packet) -> None:
-        self.queues[packet.source].put(packet)
-        if self._wake is not None:
-            wake, self._wake = self._wake, None
-            wake.succeed()
 
     def _slots(self) -> Generator[simpy.Event, Any, None]:
         env, rng = self.env, self.rng
@@ -53,10 +44,8 @@ class SlottedAloha(Medium):
         while True:
             backlogged = [i for i, q in enumerate(self.queues) if q.items]
             if not backlogged:
-                self._wake = env.event()
-                yield self._wake
-                # a packet waits for the next slot boundary
-                m = max(m, math.ceil(env.now / self.slot * (1 - 1e-12)))
+                yield self.idle()
+                m = self.next_slot(m, self.slot)  # a packet waits for the next slot boundary
                 continue
             start = m * self.slot
             if start > env.now:

@@ -22,7 +22,7 @@ from typing import Any
 
 import simpy
 
-from netsim.medium.core import Medium, Packet
+from netsim.medium.core import Packet, SharedMedium
 from netsim.medium.registry import register_mac
 from netsim.models.medium import can_frame_bits
 
@@ -30,7 +30,7 @@ __all__ = ["CANBus"]
 
 
 @register_mac
-class CANBus(Medium):
+class CANBus(SharedMedium):
     """CAN arbitration by identifier."""
 
     name = "can"
@@ -39,9 +39,7 @@ class CANBus(Medium):
         super().__init__(*args, **kwargs)
         self.ids = tuple(int(v) for v in self.params["priorities"])
         self.per_frame = int(self.params["frame_payload_bytes"])
-        self.queues = [self.queue() for _ in range(self.n_nodes)]
         self.current: list[Packet | None] = [None] * self.n_nodes
-        self._wake: Any = None
         self.env.process(self._bus())
 
     def frames(self, packet: Packet) -> tuple[float, ...]:
@@ -56,10 +54,7 @@ class CANBus(Medium):
     def submit(self, packet: Packet) -> None:
         packet.frames = self.frames(packet)
         packet.remaining = len(packet.frames)
-        self.queues[packet.source].put(packet)
-        if self._wake is not None:
-            wake, self._wake = self._wake, None
-            wake.succeed()
+        super().submit(packet)
 
     def _bus(self) -> Generator[simpy.Event, Any, None]:
         env = self.env
@@ -71,8 +66,7 @@ class CANBus(Medium):
                         best < 0 or self.ids[i] < self.ids[best]):
                     best = i
             if best < 0:
-                self._wake = env.event()
-                yield self._wake
+                yield self.idle()
                 continue
             packet = self.current[best]
             if packet is None:

@@ -17,6 +17,7 @@ there is nothing to supersede).
 
 from __future__ import annotations
 
+import math
 from collections import deque
 from collections.abc import Callable, Generator
 from dataclasses import dataclass, field
@@ -30,6 +31,7 @@ __all__ = [
     "TransmitQueue",
     "Recorder",
     "Medium",
+    "SharedMedium",
     "poisson_source",
     "REASON_COLLISION",
     "REASON_ACCESS_FAILURE",
@@ -257,6 +259,37 @@ class Medium:
 
     def count(self, name: str, by: int = 1) -> None:
         self.stats[name] = self.stats.get(name, 0) + by
+
+
+class SharedMedium(Medium):
+    """A medium one channel process serves: a transmit queue per node, a wake-up.
+
+    The channel process (started by the subclass) sleeps on :meth:`idle` while every
+    queue is empty; :meth:`submit` queues a packet at its source and wakes it.
+    Subclasses with slots of ``slot`` seconds from t = 0 (TDMA, slotted ALOHA) resume at
+    :meth:`next_slot`.
+    """
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.queues = [self.queue() for _ in range(self.n_nodes)]
+        self._wake: simpy.Event | None = None
+
+    def submit(self, packet: Packet) -> None:
+        self.queues[packet.source].put(packet)
+        if self._wake is not None:
+            wake, self._wake = self._wake, None
+            wake.succeed()
+
+    def idle(self) -> simpy.Event:
+        """An event that fires at the next :meth:`submit`."""
+        self._wake = self.env.event()
+        return self._wake
+
+    def next_slot(self, m: int, slot: float) -> int:
+        """The index of the first slot (of ``slot`` seconds) that starts at or after now,
+        and not before slot ``m``."""
+        return max(m, math.ceil(self.env.now / slot * (1 - 1e-12)))
 
 
 def poisson_source(env: simpy.Environment, medium: Medium, source: int,

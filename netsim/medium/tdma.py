@@ -14,20 +14,19 @@ close to it for a packet made just after its slot began.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Generator
 from typing import Any
 
 import simpy
 
-from netsim.medium.core import Medium, Packet
+from netsim.medium.core import SharedMedium
 from netsim.medium.registry import register_mac
 
 __all__ = ["TDMA"]
 
 
 @register_mac
-class TDMA(Medium):
+class TDMA(SharedMedium):
     """Time-division multiple access with a slot schedule."""
 
     name = "tdma"
@@ -37,20 +36,12 @@ class TDMA(Medium):
         self.slot = float(self.params["slot"])
         self.guard = float(self.params["guard"])
         self.schedule = tuple(self.params["schedule"])
-        self.queues = [self.queue() for _ in range(self.n_nodes)]
-        self._wake: Any = None
         self.env.process(self._frames())
 
     @property
     def frame(self) -> float:
         """F, seconds per frame."""
         return self.slot * len(self.schedule)
-
-    def submit(self, packet: Packet) -> None:
-        self.queues[packet.source].put(packet)
-        if self._wake is not None:
-            wake, self._wake = self._wake, None
-            wake.succeed()
 
     def _frames(self) -> Generator[simpy.Event, Any, None]:
         env = self.env
@@ -60,9 +51,8 @@ class TDMA(Medium):
             if not any(q.items for q in self.queues):
                 # idle medium: sleep until a packet comes, then resume at the first slot
                 # that starts at or after it
-                self._wake = env.event()
-                yield self._wake
-                m = max(m, math.ceil(env.now / self.slot * (1 - 1e-12)))
+                yield self.idle()
+                m = self.next_slot(m, self.slot)
                 continue
             start = m * self.slot
             if start > env.now:

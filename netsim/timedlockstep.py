@@ -149,7 +149,7 @@ class TimedTimeline:
 
     def limit(self, e: int) -> float:
         """The latest arrival time handed over before event e's samples."""
-        from netsim.timedkernel import _SNAP
+        from netsim.timedkernel import _SNAP  # the kernel's calendar tolerance
 
         now = self.now[e]
         return now + _SNAP * max(1.0, abs(now))
@@ -168,7 +168,7 @@ def timed_timeline(clocks: Sequence[Any], steps: int, period: float) -> TimedTim
         T.
     """
     from netsim.models.clocks import sample_times
-    from netsim.timedkernel import _env_times
+    from netsim.timedkernel import _env_times  # the kernel's own snapping, not a copy
 
     horizon = steps * period
     sampling = [_env_times(sample_times(clock, horizon)[0], period) for clock in clocks]
@@ -476,7 +476,7 @@ def _run_batch(scenario: Any, family: str, gains: Any, seeds: Sequence[SeedLike]
                 y = measurements[:, e, columns[i]]
                 if r == 0:
                     prior = x[i]
-                    x[i] = prior + (y - prior @ est._C.T) @ est._L.T
+                    x[i] = prior + (y - prior @ est.params.C.T) @ est.params.L.T
                 else:
                     elapsed = local - previous[i]  # type: ignore[operator]
                     x[i] = _update(est, i, r, local, elapsed, model.transition(elapsed),
@@ -651,7 +651,7 @@ def _update(est: Any, i: int, r: int, local: float, elapsed: float, transition: 
             continue
         blocks = np.stack([est.neighbour_block(p, float(u)) for u in unique.tolist()])
         out[rows] += np.matmul(blocks[inverse], payload[:, :, None])[:, :, 0]
-    out += y @ est._L.T
+    out += y @ est.params.L.T
     return out
 
 

@@ -203,3 +203,18 @@ def test_monte_carlo_on_both_engines():
         assert (a.message_rate, a.send_fraction) == (b.message_rate, b.send_fraction)
         assert (a.messages_sent, a.messages_delivered, a.messages_discarded) == (
             b.messages_sent, b.messages_delivered, b.messages_discarded)
+
+
+def test_bench_sweep_refuses_vectorised_offsets_drawn_per_trial(tmp_path, capsys):
+    """--offsets draws each agent's offset per trial: --engine vectorised is one line
+    naming time.offset (auto lets each cell pick, tests/test_timed.py)."""
+    from netsim.cli import main
+
+    code = main(["bench", "sweep", "lcsys2022-heterogeneous", "--offsets", "0,0.1",
+                 "--estimators", "compensated", "--trials", "1", "--steps", "5",
+                 "--out", str(tmp_path / "cells.jsonl"), "--engine", "vectorised",
+                 "--no-progress"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code != 0 and len(err) == 1 and "time.offset" in err[0]
+    assert not (tmp_path / "cells.jsonl").exists() or not (
+        tmp_path / "cells.jsonl").read_text().strip()

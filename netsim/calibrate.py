@@ -55,12 +55,16 @@ __all__ = [
     "PRINTED",
     "READINGS",
     "TOLERANCE",
+    "TARGETS",
+    "ACCEPTANCE_TARGETS",
+    "parse_targets",
     "Instance",
     "CalibrationResult",
     "unpack",
     "measure",
     "properties",
     "search",
+    "reread",
     "calibrate",
     "contradictions",
     "scenario_toml",
@@ -109,6 +113,48 @@ PRINTED: dict[str, float] = {
 
 #: A printed two-decimal number is matched when the achieved value rounds to it.
 TOLERANCE: float = 0.005
+
+#: LCSYS2022 targets a search can require (``--targets``): ``rho`` (rho(A-hat) = 0.64),
+#: ``tau-star`` (Theorem 1's tau* = 10), ``eq26`` (the three printed eq. (26) values, read
+#: as ``--reading`` says), ``hom19`` (homogeneous tau = 19 at exact rho = 1) and ``het19``
+#: (heterogeneous tau = 19 stable). Targets not required are still reported.
+TARGETS: tuple[str, ...] = ("rho", "tau-star", "eq26", "hom19", "het19")
+#: Issue 31's acceptance pair: rho(A-hat) within 0.01 of 0.64 (here: rounds to it) and
+#: tau* = 10; the other printed numbers are reported against the paper's.
+ACCEPTANCE_TARGETS: tuple[str, ...] = ("rho", "tau-star")
+#: Which target each report row belongs to.
+_ROW_TARGET: dict[str, str] = {
+    "rho(A-hat)": "rho", "tau*": "tau-star", "eq. (26) at tau = 3": "eq26",
+    "eq. (26) at tau = 8": "eq26", "eq. (26) at tau = 19": "eq26",
+    "homogeneous tau = 19 (exact rho)": "hom19",
+    "heterogeneous tau = 19 (exact rho)": "het19"}
+
+
+def parse_targets(text: str | Sequence[str] | None) -> tuple[str, ...]:
+    """Normalise a target list (``"rho,tau-star"``, ``"all"`` or names) to :data:`TARGETS` order.
+
+    Raises
+    ------
+    ValueError
+        One line naming the unknown target and the valid ones, or an empty list.
+    """
+    if text is None:
+        return TARGETS
+    names = ([t.strip() for t in text.split(",")] if isinstance(text, str)
+             else [str(t).strip() for t in text])
+    names = [t.lower().replace("_", "-") for t in names if t]
+    if not names:
+        raise ValueError(f"--targets is empty; give a comma list of {', '.join(TARGETS)} "
+                         "or 'all'")
+    if names == ["all"]:
+        return TARGETS
+    aliases = {"tau*": "tau-star", "taustar": "tau-star", "rho-hat": "rho"}
+    names = [aliases.get(t, t) for t in names]
+    bad = [t for t in names if t not in TARGETS]
+    if bad:
+        raise ValueError(f"unknown target {bad[0]!r} in --targets; valid: "
+                         f"{', '.join(TARGETS)} (comma-separated) or 'all'")
+    return tuple(t for t in TARGETS if t in names)
 
 #: Stated plant and network facts (Section IV).
 N_STATES, N_AGENTS, RHO_A, NOISE = 6, 4, 1.04, 0.004
@@ -333,8 +379,9 @@ def properties(inst: Instance) -> dict[str, Any]:
     }
 
 
-def _targets(m: dict[str, Any], reading: str) -> list[dict[str, Any]]:
-    """One row per printed number: printed, achieved, gap, matched."""
+def _targets(m: dict[str, Any], reading: str,
+             required: Sequence[str] = TARGETS) -> list[dict[str, Any]]:
+    """One row per printed number: printed, achieved, gap, matched, required."""
     key = "eq26" if reading == "as-printed" else "theorem1"
     rows = [{"name": "rho(A-hat)", "printed": PRINTED["rho_delay_free"],
              "achieved": m["rho_delay_free"]}]
@@ -355,20 +402,35 @@ def _targets(m: dict[str, Any], reading: str) -> list[dict[str, Any]]:
         if "matched" not in r:
             r["gap"] = r["achieved"] - r["printed"]
             r["matched"] = abs(r["gap"]) <= TOLERANCE
+        r["target"] = _ROW_TARGET[r["name"]]
+        r["required"] = r["target"] in required
     return rows
 
 
-def _residuals(report: Any, reading: str, exact: tuple[float, ...] | None) -> np.ndarray:
+def _residuals(report: Any, reading: str, exact: tuple[float, ...] | None,
+               targets: Sequence[str] = TARGETS) -> np.ndarray:
     v = np.asarray(report.values, dtype=float)
     v = np.where(np.isfinite(v), v, 1e6)
     f = v ** (1.0 / (np.arange(v.size) + 1.0)) if reading == "as-printed" else v
-    r = [v[0] - PRINTED["rho_delay_free"]]
-    r += [f[t] - PRINTED[f"eq26_tau{t}"] for t in (3, 8, 19)]
-    r += [max(0.0, v[t] - (1.0 - _MARGIN)) for t in range(11)]
-    r += [max(0.0, (1.0 + _MARGIN) - v[t]) for t in range(11, v.size)]
+    r: list[float] = []
+    if "rho" in targets:
+        r += [v[0] - PRINTED["rho_delay_free"]]
+    if "eq26" in targets:
+        r += [f[t] - PRINTED[f"eq26_tau{t}"] for t in (3, 8, 19)]
+    if "tau-star" in targets:
+        r += [max(0.0, v[t] - (1.0 - _MARGIN)) for t in range(11)]
+        r += [max(0.0, (1.0 + _MARGIN) - v[t]) for t in range(11, v.size)]
     if exact is not None:
-        r += [exact[0] - PRINTED["homogeneous_tau19"], max(0.0, exact[1] - (1.0 - _MARGIN))]
+        if "hom19" in targets:
+            r += [exact[0] - PRINTED["homogeneous_tau19"]]
+        if "het19" in targets:
+            r += [max(0.0, exact[1] - (1.0 - _MARGIN))]
     return _WEIGHT * np.asarray(r)
+
+
+def _needs_exact(targets: Sequence[str]) -> bool:
+    """Whether a target needs the exact augmented radii at ``tau = 19``."""
+    return "hom19" in targets or "het19" in targets
 
 
 class _Stop(Exception):
@@ -384,6 +446,7 @@ class _Objective:
     exact_evaluations: int = 0
     best: tuple[float, np.ndarray] | None = None
     found: np.ndarray | None = None
+    targets: tuple[str, ...] = TARGETS
 
     def __call__(self, x: np.ndarray, exact: bool) -> np.ndarray:
         if self.evaluations >= self.budget:
@@ -399,11 +462,11 @@ class _Objective:
             self.exact_evaluations += 1
             ex = tuple(float(augmented_spectral_radius(inst.P, inst.A, inst.C, inst.L, d, 19))
                        for d in (_homogeneous(inst.P, 19), inst.heterogeneous_delays(19)))
-        r = _residuals(report, self.reading, ex)
+        r = _residuals(report, self.reading, ex, self.targets)
         cost = float(r @ r)
         if self.best is None or cost < self.best[0]:
             self.best = (cost, np.array(x, dtype=float))
-        if exact and self._meets(report, ex):
+        if (exact or not _needs_exact(self.targets)) and self._meets(report, ex):
             self.found = np.array(x, dtype=float)
             raise _Stop("found")
         return r
@@ -411,11 +474,14 @@ class _Objective:
     def _meets(self, report: Any, ex: Any) -> bool:
         v = np.asarray(report.values)
         f = v ** (1.0 / (np.arange(v.size) + 1.0)) if self.reading == "as-printed" else v
-        return bool(report.contiguous == 10 and not report.isolated
-                    and abs(v[0] - PRINTED["rho_delay_free"]) <= TOLERANCE
-                    and all(abs(f[t] - PRINTED[f"eq26_tau{t}"]) <= TOLERANCE
-                            for t in (3, 8, 19))
-                    and abs(ex[0] - 1.0) <= TOLERANCE and ex[1] < 1.0)
+        want = self.targets
+        return bool(
+            ("tau-star" not in want or (report.contiguous == 10 and not report.isolated))
+            and ("rho" not in want or abs(v[0] - PRINTED["rho_delay_free"]) <= TOLERANCE)
+            and ("eq26" not in want or all(abs(f[t] - PRINTED[f"eq26_tau{t}"]) <= TOLERANCE
+                                           for t in (3, 8, 19)))
+            and ("hom19" not in want or abs(ex[0] - 1.0) <= TOLERANCE)
+            and ("het19" not in want or ex[1] < 1.0))
 
 
 @dataclass(frozen=True)
@@ -441,6 +507,11 @@ class CalibrationResult:
         :func:`properties` of ``instance``.
     evaluations, exact_evaluations, budget, starts, seed : int
         The search's counts and settings.
+    required : tuple of str
+        The targets the search required (:data:`TARGETS`); the others are reported only.
+    shared_with : str or None
+        The reading whose search this result reuses (the required targets do not depend
+        on the reading), else None.
     """
 
     reading: str
@@ -456,12 +527,18 @@ class CalibrationResult:
     seed: int
     parameters: list[float] | None = None
     paper: str = "lcsys2022"
+    required: tuple[str, ...] = TARGETS
+    shared_with: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
         inst = self.instance
         return {
             "paper": self.paper, "reading": self.reading, "verdict": self.verdict,
+            "targets_required": list(self.required),
+            "targets_reported": [t for t in TARGETS if t not in self.required]
+            if self.paper == "lcsys2022" else [],
+            "shared_with": self.shared_with,
             "evaluations": self.evaluations, "exact_evaluations": self.exact_evaluations,
             "budget": self.budget, "starts": self.starts, "seed": self.seed,
             "targets": self.targets, "numbers": self.numbers,
@@ -481,7 +558,8 @@ def _start(rng: np.random.Generator) -> np.ndarray:
 
 def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
            starts: int = DEFAULT_STARTS, seed: int = DELAY_SEED,
-           tick: Callable[[int], Any] | None = None) -> CalibrationResult:
+           tick: Callable[[int], Any] | None = None,
+           targets: Sequence[str] | str | None = None) -> CalibrationResult:
     """Search one reading's targets (see the module docstring).
 
     Parameters
@@ -496,6 +574,11 @@ def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
         Root seed.
     tick : callable, optional
         Called with 1 per evaluation (a progress bar's ``update``).
+    targets : str or sequence of str, optional
+        The targets required (:func:`parse_targets`; default all of :data:`TARGETS`).
+        The others enter neither the objective nor the verdict but are reported. Without
+        ``hom19``/``het19`` no exact radius is computed during the search (only on the
+        result) and an evaluation meeting the required targets ends it.
 
     Returns
     -------
@@ -511,11 +594,12 @@ def search(reading: str, *, evaluations: int = DEFAULT_EVALUATIONS,
 
     with single_threaded_blas():
         return _search(reading, evaluations=evaluations, starts=starts, seed=seed,
-                       tick=tick)
+                       tick=tick, targets=parse_targets(targets))
 
 
 def _search(reading: str, *, evaluations: int, starts: int, seed: int,
-            tick: Callable[[int], Any] | None) -> CalibrationResult:
+            tick: Callable[[int], Any] | None,
+            targets: tuple[str, ...] = TARGETS) -> CalibrationResult:
     """The body of :func:`search`."""
     from scipy.optimize import least_squares
 
@@ -524,7 +608,8 @@ def _search(reading: str, *, evaluations: int, starts: int, seed: int,
     evaluations, starts = int(evaluations), int(starts)
     if evaluations < 1 or starts < 1:
         raise ValueError("evaluations and starts must be positive")
-    obj = _Objective(reading, evaluations, tick or (lambda k: None))
+    obj = _Objective(reading, evaluations, tick or (lambda k: None), targets=targets)
+    exact_needed = _needs_exact(targets)
     per_start = max(1, evaluations // starts)
     stage1 = max(1, int(per_start * STAGE1_SHARE))
     cheap_best: tuple[float, np.ndarray] | None = None
@@ -535,17 +620,27 @@ def _search(reading: str, *, evaluations: int, starts: int, seed: int,
         for child in np.random.SeedSequence(seed).spawn(starts):
             x0 = _start(np.random.default_rng(child))
             end = min(obj.evaluations + per_start, evaluations)
-            cap = _Objective(reading, min(obj.evaluations + stage1, end), obj.tick,
-                             evaluations=obj.evaluations)
+            cap = _Objective(reading, min(obj.evaluations + stage1, end) if exact_needed
+                             else end, obj.tick, evaluations=obj.evaluations,
+                             targets=targets)
             x1: np.ndarray | None
             try:
                 sol = least_squares(partial(cap, exact=False), x0,
                                     max_nfev=10 * stage1, **tight)
                 x1, cost = sol.x, float(sol.fun @ sol.fun)
             except _Stop:  # its share is spent: continue from its best point
-                cut = True
+                cut = cut or cap.found is None
                 x1, cost = (None, math.inf) if cap.best is None else (cap.best[1], cap.best[0])
             obj.evaluations = cap.evaluations
+            if cap.found is not None:  # required targets without exact radii: met
+                obj.found = cap.found
+                raise _Stop("found")
+            if not exact_needed:  # no stage 2: the start ends with its stage 1
+                if cap.best is not None and (obj.best is None or cap.best[0] < obj.best[0]):
+                    obj.best = cap.best
+                if obj.evaluations >= evaluations:
+                    raise _Stop("budget")
+                continue
             if x1 is not None and (cheap_best is None or cost < cheap_best[0]):
                 cheap_best = (cost, x1)
             if x1 is not None and cost < STAGE2_BELOW:
@@ -575,17 +670,32 @@ def _search(reading: str, *, evaluations: int, starts: int, seed: int,
         verdict = "undecided" if stopped == "budget" or cut else "not matched"
     if x is None:
         return CalibrationResult(reading, verdict, None, {}, [], {}, obj.evaluations,
-                                 obj.exact_evaluations, evaluations, starts, seed)
+                                 obj.exact_evaluations, evaluations, starts, seed,
+                                 required=targets)
     inst = unpack(x)
     numbers = measure(inst)
-    targets = _targets(numbers, reading)
+    rows = _targets(numbers, reading, targets)
     props = properties(inst)
-    if verdict == "matched" and not (all(t["matched"] for t in targets)
+    if verdict == "matched" and not (all(t["matched"] for t in rows if t["required"])
                                      and all(p["holds"] for p in props.values())):
         verdict = "not matched"  # the recomputation disagrees: never claim a match
-    return CalibrationResult(reading, verdict, inst, numbers, targets, props,
+    return CalibrationResult(reading, verdict, inst, numbers, rows, props,
                              obj.evaluations, obj.exact_evaluations, evaluations, starts,
-                             seed, [float(v) for v in x])
+                             seed, [float(v) for v in x], required=targets)
+
+
+def reread(result: CalibrationResult, reading: str) -> CalibrationResult:
+    """``result`` reported under another reading of eq. (26) (same search and instance).
+
+    Only valid when ``eq26`` is not a required target (the search then does not depend on
+    the reading); the result names the reading whose search it reuses.
+    """
+    if "eq26" in result.required:
+        raise ValueError("a search requiring eq26 depends on the reading")
+    rows = _targets(result.numbers, reading, result.required) if result.numbers else []
+    from dataclasses import replace
+
+    return replace(result, reading=reading, targets=rows, shared_with=result.reading)
 
 
 # ---------------------------------------------------------------------------
@@ -593,7 +703,8 @@ def _search(reading: str, *, evaluations: int, starts: int, seed: int,
 # ---------------------------------------------------------------------------
 
 
-def contradictions(inst: Instance | None = None) -> list[dict[str, Any]]:
+def contradictions(inst: Instance | None = None,
+                   targets: Sequence[str] = TARGETS) -> list[dict[str, Any]]:
     """What the printed numbers imply, with closed forms.
 
     1. Lemma 4's equality case: with *every* delay, self-loops included, equal to
@@ -614,6 +725,14 @@ def contradictions(inst: Instance | None = None) -> list[dict[str, Any]]:
        and ``c 1.04^tau < 1`` holds exactly up to ``tau = 10`` for ``c`` in their range:
        the printed ``tau* = 10`` follows, and ``1.45^(1/20) = 1.019`` is a marginally
        unstable homogeneous ``tau = 19``.
+    4. Issue 31's acceptance pair, ``rho(A-hat) = 0.64`` with ``tau* = 10``: ``tau*``
+       is the same under both readings (``rho(M)^(1/(tau+1)) < 1`` iff ``rho(M) < 1``),
+       and the pair contradicts nothing. ``M(tau) = A-hat (I kron A^tau)`` but the
+       spectral radius is not submultiplicative, so ``rho(A-hat) 1.04^tau`` is a
+       heuristic, not a bound: it puts ``tau*`` at 11 for ``c = 0.64``
+       (``0.64 * 1.04^11 = 0.985``), and ``tau* = 10`` needs ``rho(M(11)) >= 1``, growth a
+       little above ``1.04`` per step. With ``inst``: its ``rho(M(tau))`` at 10 and 11 and
+       the growth factor over the heuristic. ``targets`` names the required targets.
     """
     rows: list[dict[str, Any]] = []
     item: dict[str, Any] = {
@@ -660,6 +779,34 @@ def contradictions(inst: Instance | None = None) -> list[dict[str, Any]]:
                 f"c 1.04^tau < 1 up to tau = {star_lo}..{star_hi} (printed tau* = 10); "
                 f"1.45^(1/20) = {PRINTED['eq26_tau19'] ** (1 / 20):.4f}",
     })
+    c = PRINTED["rho_delay_free"]
+    heuristic = {t: c * RHO_A ** t for t in (10, 11, 12)}
+    heur_star = math.floor(-math.log(c) / math.log(RHO_A) - 1e-12)
+    pair: dict[str, Any] = {
+        "numbers": ["rho(A-hat) = 0.64", "tau* = 10", "rho(A) = 1.04"],
+        "setting": "issue 31's acceptance pair (required: "
+                   + ", ".join(t for t in targets) + ")",
+        "closed_form": "M(tau) = A-hat (I kron A^tau); rho(M) < 1 iff rho(M)^(1/(tau+1)) < 1",
+        "contradiction": False,
+        "evidence": {"heuristic_c_rho_A_pow": {str(t): v for t, v in heuristic.items()},
+                     "heuristic_tau_star": heur_star},
+        "text": "tau* is the same under both readings (the root does not move 1); "
+                f"0.64 * 1.04^tau = {heuristic[10]:.3f}, {heuristic[11]:.3f}, "
+                f"{heuristic[12]:.3f} at tau = 10, 11, 12 would put tau* at {heur_star}, "
+                "but rho is not submultiplicative: tau* = 10 needs rho(M(11)) >= 1, "
+                "which no spectral bound excludes",
+    }
+    if inst is not None:
+        from netsim.models.augmented import tau_star_report
+
+        rep_ = tau_star_report(inst.P, inst.A, list(inst.C), list(inst.L), tau_max=TAU_MAX)
+        v0 = float(rep_.values[0])
+        pair["evidence"].update({
+            "rho_delay_free": v0, "rho_M10": float(rep_.values[10]),
+            "rho_M11": float(rep_.values[11]), "tau_star": rep_.contiguous,
+            "growth_over_heuristic_11": float(rep_.values[11]) / (v0 * RHO_A ** 11)
+            if v0 > 0 else None})
+    rows.append(pair)
     return rows
 
 
@@ -1404,10 +1551,20 @@ BUNDLED: dict[str, dict[str, Any]] = {
 }
 
 
+#: The bundled instance that meets issue 31's acceptance pair (:data:`ACCEPTANCE_TARGETS`):
+#: scenario ``lcsys2022-calibrated-rho-tau``, written by the command these settings name.
+BUNDLED_ACCEPTANCE: dict[str, Any] = {
+    "name": "lcsys2022-calibrated-rho-tau", "targets": ACCEPTANCE_TARGETS,
+    "reading": "as-printed", "evaluations": DEFAULT_EVALUATIONS, "starts": DEFAULT_STARTS,
+    "seed": DELAY_SEED}
+
+
 def _command(result: CalibrationResult) -> str:
     reading = f" --reading {result.reading}" if result.paper == "lcsys2022" else ""
-    return (f"netsim calibrate {result.paper}{reading} --evaluations {result.budget} "
-            f"--starts {result.starts} --seed {result.seed}")
+    chosen = ("" if result.paper != "lcsys2022" or tuple(result.required) == TARGETS
+              else f" --targets {','.join(result.required)}")
+    return (f"netsim calibrate {result.paper}{reading}{chosen} --evaluations "
+            f"{result.budget} --starts {result.starts} --seed {result.seed}")
 
 
 def scenario_toml(result: CalibrationResult, name: str | None = None) -> str:
@@ -1428,6 +1585,18 @@ def scenario_toml(result: CalibrationResult, name: str | None = None) -> str:
         for t in result.targets)
     status = ("matches every printed number" if result.verdict == "matched"
               else f"does NOT match every printed number ({result.verdict})")
+    if not tolerant and tuple(result.required) != TARGETS:
+        req = [t["name"] for t in result.targets if t["required"]]
+        missed = [t["name"] for t in result.targets if not t["required"] and not t["matched"]]
+        status = (("meets" if result.verdict == "matched" else
+                   f"does NOT meet ({result.verdict})")
+                  + f" its required targets ({', '.join(req)}); the other printed numbers "
+                  "are only reported" + (f" and it does NOT match {', '.join(missed)}"
+                                         if missed else ""))
+        other = "theorem1" if result.reading == "as-printed" else "eq26"
+        shown += ("; eq. (26) at tau = 3/8/19 " + ("without" if other == "theorem1"
+                                                   else "with") + " the root: "
+                  + " / ".join(f"{result.numbers[f'{other}_tau{t}']:.4f}" for t in (3, 8, 19)))
     if tolerant:
         pattern = result.numbers.get("coupling_pattern", [])
         desc = (
@@ -1477,39 +1646,53 @@ def _paper_key(paper: str) -> str:
 
 
 def calibrated_toml(paper: str, *, seed: int | None = None, evaluations: int | None = None,
-                    starts: int | None = None) -> str:
+                    starts: int | None = None,
+                    targets: Sequence[str] | str | None = None) -> str:
     """The calibrated instance of ``paper`` as scenario TOML text.
 
     With no arguments, the bundled file ``models/scenarios/<paper>-calibrated.toml``
     (written by the command :data:`BUNDLED` names; no search is run). Otherwise the
     search is run with those settings (the others from :data:`BUNDLED`) and its result
     written out (:func:`scenario_toml`); the same settings give the same text, and a
-    result is kept for the process (cached).
+    result is kept for the process (cached). ``targets`` (LCSYS2022 only): the required
+    targets (:func:`parse_targets`); :data:`ACCEPTANCE_TARGETS` selects the bundled
+    ``lcsys2022-calibrated-rho-tau`` (settings :data:`BUNDLED_ACCEPTANCE`).
     """
     key = _paper_key(paper)
-    if seed is None and evaluations is None and starts is None:
+    want = None if targets is None else parse_targets(targets)
+    if want is not None and key != "lcsys2022":
+        raise ValueError("targets apply to lcsys2022 only")
+    acceptance = want == ACCEPTANCE_TARGETS
+    if seed is None and evaluations is None and starts is None and want in (None, TARGETS,
+                                                                            ACCEPTANCE_TARGETS):
         from netsim.models.scenario import builtin_scenarios
 
-        return builtin_scenarios()[f"{key}-calibrated"].read_text(encoding="utf-8")
-    b = BUNDLED[key]
+        name = BUNDLED_ACCEPTANCE["name"] if acceptance else f"{key}-calibrated"
+        return builtin_scenarios()[name].read_text(encoding="utf-8")
+    b = BUNDLED_ACCEPTANCE if acceptance else BUNDLED[key]
     return _searched_toml(key, b["seed"] if seed is None else int(seed),
                           b["evaluations"] if evaluations is None else int(evaluations),
-                          b["starts"] if starts is None else int(starts))
+                          b["starts"] if starts is None else int(starts),
+                          TARGETS if want is None else want)
 
 
 @lru_cache(maxsize=8)
-def _searched_toml(key: str, seed: int, evaluations: int, starts: int) -> str:
+def _searched_toml(key: str, seed: int, evaluations: int, starts: int,
+                   targets: tuple[str, ...] = TARGETS) -> str:
     if key == "delay-tolerant":
         res = search_tolerant(evaluations=evaluations, starts=starts, seed=seed)
-    else:
-        res = search(BUNDLED[key]["reading"], evaluations=evaluations, starts=starts,
-                     seed=seed)
-    return scenario_toml(res)
+        return scenario_toml(res)
+    acceptance = targets == ACCEPTANCE_TARGETS
+    reading = (BUNDLED_ACCEPTANCE if acceptance else BUNDLED[key])["reading"]
+    res = search(reading, evaluations=evaluations, starts=starts, seed=seed,
+                 targets=targets)
+    return scenario_toml(res, BUNDLED_ACCEPTANCE["name"] if acceptance else None)
 
 
 def calibrated_scenario(paper: str, *, seed: int | None = None,
                         evaluations: int | None = None, starts: int | None = None,
-                        as_dict: bool = False) -> Any:
+                        as_dict: bool = False,
+                        targets: Sequence[str] | str | None = None) -> Any:
     """The calibrated instance of ``paper`` as a scenario.
 
     Parameters
@@ -1522,6 +1705,9 @@ def calibrated_scenario(paper: str, *, seed: int | None = None,
     as_dict : bool, default False
         Return the parsed TOML table (``dict``, what :func:`netsim.api.run` also takes)
         instead of a :class:`netsim.models.scenario.Scenario`.
+    targets : str or sequence of str, optional
+        LCSYS2022: the required targets (see :func:`calibrated_toml`);
+        ``("rho", "tau-star")`` gives ``lcsys2022-calibrated-rho-tau``.
 
     Returns
     -------
@@ -1530,12 +1716,12 @@ def calibrated_scenario(paper: str, *, seed: int | None = None,
     import tomllib
 
     data = tomllib.loads(calibrated_toml(paper, seed=seed, evaluations=evaluations,
-                                         starts=starts))
+                                         starts=starts, targets=targets))
     if as_dict:
         return data
     from netsim.models.scenario import parse_scenario
 
-    return parse_scenario(data, source=f"builtin:{_paper_key(paper)}-calibrated")
+    return parse_scenario(data, source=f"builtin:{data.get('name', paper)}")
 
 
 def _fmt(v: Any) -> str:
@@ -1555,15 +1741,25 @@ def report_text(results: Sequence[CalibrationResult], notes: list[dict[str, Any]
         lines.append(f"{head}: {res.verdict.upper()} ({res.evaluations} of "
                      f"{res.budget} evaluations, {res.exact_evaluations} with exact radii; "
                      f"{res.starts} starts, seed {res.seed})")
-        lines.append(f"  {'quantity':44s} {'paper':>12s} {'achieved':>10s} {'gap':>9s}  match")
+        partial_targets = res.paper == "lcsys2022" and tuple(res.required) != TARGETS
+        if partial_targets:
+            lines.append(f"  required targets: {', '.join(res.required)}; reported only: "
+                         f"{', '.join(t for t in TARGETS if t not in res.required)}"
+                         + (f" (the search of reading {res.shared_with}: the required "
+                            "targets do not depend on the reading)" if res.shared_with
+                            else ""))
+        lines.append(f"  {'quantity':44s} {'paper':>12s} {'achieved':>10s} {'gap':>9s}  match"
+                     + ("  target" if partial_targets else ""))
         for t in res.targets:
             gap = "" if t["gap"] is None else f"{t['gap']:+.4f}"
             ach = t["achieved"]
             ach_s = f"{ach:.2e}" if isinstance(ach, float) and 0 < abs(ach) < 1e-4 \
                 else _fmt(ach)
+            kind = ("  required" if t.get("required") else "  reported") \
+                if partial_targets else ""
             lines.append(f"  {t['name']:44s} {_fmt(t['printed']):>12s} "
                          f"{ach_s:>10s} {gap:>9s}  "
-                         f"{'yes' if t['matched'] else 'NO'}")
+                         f"{'yes' if t['matched'] else 'NO':5s}{kind}".rstrip())
         bad = [k for k, p in res.properties.items() if not p["holds"]]
         lines.append("  stated properties: " + ("all hold" if not bad else
                                                  "FAIL " + ", ".join(bad)))
@@ -1599,6 +1795,11 @@ def report_text(results: Sequence[CalibrationResult], notes: list[dict[str, Any]
         if ev and "memoryless_mse" in ev:
             lines.append(f"     on the instance: steady-state MSE of x-hat^i = v y_i / "
                          f"(C_i v) = {ev['memoryless_mse']:.4f} (closed form)")
+        if ev and "rho_M11" in ev:
+            lines.append(f"     on the instance: rho(A-hat) = {ev['rho_delay_free']:.4f}, "
+                         f"rho(M(10)) = {ev['rho_M10']:.4f}, rho(M(11)) = "
+                         f"{ev['rho_M11']:.4f} (tau* = {ev['tau_star']}), "
+                         f"x{ev['growth_over_heuristic_11']:.4f} over rho(A-hat) 1.04^11")
         if ev and "second_modulus" in ev and ev["second_modulus"] is not None:
             lines.append(f"     on the instance: rho(A-hat) = {ev['rho_delay_free']:.6f}, "
                          f"second |eig(A)| = {ev['second_modulus']:.6f}")
@@ -1639,9 +1840,14 @@ def figures_answer(simulation: Sequence[dict[str, Any]], family: str = "uncompen
 
 def calibrate(paper: str = "lcsys2022", *, readings: Sequence[str] = READINGS,
               evaluations: int | None = None, starts: int | None = None,
-              seed: int = DELAY_SEED, progress: bool | None = None
+              seed: int = DELAY_SEED, progress: bool | None = None,
+              targets: Sequence[str] | str | None = None
               ) -> tuple[list[CalibrationResult], list[dict[str, Any]]]:
     """Run the search (each reading, for LCSYS2022); return the results and the notes.
+
+    ``targets`` (LCSYS2022): the required targets (:func:`parse_targets`, default all).
+    Without ``eq26`` the search does not depend on the reading: it runs once and each
+    further reading reports the same instance (:func:`reread`).
 
     ``evaluations`` is the budget of each reading (default :data:`DEFAULT_EVALUATIONS`;
     delay-tolerant :data:`TOLERANT_EVALUATIONS`), ``starts`` likewise. Notes:
@@ -1657,25 +1863,33 @@ def calibrate(paper: str = "lcsys2022", *, readings: Sequence[str] = READINGS,
     if starts is None:
         starts = TOLERANT_STARTS if tolerant else DEFAULT_STARTS
     runs = ("as-printed",) if tolerant else tuple(readings)
-    bar = tqdm(total=int(evaluations) * len(runs), desc=f"netsim calibrate {key}",
+    want = parse_targets(targets)
+    if tolerant and want != TARGETS:
+        raise ValueError("targets apply to lcsys2022 only")
+    shared = not tolerant and "eq26" not in want
+    searched = runs[:1] if shared else runs
+    bar = tqdm(total=int(evaluations) * len(searched), desc=f"netsim calibrate {key}",
                unit="eval", disable=None if progress is None else not progress,
                file=sys.stderr, leave=False)
     try:
-        results = []
+        results: list[CalibrationResult] = []
         for reading in runs:
+            if shared and results:
+                results.append(reread(results[0], reading))
+                continue
             before = bar.n
             if tolerant:
                 results.append(search_tolerant(evaluations=evaluations, starts=starts,
                                                 seed=seed, tick=bar.update))
             else:
                 results.append(search(reading, evaluations=evaluations, starts=starts,
-                                      seed=seed, tick=bar.update))
+                                      seed=seed, tick=bar.update, targets=want))
             bar.update(before + int(evaluations) - bar.n)
     finally:
         bar.close()
     chosen = _chosen(results)
     inst = None if chosen is None else chosen.instance
-    return results, (tolerant_notes(inst) if tolerant else contradictions(inst))
+    return results, (tolerant_notes(inst) if tolerant else contradictions(inst, want))
 
 
 def _chosen(results: Sequence[CalibrationResult]) -> CalibrationResult | None:
@@ -1710,6 +1924,16 @@ def add_calibrate_parser(sub: Any) -> argparse.ArgumentParser:
                         f"delay-tolerant {TOLERANT_STARTS}, start s uses coupling pattern "
                         "s mod 19)")
     p.add_argument("--seed", type=int, default=DELAY_SEED, help="root seed of the starts")
+    p.add_argument("--targets", default=None, metavar="LIST",
+                   help="lcsys2022 only: the printed numbers the search must match, a comma "
+                        f"list of {', '.join(TARGETS)} (default all). rho: rho(A-hat) = "
+                        "0.64; tau-star: Theorem 1's tau* = 10 (the largest tau with "
+                        "rho((I-KD)(P kron A^(tau+1))) < 1, every smaller tau passing, none "
+                        "larger up to 30; the same under both readings); eq26: 0.74/0.94/"
+                        "1.45 at tau = 3/8/19; hom19: homogeneous tau = 19 at exact rho = 1; "
+                        "het19: heterogeneous tau = 19 stable. Targets not required are "
+                        "reported, not searched for; issue 31's acceptance is "
+                        "--targets rho,tau-star")
     p.add_argument("--reading", choices=(*READINGS, "both"), default=None,
                    help="lcsys2022 only: how the printed eq. (26) values are read "
                         "(default both)")
@@ -1748,13 +1972,23 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
             out = check_output(args.out, "--out", force=args.force)
         except OutputFileError as exc:
             raise CommandError(str(exc)) from None
+    try:
+        targets = parse_targets(args.targets)
+    except ValueError as exc:
+        raise CommandError(str(exc)) from None
+    if tolerant and args.targets is not None:
+        raise CommandError("--targets applies to lcsys2022 only (the delay-tolerant search "
+                           "has its own fixed targets)")
     reading = args.reading or "both"
     readings = READINGS if reading == "both" else (reading,)
     progress = False if args.no_progress else None
     results, notes = calibrate(args.paper, readings=readings, evaluations=args.evaluations,
-                               starts=args.starts, seed=args.seed, progress=progress)
+                               starts=args.starts, seed=args.seed, progress=progress,
+                               targets=targets)
     chosen = _chosen(results)
-    text = None if chosen is None else scenario_toml(chosen)
+    name = (BUNDLED_ACCEPTANCE["name"] if not tolerant and targets == ACCEPTANCE_TARGETS
+            else None)
+    text = None if chosen is None else scenario_toml(chosen, name)
     simulation = None
     if tolerant and text is not None and not args.no_simulate:
         from netsim.models.scenario import parse_scenario
@@ -1784,7 +2018,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.json:
         from netsim.models.jsonsafe import json_tree
 
-        doc: dict[str, Any] = {"paper": args.paper, "results": [r.to_dict() for r in results],
+        doc: dict[str, Any] = {"paper": args.paper,
+                               "targets_required": [] if tolerant else list(targets),
+                               "results": [r.to_dict() for r in results],
                                "contradictions": notes, "written": written}
         if tolerant:
             doc["simulation"] = simulation

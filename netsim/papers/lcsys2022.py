@@ -631,7 +631,13 @@ def _build_lcsys_fig1(ctx: BuildContext) -> ItemResult:
 def _build_lcsys_calibrated(ctx: BuildContext) -> ItemResult:
     """Section IV's numbers on the calibrated instance (``lcsys2022-calibrated``) beside
     ours (``lcsys2022-heterogeneous``) and the paper's."""
-    from netsim.calibrate import TAU_MAX, Instance, calibrated_scenario, measure
+    from netsim.calibrate import (
+        ACCEPTANCE_TARGETS,
+        TAU_MAX,
+        Instance,
+        calibrated_scenario,
+        measure,
+    )
     from netsim.models.augmented import tau_star_report
     from netsim.models.scenario import resolve_scenario
     from netsim.reproduce.items import write_csv, write_json
@@ -647,6 +653,7 @@ def _build_lcsys_calibrated(ctx: BuildContext) -> ItemResult:
 
     res = ctx.cached("calibrated:lcsys2022", lambda: {
         "calibrated": numbers(calibrated_scenario(LCSYS)),
+        "acceptance": numbers(calibrated_scenario(LCSYS, targets=ACCEPTANCE_TARGETS)),
         "ours": numbers(resolve_scenario("lcsys2022-heterogeneous"))})
     fig = figure(figsize=(11, 4.4))
     axes = fig.subplots(1, 2)
@@ -654,6 +661,7 @@ def _build_lcsys_calibrated(ctx: BuildContext) -> ItemResult:
     printed_t = [0, *LCSYS_EQ26]
     printed_v = [LCSYS_RHO, *LCSYS_EQ26.values()]
     for key, style, name in (("calibrated", "-", "calibrated instance"),
+                             ("acceptance", "-.", "calibrated: rho(A-hat), tau* required"),
                              ("ours", "--", "our instance")):
         v = positive(res[key]["theorem1"])
         axes[0].plot(taus, v, ls=style, lw=1.3, label=name)
@@ -685,13 +693,19 @@ def _build_lcsys_calibrated(ctx: BuildContext) -> ItemResult:
 
     ours = [line("calibrated", "Calibrated instance (scenario lcsys2022-calibrated, netsim "
                  "calibrate lcsys2022, reading no-root)"),
+            line("acceptance", "Calibrated for rho(A-hat) and tau* only (scenario "
+                 "lcsys2022-calibrated-rho-tau, netsim calibrate lcsys2022 --targets "
+                 "rho,tau-star; the other numbers reported, not searched for)"),
             line("ours", "Our instance (lcsys2022-heterogeneous)")]
     differs = ["No instance with every stated property matching every printed number was "
                "found: the calibrated one is the closest of the search (its verdict: "
                "undecided), under the reading of eq. (26) without the root (docs: "
-               "Calibrating an instance)."]
+               "Calibrating an instance). Required to meet only rho(A-hat) = 0.64 and "
+               "tau* = 10, the search finds an instance with both (lcsys2022-calibrated-"
+               "rho-tau); its eq. (26) and tau = 19 values are reported beside the paper's."]
     rows = [(key, int(t), v, v ** (1.0 / (t + 1)) if v > 0 else math.nan)
-            for key in ("calibrated", "ours") for t, v in zip(taus, res[key]["theorem1"],
+            for key in ("calibrated", "acceptance", "ours")
+            for t, v in zip(taus, res[key]["theorem1"],
                                                               strict=True)]
     files = [write_csv(ctx.out / "lcsys2022-calibrated.csv",
                        ("instance", "tau", "theorem1_rho", "eq26_with_root"), rows),
@@ -877,7 +891,8 @@ PAPER = register_paper(Paper(
     key=LCSYS,
     title="Consensus-based distributed estimation with known delays (LCSYS2022)",
     text_file=TEXT_FILE,
-    scenarios=("lcsys2022-homogeneous", "lcsys2022-heterogeneous", "lcsys2022-calibrated"),
+    scenarios=("lcsys2022-homogeneous", "lcsys2022-heterogeneous", "lcsys2022-calibrated",
+               "lcsys2022-calibrated-rho-tau"),
     claims=CLAIMS,
     items=ITEMS,
     presets=PRESETS,

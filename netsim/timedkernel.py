@@ -53,22 +53,13 @@ from netsim.models.clocks import Clock, sample_times
 from netsim.models.continuous import ContinuousModel
 from netsim.models.plant import LinearPlant
 
-__all__ = ["TimedSimulation", "SampleRecord", "run_timed_trial", "timed_engine_note",
-           "TIMED_FALLBACK_NOTE", "cannot_run_timed", "MAX_EVENTS"]
-
-#: The one line the engine selection prints for a scenario with a ``[time]`` table.
-TIMED_FALLBACK_NOTE = ("the [time] table (clocks, asynchronous sampling, triggers) runs on "
-                       "the event kernel only; the vectorised engine does not model it")
+__all__ = ["TimedSimulation", "SampleRecord", "run_timed_trial", "cannot_run_timed",
+           "MAX_EVENTS"]
 
 #: Most sampling events one timed trial may hold (the timeline is built up front).
 MAX_EVENTS = 2e7
 #: Env times within this many base periods of a whole number are that number.
 _SNAP = 1e-9
-
-
-def timed_engine_note() -> str:
-    """The engine-selection line for timed scenarios (:data:`TIMED_FALLBACK_NOTE`)."""
-    return TIMED_FALLBACK_NOTE
 
 
 def cannot_run_timed(family: str) -> str:

@@ -40,6 +40,7 @@ from netsim.threads import single_threaded_blas
 
 __all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "DENSE_SECONDS_PER_CUBE",
            "STRUCTURED_SECONDS_PER_CALL", "STRUCTURED_SECONDS_PER_ROW", "BoundRow",
+           "ANALYSIS_PARALLEL_MIN_SECONDS",
            "AnalysisReport", "analysis_seconds", "analyze"]
 
 #: Numerical slack before an exact value above a bound counts as a violation.
@@ -169,12 +170,20 @@ def _exact_pair(task: tuple[Any, ...]) -> tuple[float, float, float]:
 
 
 #: Seconds per ``D^3`` of a dense eigenvalue call (``D`` rows), and per row of a
-#: structured (ARPACK) call, plus a fixed cost per structured call; measured on the
-#: 2-core development machine (single-threaded BLAS), only used to decide whether
-#: :func:`analyze` starts worker processes.
-DENSE_SECONDS_PER_CUBE = 1.2e-9
-STRUCTURED_SECONDS_PER_ROW = 1.0e-4
-STRUCTURED_SECONDS_PER_CALL = 0.02
+#: structured (ARPACK) call, plus a fixed cost per structured call; fitted (issue 34,
+#: 2026-12-02) to the CPU time of :func:`_exact_pair` per tau on lcsys2022-homogeneous
+#: (N = 4, n = 6, tau = 0..30: dense 0.04-0.10 s at D = 192-288, structured 0.02-0.12 s
+#: at D = 336-744) on the 2-core development machine (single-threaded BLAS); only
+#: used to decide whether :func:`analyze` starts worker processes.
+DENSE_SECONDS_PER_CUBE = 2.5e-9
+STRUCTURED_SECONDS_PER_ROW = 8.0e-5
+STRUCTURED_SECONDS_PER_CALL = 0.0
+#: ``analyze(workers=None)`` runs serially below this many estimated serial seconds
+#: (:func:`analysis_seconds`). Measured on the 2-core machine, lcsys2022-homogeneous
+#: (about 2 s of serial work): two workers took 3.2-3.4 s wall and 2.3-2.6 s CPU, the
+#: serial run 2.8-2.9 s wall and 2.2-2.4 s CPU; the workers pay their start and the
+#: transfer of every task and result, which this much work does not repay.
+ANALYSIS_PARALLEL_MIN_SECONDS = 4.0
 
 
 def analysis_seconds(n_agents: int, n: int, depths: Sequence[int]) -> float:
@@ -215,6 +224,7 @@ def analyze(
         Processes for the independent delay patterns (:func:`netsim.parallel.ordered_map`):
         1 runs them in this process; ``None`` chooses (the local cores, if the
         estimated serial work, :func:`analysis_seconds`, is at least
+        :data:`ANALYSIS_PARALLEL_MIN_SECONDS` and
         :data:`netsim.parallel.PARALLEL_MIN_SECONDS`). The report is the same either way.
 
     Raises
@@ -272,8 +282,11 @@ def analyze(
         # it again (0.2-0.35 s of CPU apiece)
         import scipy.sparse.csgraph  # noqa: F401
         import scipy.sparse.linalg  # noqa: F401
+    estimate = analysis_seconds(N, n, depths)
+    if workers is None and estimate < ANALYSIS_PARALLEL_MIN_SECONDS:
+        workers = 1  # small: serial (the same report; ANALYSIS_PARALLEL_MIN_SECONDS)
     results = ordered_map(
-        _exact_pair, tasks, estimated_seconds=analysis_seconds(N, n, depths),
+        _exact_pair, tasks, estimated_seconds=estimate,
         workers=workers, max_workers=fit, progress=progress, check=interrupt.check,
     )
     for tau, (exact_c, exact_u, b26) in enumerate(results[: tau_max + 1]):

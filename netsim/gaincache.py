@@ -70,10 +70,11 @@ import io
 import json
 import math
 import os
+import re
+import sys
 import tempfile
 import warnings
 from collections.abc import Callable, Iterator, Sequence
-from importlib import metadata
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -180,7 +181,64 @@ def cache_dir() -> Path | None:
     return Path(base) / "netsim" / "gains"
 
 
+def _normalized(name: str) -> str:
+    """A distribution name as importlib.metadata compares them (PEP 503, ``_`` for ``-``)."""
+    return re.sub(r"[-_.]+", "_", name).lower()
+
+
+def _installed_version(name: str) -> str | None:
+    """The ``Version:`` of distribution ``name``'s metadata, found as importlib.metadata
+    finds it (the first ``<name>-*.dist-info`` or ``.egg-info`` on ``sys.path``), or
+    None when this light reader cannot tell (then importlib.metadata decides).
+
+    importlib.metadata costs 20-50 ms of CPU to import (issue 34's start-up); this reads
+    one small file per distribution.
+    """
+    wanted = _normalized(name)
+    for entry in sys.path:
+        folder = entry or "."
+        try:
+            children = os.listdir(folder)
+        except OSError:
+            continue
+        for child in children:
+            low = child.lower()
+            if low.endswith(".egg") and _normalized(low.partition("-")[0]) == wanted:
+                return None  # a legacy egg: importlib.metadata reads it
+            if not low.endswith((".dist-info", ".egg-info")):
+                continue
+            if _normalized(low.rpartition(".")[0].partition("-")[0]) != wanted:
+                continue
+            path = os.path.join(folder, child)
+            meta = os.path.join(path, "METADATA" if low.endswith(".dist-info")
+                                else "PKG-INFO")
+            try:
+                with open(meta, encoding="utf-8") as handle:
+                    for line in handle:
+                        if line.startswith("Version:"):
+                            return line.partition(":")[2].strip()
+                        if not line.strip():  # end of the headers
+                            break
+            except OSError:
+                pass
+            return None  # the first match is the one importlib.metadata takes
+    return None
+
+
 def _version(name: str) -> str:
+    """The installed version of distribution ``name`` ("absent" when not installed).
+
+    By importlib.metadata when something has imported it already (it costs nothing
+    more then), else read from the distribution's metadata file by
+    :func:`_installed_version` (the same string, found the same way); importlib.metadata
+    also when that light reader finds nothing, so "absent" means the same as before.
+    """
+    if "importlib.metadata" not in sys.modules:
+        found = _installed_version(name)
+        if found is not None:
+            return found
+    from importlib import metadata
+
     try:
         return metadata.version(name)
     except metadata.PackageNotFoundError:

@@ -19,7 +19,8 @@ nothing; an estimate that is no longer finite belongs to a trial that has alread
 diverged, whose later values are not recorded).
 
 It is used only when asked for (``NETSIM_NUMBA=1`` or ``run_batch(..., kernel=
-"numba")``, see :func:`netsim.vectorised.run_batch`): importing numba costs more
+"numba")``, see :func:`netsim.vectorised.run_batch`; a sweep's tasks carry the
+client's ``NETSIM_NUMBA``, :mod:`netsim.taskoptions`): importing numba costs more
 CPU than importing numpy and scipy together, which a short command-line run would
 pay for nothing. The additions are grouped differently from the numpy step (per lag
 before the product, not per term after it), so estimates agree with it to round-off,

@@ -56,10 +56,10 @@ from netsim.linkschedule import (
 from netsim.models.scenario import Scenario
 from netsim.models.seeding import SeedLike, stream
 
-if TYPE_CHECKING:  # scipy.sparse and the event kernel (simpy) load when a run needs them
+if TYPE_CHECKING:  # scipy.sparse loads when a run needs it
     import scipy.sparse as sp
 
-    from netsim.kernel import TrialResult
+    from netsim.trialresult import TrialResult
 
 __all__ = [
     "BATCH_ELEMENTS",
@@ -190,7 +190,7 @@ class _Outputs:
         self.diverged_at = np.full(T, -1, dtype=np.int64)
         self.alive = np.ones(T, dtype=bool)
         self.all_alive = True
-        from netsim.kernel import squared_threshold
+        from netsim.trialresult import squared_threshold
 
         self.threshold_sq = squared_threshold(threshold)
         self._scratch: np.ndarray | None = None  # record_many's errors
@@ -235,7 +235,7 @@ class _Outputs:
                       state: np.ndarray) -> bool:
         """Record step k from its squared errors sq (T, N) and estimates (T, N, n)
         (may be None when they are not recorded); False when all diverged."""
-        from netsim.kernel import ROUNDOFF_RELATIVE_ERROR
+        from netsim.trialresult import ROUNDOFF_RELATIVE_ERROR
 
         alive = self.alive
         if self.all_alive:
@@ -338,12 +338,15 @@ def _link_positions(schedule_links: Sequence[tuple[int, int]], scenario: Scenari
     sorted by sender then receiver): then a counting sort through a CSR matrix, no
     dictionary and no N x N array.
     """
-    import scipy.sparse as sp
-
     N = scenario.n_agents
     table = scenario.link_table
-    if len(schedule_links) == len(table) and (
-            schedule_links is scenario.links or list(schedule_links) == scenario.links):
+    same_links = len(schedule_links) == len(table) and (
+        schedule_links is scenario.links or list(schedule_links) == scenario.links)
+    if same_links and not _use_scipy(scenario):
+        keys = table.src * N + table.dst  # the search below: the same positions
+    elif same_links:
+        import scipy.sparse as sp
+
         # link q sits at (dst, src) of a CSR matrix holding q + 1: reading it at the
         # wanted (receiver, sender) pairs is a counting sort, not a search
         L = len(table)
@@ -386,15 +389,102 @@ def _consensus_terms(scenario: Scenario, schedule: LinkSchedule) -> _Terms:
         p_ii; everything per link after this is an array of shape (E,), (L,) or (N,).
         Unpacks as ``(i, j, weight, link, diagonal)``.
     """
-    W = scenario.weights_sparse
-    N = W.shape[0]
-    rows = np.repeat(np.arange(N, dtype=np.int64), np.diff(W.indptr))
-    cols = W.indices.astype(np.int64)
-    vals = W.data
+    if not _use_scipy(scenario):
+        # the nonzeros of the dense P in row-major order: the entries, and the order, of
+        # its canonical CSR form (no scipy.sparse; :func:`_use_scipy`)
+        dense = scenario.dense_weights()
+        rows, cols = (a.astype(np.int64) for a in np.nonzero(dense))
+        vals = dense[rows, cols]
+        diagonal = np.diagonal(dense).astype(float)
+    else:
+        W = scenario.weights_sparse
+        N = W.shape[0]
+        rows = np.repeat(np.arange(N, dtype=np.int64), np.diff(W.indptr))
+        cols = W.indices.astype(np.int64)
+        vals = W.data
+        diagonal = np.asarray(W.diagonal(), dtype=float)
     keep = (rows != cols) & (vals != 0)
     term_i, term_j, term_w = rows[keep], cols[keep], vals[keep]
     link = _link_positions(schedule.links, scenario, term_j, term_i)
-    return _Terms(term_i, term_j, term_w, link, np.asarray(W.diagonal(), dtype=float))
+    return _Terms(term_i, term_j, term_w, link, diagonal)
+
+
+#: Above this many multiply-adds of the consensus products in a run (stored entries x
+#: trials x n x steps), the lockstep step uses scipy's CSR kernel; at or below it, the
+#: same products by :func:`_csr_product_into` with numpy alone, so that a small run
+#: does not import scipy.sparse (about 0.17 s of CPU, as much as numpy and scipy
+#: together: start-up, issue 34). Both give the same bits.
+NUMPY_PRODUCT_MAX_WORK = 4_000_000
+
+
+def _use_scipy(scenario: Scenario, trials: int | None = None,
+               steps: int | None = None) -> bool:
+    """Whether the consensus products go through scipy.sparse (see
+    :data:`NUMPY_PRODUCT_MAX_WORK`): sparse weights always; dense ones when the run's
+    products are large. A count, not a measurement, so a run always takes the same path."""
+    from netsim.models.lazy import issparse
+
+    if issparse(scenario.weights):
+        return True
+    N = scenario.n_agents
+    weights = np.asarray(scenario.weights)
+    # the pair/aggregate products hold each nonzero of P once, plus N own entries
+    stored = int(np.count_nonzero(weights)) + N
+    T = 1 if trials is None else int(trials)
+    K = scenario.steps if steps is None else int(steps)
+    return stored * T * scenario.plant.n_states * (K + 1) > NUMPY_PRODUCT_MAX_WORK
+
+
+def _csr_parts(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, n_rows: int
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(indptr, indices, data)`` of the CSR matrix with these (distinct) entries, rows
+    in order and columns sorted within each row: scipy's canonical form, with numpy."""
+    order = np.lexsort((cols, rows))
+    indptr = np.zeros(n_rows + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n_rows), out=indptr[1:])
+    return indptr, np.asarray(cols, dtype=np.int64)[order], np.asarray(data, float)[order]
+
+
+def _csr_row_sums(indptr: np.ndarray, data: np.ndarray) -> np.ndarray:
+    """Row sums of a CSR matrix, shape (rows,), as scipy's ``csr.sum(axis=1)`` forms them
+    (``np.add.reduceat`` over the rows that hold entries; the same bits)."""
+    sums = np.zeros(len(indptr) - 1)
+    major = np.flatnonzero(np.diff(indptr))
+    if len(major):
+        sums[major] = np.add.reduceat(data, indptr[major])
+    return sums
+
+
+def _csr_product_into(parts: tuple[np.ndarray, np.ndarray, np.ndarray], out: np.ndarray
+                      ) -> Callable[[np.ndarray], np.ndarray]:
+    """``product(x)`` writes the CSR matrix ``parts`` times x into ``out`` with numpy.
+
+    The same additions in the same order as scipy's ``csr_matvecs`` (row i: 0, then
+    ``+= data * x[col]`` for each of its entries in order), so the same bits, one pass
+    per entry position within a row: pass p adds the p-th entry of every row that has
+    one (a gather, a product and a sum over ``out``'s rows).
+    """
+    indptr, indices, data = parts
+    counts = np.diff(indptr)
+    width = out.shape[1]
+    passes = []
+    for p in range(int(counts.max()) if len(counts) else 0):
+        has = np.flatnonzero(counts > p)
+        at = indptr[has] + p
+        rows = None if len(has) == len(counts) else has  # every row: no scatter
+        passes.append((rows, indices[at], data[at][:, None], np.empty((len(has), width))))
+
+    def product(x: np.ndarray) -> np.ndarray:
+        out.fill(0.0)
+        for rows, cols, weights, term in passes:
+            np.take(x, cols, axis=0, out=term)
+            np.multiply(weights, term, out=term)
+            if rows is None:
+                np.add(out, term, out=out)
+            else:
+                out[rows] += term
+        return out
+    return product
 
 
 def _sparse_product_into(matrix: sp.csr_matrix, out: np.ndarray
@@ -448,10 +538,11 @@ def choose_kernel(kernel: str | None = None) -> str:
     Parameters
     ----------
     kernel : {"numpy", "numba"} or None
-        None: ``numba`` when the environment variable ``NETSIM_NUMBA`` is ``1`` or
-        ``numba``, else ``numpy``. The numpy step is the default because importing
-        numba costs more CPU than importing numpy and scipy together (about 0.25 s
-        here), which a short run would pay for nothing.
+        None: ``numba`` when ``NETSIM_NUMBA`` is ``1`` or ``numba``, else ``numpy``;
+        inside a sweep's task, the client's setting, which the task carries
+        (:mod:`netsim.taskoptions`), not the worker's environment. The numpy step is
+        the default because importing numba costs more CPU than importing numpy and
+        scipy together (about 0.25 s here), which a short run would pay for nothing.
 
     Returns
     -------
@@ -461,11 +552,13 @@ def choose_kernel(kernel: str | None = None) -> str:
         'netsim[numba]'``); ``NETSIM_NUMBA=1`` without it warns (RuntimeWarning) and
         the numpy step runs, the same numbers to round-off.
     """
-    import os
+    from netsim.taskoptions import getenv
 
     asked = kernel is not None
     if kernel is None:
-        kernel = ("numba" if os.environ.get(KERNEL_ENV, "").strip().lower()
+        # the task's value first (a sweep's task carries the client's choice, set or
+        # not: :data:`netsim.taskoptions.CHOICES`), else this process' environment
+        kernel = ("numba" if (getenv(KERNEL_ENV) or "").strip().lower()
                   in ("1", "numba", "yes", "on", "true") else "numpy")
     if kernel not in ("numpy", "numba"):
         raise ValueError(f"kernel must be 'numpy' or 'numba', got {kernel!r}")
@@ -605,14 +698,28 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     and propagates with A^(k - block step) in between. Eq. (5),
     x^i_{k|k} = x^i_{k|k-1} + L_i (y^i_k - C_i x^i_{k|k-1}), is a stacked product.
     """
-    import scipy.sparse as sp
-
     plant = scenario.plant
     A = plant.A
     n = plant.n_states
     K = int(steps)
     T = batch.states.shape[1]
     N = scenario.n_agents
+    use_scipy = _use_scipy(scenario, T, K)
+    if use_scipy:
+        import scipy.sparse as sp
+
+    def product_into(data: np.ndarray, rows: np.ndarray, cols: np.ndarray,
+                     shape: tuple[int, int], out: np.ndarray, sort: bool
+                     ) -> Callable[[np.ndarray], np.ndarray]:
+        # the CSR matrix with these entries (canonical: rows in order, columns sorted)
+        # times a dense block, by scipy's kernel or the same sums with numpy
+        if not use_scipy:
+            return _csr_product_into(_csr_parts(data, rows, cols, shape[0]), out)
+        matrix = sp.csr_matrix((data, (rows, cols)), shape=shape)
+        if sort:
+            matrix.sort_indices()
+        return _sparse_product_into(matrix, out)
+
     Cp, Lp = _pad_outputs(scenario, gains)
     Y = _agent_measurements(batch, Cp.shape[1])
     terms = _consensus_terms(scenario, schedule)
@@ -671,12 +778,14 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         lag = min(d + 1, K) if rule.compensate else 1
         far_T = np.ascontiguousarray(_powers(A, lag)[lag].T) if lag > 1 else A_T
         ring = np.zeros((depth, 2, N, T, n))
-        pair = sp.csr_matrix(
-            (np.concatenate([terms.weight, own_weight]),
-             (np.concatenate([terms.i, np.arange(N)]),
-              np.concatenate([terms.j, N + np.arange(N)]))), shape=(N, 2 * N))
-        pair.sort_indices()  # p_ij x^j summed in the order of j, then p_ii A x^i
-        row_sum3 = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1, 1)
+        if use_scipy:
+            row_sum3 = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1, 1)
+        else:
+            dense = scenario.dense_weights()
+            nz_rows, nz_cols = np.nonzero(dense)
+            row_sum3 = _csr_row_sums(
+                _csr_parts(dense[nz_rows, nz_cols], nz_rows, nz_cols, N)[0],
+                dense[nz_rows, nz_cols]).reshape(N, 1, 1)
 
         def store(k: int, estimate: np.ndarray) -> None:
             x = estimate.reshape(-1, n)
@@ -684,7 +793,13 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             np.matmul(x, A_T, out=ring[(k - d) % depth, 1].reshape(-1, n))
 
         prior_buffer = np.empty((N, T, n))
-        pair_product = _sparse_product_into(pair, prior_buffer.reshape(N, T * n))
+        # [P minus its diagonal | diag(p_ii)]: p_ij x^j summed in the order of j,
+        # then p_ii A x^i
+        pair_product = product_into(
+            np.concatenate([terms.weight, own_weight]),
+            np.concatenate([terms.i, np.arange(N)]),
+            np.concatenate([terms.j, N + np.arange(N)]), (N, 2 * N),
+            prior_buffer.reshape(N, T * n), sort=True)
 
         def prior_at(k: int) -> np.ndarray:
             slot = ring[(k - 1 - d) % depth]
@@ -699,9 +814,6 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         depth = horizon
         ring = np.zeros((depth, N, T, n))
         spare = np.empty_like(ring)
-        agg = sp.csr_matrix(
-            (np.concatenate([own_weight, terms.weight]),
-             (np.concatenate([np.arange(N), terms.i]), np.arange(N + E))), shape=(N, N + E))
         # ring rows fit int32 below 2^31 (halves the index arrays)
         index_type: type[np.signedinteger[Any]] = (
             np.int32 if depth * N * T < 2**31 - 1 else np.int64)
@@ -746,7 +858,11 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         payload = np.empty(((N + E) * T, n))
         prior_buffer = np.empty((N, T, n))
         uncompensated = np.empty((N, T, n)) if not rule.compensate else None
-        agg_product = _sparse_product_into(agg, prior_buffer.reshape(N, T * n))
+        # [diag(p_ii) | the terms' weights]: the own term first, then the terms
+        agg_product = product_into(
+            np.concatenate([own_weight, terms.weight]),
+            np.concatenate([np.arange(N), terms.i]), np.arange(N + E), (N, N + E),
+            prior_buffer.reshape(N, T * n), sort=False)
 
         def prior_at(k: int) -> np.ndarray:
             if not index_chunk or k >= index_start[0] + len(index_chunk[0]):
@@ -849,7 +965,7 @@ def effective_delays_per_link(selection: MessageSelection, schedule: LinkSchedul
     update or after ``end``). The kernel's (K+1, N, N) record holds the same numbers
     at (k, i, j); this form has no N x N array.
     """
-    from netsim.kernel import NOT_USED
+    from netsim.trialresult import NOT_USED
 
     K1 = selection.chosen.shape[0]
     E = len(term_link)
@@ -872,7 +988,7 @@ def _effective_delays(selection: MessageSelection, schedule: LinkSchedule,
                       ) -> np.ndarray:
     """r_ij[k] of one trial as the kernel records it, shape (K+1, N, N) (from the
     per-link record :func:`effective_delays_per_link`)."""
-    from netsim.kernel import NOT_USED
+    from netsim.trialresult import NOT_USED
 
     terms = _consensus_terms(scenario, schedule)
     per_link = effective_delays_per_link(selection, schedule, terms.link, updated, trial, end)
@@ -948,7 +1064,7 @@ def run_batch(
         (``messages`` is empty); and the link schedule and message selection the run
         used (None for the centralised filter).
     """
-    from netsim.kernel import NOT_USED, TrialResult
+    from netsim.trialresult import NOT_USED, TrialResult
 
     rule = lockstep_rule(family)
     K = scenario.steps if steps is None else int(steps)

@@ -2,8 +2,9 @@
 
 Properties, not timings: a warm ``netsim run`` / ``netsim analyze`` of the lcsys2022
 scenarios imports no module it does not use (checked by ``sys.modules`` in a fresh
-interpreter), and the structured spectral radius' direct CSR kernel gives the same
-bits as the ``S @ x`` it replaces.
+interpreter; a run: not scipy.sparse, SimPy or importlib.metadata either), and the
+structured spectral radius' direct CSR kernel gives the same bits as the ``S @ x`` it
+replaces.
 """
 
 from __future__ import annotations
@@ -25,16 +26,30 @@ _MAIN = ("import sys\nfrom netsim.cli import main\n"
 #: cache, their graph is a cycle, they write no trace and draw no plot); the bar is
 #: off (--no-progress), and the joint-system analysis of a plant with simple
 #: eigenvalues needs no Schur form.
+#: Issue 34: the vectorised step of a run this small forms its consensus products with
+#: numpy alone (no scipy.sparse, and so no numpy.f2py or numpy.testing that scipy's
+#: helpers pull in), builds its results without the event kernel (SimPy), and the gain
+#: cache's fingerprint reads library versions without importlib.metadata.
 NOT_FOR_RUN = ("cvxpy", "matplotlib", "mcap", "networkx", "dask", "pandas",
                "scipy.linalg", "scipy.spatial", "tqdm", "netsim.calibrate",
                "netsim.bench", "netsim.reproduce", "netsim.claims", "netsim.aoi",
-               "netsim.fusion", "netsim.traces")
+               "netsim.fusion", "netsim.traces", "scipy.sparse", "numpy.f2py",
+               "numpy.testing", "simpy", "netsim.kernel", "netsim.links",
+               "importlib.metadata")
 
 #: analyze needs ARPACK (scipy.sparse.linalg, which imports scipy.linalg) but never the
 #: event kernel, the engines or a bar.
 NOT_FOR_ANALYZE = ("cvxpy", "matplotlib", "mcap", "networkx", "dask", "pandas", "simpy",
                    "tqdm", "netsim.kernel", "netsim.vectorised", "netsim.calibrate",
                    "netsim.bench", "netsim.aoi", "netsim.fusion", "netsim.traces")
+
+
+def test_the_kernel_names_the_light_modules_objects():
+    """``netsim.kernel`` re-exports the result type and constants it used to define."""
+    from netsim import kernel, trialresult
+
+    for name in trialresult.__all__:
+        assert getattr(kernel, name) is getattr(trialresult, name)
 
 
 def _loaded(argv: list[str], names: tuple[str, ...]) -> list[str]:

@@ -28,7 +28,8 @@ from netsim.claims.checks import (
     unconfirmed,
 )
 from netsim.claims.core import NO_COUNTEREXAMPLE, PROVED, REFUTED, Context, Outcome
-from netsim.claims.searches import BOUND_SLACK, DelayedInstance
+from netsim.claims.search import DEFAULT_INSTANCES, Found, hard_instance, random_instance
+from netsim.claims.searches import BOUND_SLACK, DelayedInstance, scalar_search, with_delays
 from netsim.models.augmented import (
     augmented_spectral_radius,
     delay_bound_lcsys,
@@ -38,7 +39,8 @@ from netsim.models.augmented import (
 from netsim.reproduce.items import fmt
 
 __all__ = ["HETEROGENEOUS_EXAMPLE", "lcsys_instance", "bound_on", "bound_margin",
-           "heterogeneous_example", "bound_search", "bound_outcome", "check_lemma2_on",
+           "bound_judge", "delayed_draw", "search_bound", "heterogeneous_example",
+           "bound_search", "bound_outcome", "check_lemma2_on",
            "homogeneous_delays", "exact_rho", "rho_row", "decay_row", "bench_common"]
 
 
@@ -98,6 +100,34 @@ def bound_margin(x: DelayedInstance, compensated: bool
     return exact - (bound + BOUND_SLACK), {
         **numbers, "homogeneous": x.homogeneous, "exact_rho": exact, "bound": bound,
         "rho_delay_free": x.inst.rho_delay_free()}
+
+
+def bound_judge(x: DelayedInstance, compensated: bool) -> dict[str, Any] | None:
+    """The judge of a bound search: :func:`bound_margin`'s numbers where the exact rho
+    exceeds the bound by BOUND_SLACK or more, else None."""
+    margin, numbers = bound_margin(x, compensated)
+    return numbers if margin >= 0 else None
+
+
+def delayed_draw(rng: np.random.Generator, compensated: bool, hard: bool = False,
+                 **kw: Any) -> DelayedInstance | None:
+    """A scalar instance (:func:`~netsim.claims.search.random_instance`, or of the hard
+    family, ``hard_instance``, with ``kw``) with delays by
+    :func:`~netsim.claims.searches.with_delays` (up to tau* when ``compensated``)."""
+    inst = hard_instance(rng, **kw) if hard else random_instance(rng, **kw)
+    return with_delays(inst, rng, compensated)
+
+
+def search_bound(claim_id: str, compensated: bool, seed: Any = 0,
+                 instances: int = DEFAULT_INSTANCES, deadline: float = math.inf) -> Found:
+    """The counted search of a bound claim (LCSYS2022 eq. (26), ``compensated``, or the
+    delay-tolerant Lemma 5): :func:`delayed_draw` instances judged by
+    :func:`bound_judge`, the optimiser maximising :func:`bound_margin`."""
+    return scalar_search(claim_id, seed, instances, deadline,
+                         lambda rng: delayed_draw(rng, compensated),
+                         lambda rng: delayed_draw(rng, compensated, hard=True),
+                         lambda x: bound_judge(x, compensated),
+                         lambda x: bound_margin(x, compensated)[0])
 
 
 def heterogeneous_example() -> Any:

@@ -42,20 +42,22 @@ from netsim.claims.core import (
     Context,
     Outcome,
 )
-from netsim.claims.search import DEFAULT_INSTANCES, MARGIN, Found, hard_instance, random_instance
-from netsim.claims.searches import DelayedInstance, scalar_search, with_delays
+from netsim.claims.search import DEFAULT_INSTANCES, MARGIN, Found
+from netsim.claims.searches import DelayedInstance, scalar_search
 from netsim.estimators.registry import RECURSION_UNCOMPENSATED
 from netsim.models.augmented import delay_bound_tolerant
 from netsim.papers import BenchRow, DelayBound, Paper, Search, register_paper
 from netsim.papers._consensus import (
     bench_common,
-    bound_margin,
+    bound_judge,
     bound_on,
     bound_outcome,
     check_lemma2_on,
     decay_row,
+    delayed_draw,
     lcsys_instance,
     rho_row,
+    search_bound,
 )
 from netsim.papers._design_claims import check_tolerant_discussion5
 from netsim.papers.lcsys2022 import LCSYS_RHO, LCSYS_TAU_STAR, ours_rho
@@ -93,33 +95,20 @@ _TF1 = TOLERANT_FIG1_TAUS
 # -- delay-tolerant Lemma 5 and Theorem 1 ---------------------------------------------
 
 
-def _tolerant_draw(rng: np.random.Generator, a_max: float = 2.0, **kw: Any
-                   ) -> DelayedInstance | None:
-    return with_delays(random_instance(rng, a_max=a_max, **kw), rng, False)
-
-
-def _tolerant_hard_draw(rng: np.random.Generator, a_max: float = 2.0, **kw: Any
-                        ) -> DelayedInstance | None:
-    return with_delays(hard_instance(rng, a_max=a_max, **kw), rng, False)
-
-
 def _lemma5_judge(x: DelayedInstance) -> dict[str, Any] | None:
-    margin, numbers = bound_margin(x, False)
-    return numbers if margin >= 0 else None
+    return bound_judge(x, False)
 
 
 def search_lemma5(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
                   deadline: float = math.inf) -> Found:
     """Search the delay-tolerant Lemma 5 bound rho(A-hat)^(1/(tau+1)) (eq. 11 matrix)."""
-    return scalar_search("T-lemma5-bound", seed, instances, deadline, _tolerant_draw,
-                          _tolerant_hard_draw, _lemma5_judge,
-                          lambda x: bound_margin(x, False)[0])
+    return search_bound("T-lemma5-bound", False, seed, instances, deadline)
 
 
 def _t1_draw(rng: np.random.Generator) -> DelayedInstance | None:
     # |a| <= 1 (half of the draws marginal, a = +-1); gains k_i in (-2, 4): the
     # hypotheses ask only rho(A-hat) < 1
-    return _tolerant_draw(rng, a_max=1.0, k_range=(-2.0, 4.0), a_edge=0.5)
+    return delayed_draw(rng, False, a_max=1.0, k_range=(-2.0, 4.0), a_edge=0.5)
 
 
 def _t1_margin(x: DelayedInstance) -> tuple[float, dict[str, Any] | None]:
@@ -141,7 +130,7 @@ def _t1_judge(x: DelayedInstance) -> dict[str, Any] | None:
 
 
 def _t1_hard_draw(rng: np.random.Generator) -> DelayedInstance | None:
-    return _tolerant_hard_draw(rng, a_max=1.0, k_range=(-2.0, 4.0))
+    return delayed_draw(rng, False, hard=True, a_max=1.0, k_range=(-2.0, 4.0))
 
 
 #: The families of the delay-tolerant Theorem 1 search, in words.

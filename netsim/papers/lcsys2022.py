@@ -62,20 +62,21 @@ from netsim.claims.search import (
     random_instance,
     simpler_scalar,
 )
-from netsim.claims.searches import DelayedInstance, scalar_search, with_delays
+from netsim.claims.searches import DelayedInstance
 from netsim.cliutil import tau_star_text
 from netsim.estimators.registry import RECURSION_BLOCK, RECURSION_COMPENSATED
 from netsim.models.augmented import delay_bound_lcsys
 from netsim.papers import BenchRow, DelayBound, Paper, Search, register_paper
 from netsim.papers._consensus import (
     bench_common,
-    bound_margin,
+    bound_judge,
     bound_on,
     bound_outcome,
     check_lemma2_on,
     decay_row,
     lcsys_instance,
     rho_row,
+    search_bound,
 )
 from netsim.papers._design_claims import check_block, check_discussion5
 from netsim.papers._lcsys2022_experiments import (
@@ -184,23 +185,14 @@ def search_theorem1(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
 
 
 
-def _eq26_draw(rng: np.random.Generator) -> DelayedInstance | None:
-    return with_delays(random_instance(rng), rng, True)
-
-
-def _eq26_hard_draw(rng: np.random.Generator) -> DelayedInstance | None:
-    return with_delays(hard_instance(rng), rng, True)
-
-
 def _eq26_judge(x: DelayedInstance) -> dict[str, Any] | None:
-    margin, numbers = bound_margin(x, True)
-    return numbers if margin >= 0 else None
+    return bound_judge(x, True)
+
 
 def search_eq26(seed: Any = 0, instances: int = DEFAULT_INSTANCES,
                 deadline: float = math.inf) -> Found:
     """Search LCSYS2022 eq. (26) / Lemma 5 (compensated loop) for an exact rho above it."""
-    return scalar_search("L-eq26-bound", seed, instances, deadline, _eq26_draw,
-                          _eq26_hard_draw, _eq26_judge, lambda x: bound_margin(x, True)[0])
+    return search_bound("L-eq26-bound", True, seed, instances, deadline)
 
 
 

@@ -62,6 +62,7 @@ Modules
     the ``netsim bench`` command line (``python -m netsim.bench``).
 """
 
+import sys
 from typing import Any
 
 from netsim.bench.cells import BOUND_SLACK as BOUND_SLACK
@@ -86,12 +87,10 @@ _scenario_data = scenario_data
 
 
 def __getattr__(name: str) -> Any:
-    # PRESETS and DELAY_SETTINGS come from the paper modules: computed on access, so that
-    # importing the bench does not import the papers
-    if name == "PRESETS":
-        return presets()
-    if name == "DELAY_SETTINGS":
-        return delay_settings()
+    # PRESETS and DELAY_SETTINGS come from the paper modules: netsim.bench.presets computes
+    # them on access, so that importing the bench does not import the papers
+    if name in ("PRESETS", "DELAY_SETTINGS"):
+        return getattr(sys.modules["netsim.bench.presets"], name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 __all__ = [

@@ -30,6 +30,7 @@ Without ``Ac``, the plant's ``A`` and ``Q`` are its discretisation at
 from __future__ import annotations
 
 import math
+from collections.abc import Collection
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -313,13 +314,18 @@ class TimeSpec:
         }
 
 
-def _parse_trigger(value: Any) -> TriggerSpec:
+def _check_table(value: Any, key: str, allowed: Collection[str]) -> None:
+    """TimeError unless ``value`` is a table (the one named ``key``) whose keys are all in
+    ``allowed`` (naming the first other key)."""
     if not isinstance(value, dict):
-        raise TimeError("time.trigger", f"expected a table, got {value!r}")
+        raise TimeError(key, f"expected a table, got {value!r}")
     for k in value:
-        if k not in TRIGGER_KEYS:
-            raise TimeError(f"time.trigger.{k}", "unknown key; allowed: "
-                                                 f"{', '.join(sorted(TRIGGER_KEYS))}")
+        if k not in allowed:
+            raise TimeError(f"{key}.{k}", f"unknown key; allowed: {', '.join(sorted(allowed))}")
+
+
+def _parse_trigger(value: Any) -> TriggerSpec:
+    _check_table(value, "time.trigger", TRIGGER_KEYS)
     kind = value.get("kind", "always")
     if kind not in TRIGGER_KINDS:
         raise TimeError("time.trigger.kind", f"unknown kind {kind!r}; expected one of "
@@ -347,11 +353,7 @@ def parse_time(table: Any, A: np.ndarray, Q: np.ndarray, period: float,
     TimeError
         Naming the first bad key.
     """
-    if not isinstance(table, dict):
-        raise TimeError("time", f"expected a table, got {table!r}")
-    for k in table:
-        if k not in TIME_KEYS:
-            raise TimeError(f"time.{k}", f"unknown key; allowed: {', '.join(sorted(TIME_KEYS))}")
+    _check_table(table, "time", TIME_KEYS)
     if "Ac" in table:
         Ac = _square(table["Ac"], "time.Ac", A.shape[0])
         Qc = _square(table.get("Qc"), "time.Qc", A.shape[0])
@@ -389,12 +391,7 @@ def parse_time(table: Any, A: np.ndarray, Q: np.ndarray, period: float,
 
 
 def _parse_sync(value: Any, n_agents: int, base: float) -> SyncSpec:
-    if not isinstance(value, dict):
-        raise TimeError("time.sync", f"expected a table, got {value!r}")
-    for k in value:
-        if k not in SYNC_KEYS:
-            raise TimeError(f"time.sync.{k}", "unknown key; allowed: "
-                                              f"{', '.join(sorted(SYNC_KEYS))}")
+    _check_table(value, "time.sync", SYNC_KEYS)
     if "period" not in value:
         raise TimeError("time.sync.period", "is missing")
     period = _finite(value["period"], "time.sync.period")

@@ -255,12 +255,18 @@ def test_kernel_message_count_equals_a_hand_count():
     ({"Qc": 1.0}, "time.Qc"),
 ])
 def test_bad_time_settings_name_their_key(table, key):
+    error = _time_error(table)
+    assert error.key == key
+    assert "\n" not in str(error)
+
+
+def _time_error(table) -> ScenarioError:
+    """The error of the base scenario with ``[time]`` = ``table``."""
     data = _data()
     data["time"] = table
     with pytest.raises(ScenarioError) as info:
         parse_scenario(data, "test")
-    assert info.value.key == key
-    assert "\n" not in str(info.value)
+    return info.value
 
 
 def test_continuous_plant_given_directly():
@@ -556,8 +562,4 @@ def test_two_way_sync_residual_offsets_by_hand(edges, residual):
     ({"sync": 3}, "time.sync"),
 ])
 def test_bad_sync_settings_name_their_key(table, key):
-    data = _data()
-    data["time"] = table
-    with pytest.raises(ScenarioError) as info:
-        parse_scenario(data, "test")
-    assert info.value.key == key
+    assert _time_error(table).key == key

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 from netsim.models.scenario import DelaySpec, Scenario, resolve_scenario
 
-__all__ = ["lcsys", "with_delays", "lockstep_compensated", "example", "mse_level", "N_AGENTS",
-           "N_STATES"]
+__all__ = ["lcsys", "with_delays", "lockstep_compensated", "rho", "augmented_by_hand",
+           "example", "mse_level", "N_AGENTS", "N_STATES"]
 
 N_AGENTS, N_STATES = 4, 6
 
@@ -55,6 +55,35 @@ def lockstep_compensated(P, A, C, L, prior, ys, delays, steps):
                     prior_i = prior_i + P[i, j] * A @ xs[k - 1, i]
             xs[k, i] = prior_i + L[i] @ (ys[i][k] - C[i] @ prior_i)
     return xs
+
+
+def rho(M: np.ndarray) -> float:
+    """Spectral radius by dense eigenvalues."""
+    return float(max(abs(np.linalg.eigvals(M))))
+
+
+def augmented_by_hand(P, A, C, L, d, compensated=True) -> np.ndarray:
+    """The augmented closed loop of LCSYS2022 eqs. (9)-(10) (compensated) or the
+    delay-tolerant eq. (11), built by hand with numpy kron (not netsim.models.augmented):
+    first block row (I - blockdiag(L_i C_i)) [P_0 kron B_0, ..., P_tau kron B_tau],
+    B_r = A^(r+1) or A, identities below; P_r keeps the entries of P whose delay
+    ``d[i, j]`` is r."""
+    P, A = np.asarray(P, float), np.atleast_2d(np.asarray(A, float))
+    N, n = P.shape[0], A.shape[0]
+    d = np.asarray(d)
+    tau = int(d[P != 0].max())
+    G = np.zeros((N * n, N * n))
+    for i in range(N):
+        G[i * n:(i + 1) * n, i * n:(i + 1) * n] = np.eye(n) - np.atleast_2d(L[i]) @ \
+            np.atleast_2d(C[i])
+    m = N * n
+    M = np.zeros((m * (tau + 1), m * (tau + 1)))
+    for r in range(tau + 1):
+        Pr = np.where((d == r) & (P != 0), P, 0.0)
+        B = np.linalg.matrix_power(A, r + 1) if compensated else A
+        M[:m, r * m:(r + 1) * m] = G @ np.kron(Pr, B)
+    M[m:, :-m] = np.eye(m * tau)
+    return M
 
 
 def example(seed: int = 0):

@@ -1,10 +1,11 @@
 """Each claim's check against an independent computation (issue 18).
 
 The references here are written from the papers' equations in this file: augmented
-matrices built with numpy kron from eqs. (9) and (11), closed forms for scalar plants,
-a second implementation of the aoi freshness-index rules (eqs. 8-14), the steady-state
-Kalman filter from scipy's Riccati solver, and the dkfe conditions computed from the
-paper's printed matrices. Instances are tiny; the whole file takes a few seconds.
+matrices built with numpy kron from eqs. (9) and (11) (``augmented_by_hand`` in
+tests/helpers.py, shared with tests/test_unchecked_claims.py), closed forms for scalar
+plants, a second implementation of the aoi freshness-index rules (eqs. 8-14), the
+steady-state Kalman filter from scipy's Riccati solver, and the dkfe conditions computed
+from the paper's printed matrices. Instances are tiny; the whole file takes a few seconds.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import math
 import numpy as np
 import pytest
 import scipy.linalg
+from helpers import augmented_by_hand, rho
 
 from netsim.claims import REGISTRY, Context
 from netsim.claims.search import Found, ScalarInstance
@@ -23,29 +25,6 @@ from netsim.claims.searches import simulate_error_growth
 from netsim.papers.delay_tolerant import _lemma5_judge, _t1_judge
 from netsim.papers.dkfe import DkfeInstance, _dkfe_judge, dkfe_numbers
 from netsim.papers.lcsys2022 import _eq26_judge, search_eq26
-
-
-def rho(M):
-    return float(max(abs(np.linalg.eigvals(M))))
-
-
-def augmented_by_hand(P, A, C, L, d, compensated=True):
-    """LCSYS2022 eq. (9)/(10) (compensated) or delay-tolerant eq. (11): first block row
-    (I - K D_C) [P_0 kron A, P_1 kron B_1, ..., P_tau kron B_tau], B_r = A^(r+1) or A,
-    identities below; P_r keeps the entries of P whose delay is r."""
-    P, A, d = np.asarray(P, float), np.asarray(A, float), np.asarray(d)
-    N, n = P.shape[0], A.shape[0]
-    tau = int(d[P != 0].max())
-    m = N * n
-    G = np.eye(m) - scipy.linalg.block_diag(*[np.asarray(Li) @ np.asarray(Ci)
-                                              for Li, Ci in zip(L, C, strict=True)])
-    M = np.zeros((m * (tau + 1), m * (tau + 1)))
-    for r in range(tau + 1):
-        Pr = np.where((d == r) & (P != 0), P, 0.0)
-        B = np.linalg.matrix_power(A, r + 1) if compensated else A
-        M[:m, r * m:(r + 1) * m] = G @ np.kron(Pr, B)
-    M[m:, :-m] = np.eye(m * tau)
-    return M
 
 
 def scalar_parts(a, P, c, k):

@@ -4,10 +4,11 @@ computations.
 LCSYS2022 Discussion 5 (gains redesigned for tau1), the block update (15)-(16), the
 delay-tolerant Discussion 5 (delay-free LMI design under time-varying delays) and the
 aoi Lemmas 2 and 4. References written here: augmented matrices built by hand with
-numpy kron from eqs. (9) and (11), dense eigenvalues, a per-agent error recursion, a
-netsim run of the block estimator against the spectral prediction, the aoi rules
-(eqs. 7-14) re-implemented in :func:`netsim.aoichecks.paper_record` compared with
-netsim's observer, and planted violations that the checks must catch.
+numpy kron from eqs. (9) and (11) (``augmented_by_hand`` in tests/helpers.py), dense
+eigenvalues, a per-agent error recursion, a netsim run of the block estimator against
+the spectral prediction, the aoi rules (eqs. 7-14) re-implemented in
+:func:`netsim.aoichecks.paper_record` compared with netsim's observer, and planted
+violations that the checks must catch.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ import math
 
 import numpy as np
 import pytest
+from helpers import augmented_by_hand, rho
 
 from netsim.aoichecks import (
     LemmaInstance,
@@ -37,32 +39,6 @@ from netsim.designtolerance import (
     simulate_switching_error,
     switching_growth_on,
 )
-
-
-def rho(M: np.ndarray) -> float:
-    return float(max(abs(np.linalg.eigvals(M))))
-
-
-def closed_loop_by_hand(P, A, C, L, d, compensated=True):
-    """LCSYS2022 eq. (9)-(10) (compensated) or delay-tolerant eq. (11): first block row
-    (I - blockdiag(L_i C_i)) [P_0 kron B_0, ..., P_tau kron B_tau], B_r = A^(r+1) or A,
-    identities below."""
-    P, A = np.asarray(P, float), np.atleast_2d(np.asarray(A, float))
-    N, n = P.shape[0], A.shape[0]
-    d = np.asarray(d)
-    tau = int(d[P != 0].max())
-    G = np.zeros((N * n, N * n))
-    for i in range(N):
-        G[i * n:(i + 1) * n, i * n:(i + 1) * n] = np.eye(n) - np.atleast_2d(L[i]) @ \
-            np.atleast_2d(C[i])
-    m = N * n
-    M = np.zeros((m * (tau + 1), m * (tau + 1)))
-    for r in range(tau + 1):
-        Pr = np.where((d == r) & (P != 0), P, 0.0)
-        B = np.linalg.matrix_power(A, r + 1) if compensated else A
-        M[:m, r * m:(r + 1) * m] = G @ np.kron(Pr, B)
-    M[m:, :-m] = np.eye(m * tau)
-    return M
 
 
 def scalar(a, P, c, k):
@@ -100,7 +76,7 @@ def test_redesign_on_matches_dense_matrices():
         hat = G @ np.kron(P, np.linalg.matrix_power(A, t + 1))
         assert rep.rho_hat[t] == pytest.approx(rho(hat), rel=1e-9)
         d = homogeneous_link_delays(P, t)
-        M = closed_loop_by_hand(P, A, C, L, d) if t else hat
+        M = augmented_by_hand(P, A, C, L, d) if t else hat
         assert rep.exact[t] == pytest.approx(rho(M), rel=1e-9)
     assert rep.hypothesis == (rep.rho_hat[3] < 1)
     assert rep.violations == tuple(t for t in range(4) if rep.exact[t] >= 1)
@@ -251,7 +227,7 @@ def test_switching_growth_agrees_with_the_per_agent_recursion():
     # a constant pattern: Gelfand's formula, the exact radius of the eq. (11) matrix
     hom = homogeneous_link_delays(P, 2)
     const = switching_growth_on(P, A, C, L, 2, [hom] * 400)
-    M = closed_loop_by_hand(P, A, C, L, hom, compensated=False)
+    M = augmented_by_hand(P, A, C, L, hom, compensated=False)
     assert const.homogeneous_exact == pytest.approx(rho(M), rel=1e-9)
     assert const.growth == pytest.approx(rho(M), rel=0.03)
     assert simulate_switching_error(P, A, C, L, [hom] * 400) == pytest.approx(rho(M),
@@ -263,7 +239,7 @@ def test_switching_growth_agrees_with_the_per_agent_recursion():
     for i, j in off:
         d = np.zeros((3, 3), dtype=int)
         d[i, j] = 2
-        by_hand.append(rho(closed_loop_by_hand(P, A, C, L, d, compensated=False)))
+        by_hand.append(rho(augmented_by_hand(P, A, C, L, d, compensated=False)))
     assert single == pytest.approx(max(by_hand), rel=1e-9)
     assert rep.single_link_exact == 0.0  # not computed unless asked
 
@@ -393,7 +369,7 @@ def test_discussion5_check_refutes_with_a_verified_counterexample(tmp_path):
     cx = out.counterexample
     P, A, C, L = scalar(cx["a"], cx["P"], cx["c"], cx["k"])
     tau = cx["tau"]
-    M = closed_loop_by_hand(P, A, C, L, homogeneous_link_delays(P, tau)) if tau else \
+    M = augmented_by_hand(P, A, C, L, homogeneous_link_delays(P, tau)) if tau else \
         (np.diag([1 - k * c * c for k, c in zip(cx["k"], cx["c"], strict=True)]) @ P
          * cx["a"])
     assert rho(M) == pytest.approx(cx["exact_rho"], rel=1e-9) and rho(M) > 1

@@ -186,16 +186,19 @@ def _normalized(name: str) -> str:
     return re.sub(r"[-_.]+", "_", name).lower()
 
 
-def _installed_version(name: str) -> str | None:
-    """The ``Version:`` of distribution ``name``'s metadata, found as importlib.metadata
+def _installed_versions(names: Sequence[str]) -> dict[str, str | None]:
+    """The ``Version:`` of each distribution's metadata, found as importlib.metadata
     finds it (the first ``<name>-*.dist-info`` or ``.egg-info`` on ``sys.path``), or
-    None when this light reader cannot tell (then importlib.metadata decides).
+    None where this light reader cannot tell (then importlib.metadata decides).
 
-    importlib.metadata costs 20-50 ms of CPU to import (issue 34's start-up); this reads
-    one small file per distribution.
+    importlib.metadata costs 20-50 ms of CPU to import (issue 34's start-up); this lists
+    each folder of ``sys.path`` once and reads one small file per distribution.
     """
-    wanted = _normalized(name)
+    wanted = {_normalized(name): name for name in names}
+    found: dict[str, str | None] = {}
     for entry in sys.path:
+        if len(found) == len(wanted):
+            break
         folder = entry or "."
         try:
             children = os.listdir(folder)
@@ -203,38 +206,52 @@ def _installed_version(name: str) -> str | None:
             continue
         for child in children:
             low = child.lower()
-            if low.endswith(".egg") and _normalized(low.partition("-")[0]) == wanted:
-                return None  # a legacy egg: importlib.metadata reads it
+            if low.endswith(".egg"):  # a legacy egg: importlib.metadata reads it
+                key = _normalized(low.partition("-")[0])
+                if key in wanted and wanted[key] not in found:
+                    found[wanted[key]] = None
+                continue
             if not low.endswith((".dist-info", ".egg-info")):
                 continue
-            if _normalized(low.rpartition(".")[0].partition("-")[0]) != wanted:
-                continue
-            path = os.path.join(folder, child)
-            meta = os.path.join(path, "METADATA" if low.endswith(".dist-info")
-                                else "PKG-INFO")
-            try:
-                with open(meta, encoding="utf-8") as handle:
-                    for line in handle:
-                        if line.startswith("Version:"):
-                            return line.partition(":")[2].strip()
-                        if not line.strip():  # end of the headers
-                            break
-            except OSError:
-                pass
-            return None  # the first match is the one importlib.metadata takes
+            key = _normalized(low.rpartition(".")[0].partition("-")[0])
+            if key not in wanted or wanted[key] in found:
+                continue  # only the first match counts, as for importlib.metadata
+            found[wanted[key]] = _metadata_version(os.path.join(folder, child), low)
+    return {name: found.get(name) for name in names}
+
+
+def _metadata_version(path: str, low: str) -> str | None:
+    """The ``Version:`` header of a ``.dist-info`` (METADATA) or ``.egg-info``
+    (PKG-INFO) folder, or None."""
+    meta = os.path.join(path, "METADATA" if low.endswith(".dist-info") else "PKG-INFO")
+    try:
+        with open(meta, encoding="utf-8") as handle:
+            for line in handle:
+                if line.startswith("Version:"):
+                    return line.partition(":")[2].strip()
+                if not line.strip():  # end of the headers
+                    break
+    except OSError:
+        pass
     return None
 
 
-def _version(name: str) -> str:
+def _installed_version(name: str) -> str | None:
+    """:func:`_installed_versions` of one distribution."""
+    return _installed_versions([name])[name]
+
+
+def _version(name: str, light: dict[str, str | None] | None = None) -> str:
     """The installed version of distribution ``name`` ("absent" when not installed).
 
     By importlib.metadata when something has imported it already (it costs nothing
-    more then), else read from the distribution's metadata file by
-    :func:`_installed_version` (the same string, found the same way); importlib.metadata
-    also when that light reader finds nothing, so "absent" means the same as before.
+    more then), else read from the distribution's metadata file (``light``: what
+    :func:`_installed_versions` found, or it is asked now; the same string, found the
+    same way); importlib.metadata also when that light reader finds nothing, so
+    "absent" means the same as before.
     """
     if "importlib.metadata" not in sys.modules:
-        found = _installed_version(name)
+        found = (light if light is not None else _installed_versions([name])).get(name)
         if found is not None:
             return found
     from importlib import metadata
@@ -262,8 +279,10 @@ def fingerprint(scenario: Any, request: dict[str, Any]) -> str:
     """
     digest = hashlib.sha256()
     digest.update(f"netsim-gains-{LAYOUT}".encode())
-    for name in ("netsim", "numpy", "scipy", "cvxpy", "clarabel"):
-        digest.update(f"{name}={_version(name)};".encode())
+    names = ("netsim", "numpy", "scipy", "cvxpy", "clarabel")
+    light = None if "importlib.metadata" in sys.modules else _installed_versions(names)
+    for name in names:
+        digest.update(f"{name}={_version(name, light)};".encode())
     digest.update(json.dumps({k: request[k] for k in sorted(request)}, sort_keys=True,
                              default=str).encode())
 
@@ -542,7 +561,9 @@ def _check_kl(K_all: np.ndarray, L_all: np.ndarray, C: Sequence[np.ndarray]) -> 
     sizes = rows[codes]
     offsets = np.concatenate(([0], np.cumsum(sizes)[:-1]))
     bad_count, first = 0, None
-    for m in np.unique(sizes).tolist():
+    # sorted(set()), not np.unique: numpy's unique without indices imports numpy.ma
+    # (about 40 ms of a warm run's start-up, issue 34); the same sizes, ascending
+    for m in sorted(set(sizes.tolist())):
         agents = np.flatnonzero(sizes == m)
         used, inverse = np.unique(codes[agents], return_inverse=True)
         Cs = np.stack([mats[j] for j in used.tolist()])[inverse]           # (g, m, n)

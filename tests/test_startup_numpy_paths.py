@@ -180,3 +180,16 @@ def test_a_local_cluster_worker_runs_the_clients_choice(monkeypatch):
     finally:
         cloudpickle.unregister_pickle_by_value(here)
     assert [r["result"]["kernel"] for r in rows] == ["numba", "numba"]
+
+
+def test_the_fingerprint_is_the_same_whichever_way_versions_are_read(monkeypatch):
+    import sys
+
+    from netsim.estimators.gains import design_request
+
+    scenario = lcsys()
+    request = design_request(scenario)
+    with_metadata = gaincache.fingerprint(scenario, request)  # importlib.metadata loaded
+    monkeypatch.delitem(sys.modules, "importlib.metadata")  # as in a warm run
+    monkeypatch.setattr(metadata, "version", None)  # it must not be called
+    assert gaincache.fingerprint(scenario, request) == with_metadata

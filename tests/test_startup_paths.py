@@ -35,7 +35,7 @@ NOT_FOR_RUN = ("cvxpy", "matplotlib", "mcap", "networkx", "dask", "pandas",
                "netsim.bench", "netsim.reproduce", "netsim.claims", "netsim.aoi",
                "netsim.fusion", "netsim.traces", "scipy.sparse", "numpy.f2py",
                "numpy.testing", "simpy", "netsim.kernel", "netsim.links",
-               "importlib.metadata")
+               "importlib.metadata", "numpy.ma")
 
 #: analyze needs ARPACK (scipy.sparse.linalg, which imports scipy.linalg) but never the
 #: event kernel, the engines or a bar.

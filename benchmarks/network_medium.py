@@ -58,6 +58,7 @@ def closed_forms() -> list[dict[str, Any]]:
     from netsim.medium import Packet, poisson_source
     from tests.test_medium import (
         _batch_se,
+        _can_critical_offsets,
         _can_periodic,
         _can_rta,
         _first_collision_probability,
@@ -114,13 +115,7 @@ def closed_forms() -> list[dict[str, Any]]:
     Cs = [can_frame_bits(s) * tau for s in data]
     R = _can_rta(Cs, T, tau)
     for m in range(4):
-        blocker = max(range(m + 1, 4), key=lambda k: Cs[k], default=None)
-        offsets = [1e-6] * 4
-        if blocker is not None:
-            offsets[blocker] = 0.0
-        for k in range(m + 1, 4):
-            if k != blocker:
-                offsets[k] = 2e-6 + (Cs[blocker] if blocker is not None else 0.0)
+        offsets, blocker = _can_critical_offsets(m, Cs, 1e-6)
         src, resp, created = _can_periodic(rate, data, T, offsets, 0.004)
         crit = float(resp[(src == m) & (np.abs(created - 1e-6) < 1e-12)][0])
         crit += 1e-6 if blocker is not None else 0.0

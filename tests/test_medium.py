@@ -152,6 +152,21 @@ def _can_periodic(bit_rate, data_bytes, periods, offsets, horizon, seed=0):
     return b["source"], b["done"] - b["created"], b["created"]
 
 
+def _can_critical_offsets(m: int, C: list[float], lead: float) -> tuple[list[float], int | None]:
+    """Release offsets of the critical instant of message ``m`` (frame times ``C``, priority
+    = index): the longest lower-priority frame (the blocker, returned; None if ``m`` is the
+    lowest) starts at 0, every higher-priority message is released ``lead`` later, the
+    other lower-priority ones after the blocker's frame."""
+    blocker = max(range(m + 1, len(C)), key=lambda k: C[k], default=None)
+    offsets = [lead] * len(C)
+    if blocker is not None:
+        offsets[blocker] = 0.0
+    for k in range(m + 1, len(C)):  # other lower-priority messages out of the way
+        if k != blocker:
+            offsets[k] = 2 * lead + C[blocker] if blocker is not None else lead
+    return offsets, blocker
+
+
 def test_can_worst_case_response_time_by_response_time_analysis():
     """Four periodic messages, priority = node index: the critical instant (the longest
     lower-priority frame starts just before every higher-priority message is released)
@@ -165,13 +180,7 @@ def test_can_worst_case_response_time_by_response_time_analysis():
     R = _can_rta(C, T, tau)
     lead = 1e-6
     for m in range(4):
-        blocker = max(range(m + 1, 4), key=lambda k: C[k], default=None)
-        offsets = [lead] * 4
-        if blocker is not None:
-            offsets[blocker] = 0.0
-        for k in range(m + 1, 4):  # other lower-priority messages out of the way
-            if k != blocker:
-                offsets[k] = 2 * lead + C[blocker] if blocker is not None else lead
+        offsets, blocker = _can_critical_offsets(m, C, lead)
         source, response, created = _can_periodic(rate, data, T, offsets, 0.004)
         first = response[(source == m) & (np.abs(created - lead) < 1e-12)]
         assert first.size == 1

@@ -271,8 +271,15 @@ def analyze(
     tasks: list[tuple[Any, ...]] = [
         (P, A, C, L, np.where(edge_mask, tau, 0), tau) for tau in range(tau_max + 1)
     ]
+    # the scenario's own delays, unless they are one of the homogeneous patterns above
+    # (then its row's radii are reused: the same matrices, the same numbers)
+    same_as = None
     if fixed is not None:
-        tasks.append((P, A, C, L, fixed, int(fixed.max())))
+        top_fixed = int(fixed.max())
+        if top_fixed <= tau_max and np.array_equal(fixed, tasks[top_fixed][4]):
+            same_as = top_fixed
+        else:
+            tasks.append((P, A, C, L, fixed, top_fixed))
     depths = [t[-1] for t in tasks]
     # each worker holds one augmented problem at a time: as many as fit in memory
     memory, _ = budget.analysis_cost(n, N, depths)
@@ -289,6 +296,10 @@ def analyze(
         _exact_pair, tasks, estimated_seconds=estimate,
         workers=workers, max_workers=fit, progress=progress, check=interrupt.check,
     )
+    if same_as is not None:
+        results = [*results, results[same_as]]
+        if progress is not None:
+            progress(1)  # the scenario's own delays: done with their homogeneous row
     for tau, (exact_c, exact_u, b26) in enumerate(results[: tau_max + 1]):
         btol = rho0 ** (1.0 / (tau + 1))
         row = BoundRow(

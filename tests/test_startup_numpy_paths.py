@@ -193,3 +193,32 @@ def test_the_fingerprint_is_the_same_whichever_way_versions_are_read(monkeypatch
     monkeypatch.delitem(sys.modules, "importlib.metadata")  # as in a warm run
     monkeypatch.setattr(metadata, "version", None)  # it must not be called
     assert gaincache.fingerprint(scenario, request) == with_metadata
+
+
+@pytest.mark.parametrize(("delays", "tau_max"), [
+    ({"model": "homogeneous", "tau": 2}, 3),   # one of the analysed rows: reused
+    ({"model": "homogeneous", "tau": 4}, 2),   # beyond tau_max: computed on its own
+    ({"model": "heterogeneous", "tau": 3, "seed": 2022}, 3),  # not homogeneous
+])
+def test_the_scenarios_own_delays_get_the_radii_of_their_own_matrix(delays, tau_max):
+    """analyze reuses a homogeneous row for the scenario's own delays only when they are
+    that row's pattern; the realised radii are those of the scenario's delay matrix."""
+    from netsim.estimators.gains import GainDesign
+
+    from netsim.analysis import _exact_pair, analyze
+    from netsim.runner import fixed_delay_matrix
+
+    scenario = with_delays(lcsys(), **delays)
+    L = tuple(0.3 * np.asarray(C, dtype=float).T for C in scenario.plant.C)
+    gains = GainDesign(L=L, K=tuple(Li @ np.asarray(C) for Li, C in
+                                    zip(L, scenario.plant.C, strict=True)),
+                       rho=0.5, certified_rate=None, certified=False, method="given",
+                       solver="none", status="given", message="")
+    calls = []
+    report = analyze(scenario, gains, tau_max, workers=1, progress=calls.append)
+    fixed = fixed_delay_matrix(scenario)
+    plant = scenario.plant
+    want = _exact_pair((scenario.weights, plant.A, plant.C, L, fixed, int(fixed.max())))
+    got = report.realised
+    assert (got["rho_compensated"], got["rho_uncompensated"], got["bound_eq26"]) == want
+    assert len(calls) == tau_max + 2  # every tau and the scenario's own delays

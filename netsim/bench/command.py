@@ -15,6 +15,7 @@ from netsim.bench.plots import plot_report
 from netsim.bench.presets import DELAY_MODELS, FAMILIES, presets, sweep_presets
 from netsim.bench.report import format_report
 from netsim.bench.scenario_sweep import run_scenario_sweep
+from netsim.bench.variants import DRIFT_PATTERNS, OFFSET_PATTERNS
 from netsim.models.jsonsafe import json_tree
 
 __all__ = ["add_bench_parser", "cmd_bench", "main"]
@@ -84,7 +85,11 @@ def add_bench_parser(subparsers: Any) -> Any:
             "taus, topologies, network sizes, run seeds); each cell runs every estimator "
             "family for M trials. Rows stream into the JSON-lines file as cells finish "
             "(a re-run with the same file computes only the missing cells) and the CSV "
-            "table is written in grid order at the end."
+            "table is written in grid order at the end. Each row names the engine that ran "
+            "each family: with --engine auto a cell runs batched (vectorised) where that "
+            "engine expresses it -- for [time] cells fixed offsets and drifts "
+            "(--offset-pattern / --drift-pattern fixed) and threshold 0 -- and on the event "
+            "kernel (events) otherwise."
         ),
     )
     sweeps = ", ".join(sweep_presets())
@@ -99,10 +104,22 @@ def add_bench_parser(subparsers: Any) -> Any:
     sw.add_argument("--seeds", help="comma-separated run seeds")
     sw.add_argument("--losses", help="comma-separated loss probabilities p in [0, 1]: every "
                     "link loses each message with probability p ([links] loss, Bernoulli)")
-    sw.add_argument("--offsets", help="comma-separated clock-offset bounds o: each agent's "
-                    "offset uniform in [-o, o] ([time] table; the event kernel runs it)")
-    sw.add_argument("--drifts", help="comma-separated clock-drift standard deviations, ppm "
+    sw.add_argument("--offsets", help="comma-separated clock offsets o (time units): each "
+                    "agent's offset uniform in [-o, o], drawn per trial, or with "
+                    "--offset-pattern fixed o x p_i ([time] table)")
+    sw.add_argument("--offset-pattern", choices=list(OFFSET_PATTERNS),
+                    help="how --offsets spreads over the agents: uniform (default; drawn "
+                    "per trial in [-o, o], the event kernel runs it) or fixed (agent i's "
+                    "offset o x p_i in every trial, p = (-1, 1, -1/2, 1/2, -1/3, 1/3, ...): "
+                    "the batched timed engine runs it)")
+    sw.add_argument("--drifts", help="comma-separated clock drifts s, ppm: each agent's "
+                    "drift N(0, s^2) drawn per trial, or with --drift-pattern fixed s x p_i "
                     "([time] table)")
+    sw.add_argument("--drift-pattern", choices=list(DRIFT_PATTERNS),
+                    help="how --drifts spreads over the agents: normal (default; N(0, s^2) "
+                    "ppm per agent and trial, the event kernel runs it) or fixed (agent i's "
+                    "drift s x p_i ppm in every trial, p as --offset-pattern's: the "
+                    "batched timed engine runs it)")
     sw.add_argument("--thresholds", help="comma-separated send-on-delta thresholds: an "
                     "agent sends when its estimate moved by this much; the message rate "
                     "is reported ([time] table)")
@@ -115,7 +132,8 @@ def add_bench_parser(subparsers: Any) -> Any:
                     help="JSON-lines results file (resumed if it exists)")
     sw.add_argument("--csv", metavar="FILE.csv", help="also write the table as CSV")
     sw.add_argument("--engine", default="auto", choices=["auto", "vectorised", "events"],
-                    help="engine of the Monte Carlo trials (default auto: vectorised)")
+                    help="engine of the Monte Carlo trials (default auto: vectorised "
+                    "where the cell is expressible, else the event kernel)")
     sw.add_argument("--json", action="store_true", help="print the rows as one JSON object")
     _executor_options(sw)
     return bench
@@ -363,6 +381,13 @@ def _check_sweep_sizes(scenario: str, agents: int, tau: int, trials: int, steps:
                    f"a sweep cell of {agents} agents x {trials} trials x {steps} steps")
 
 
+#: (pattern axis, its option, the axis it spreads, that axis' option, the default).
+_PATTERN_OPTIONS = (
+    ("offset_pattern", "--offset-pattern", "offset", "--offsets", OFFSET_PATTERNS[0]),
+    ("drift_pattern", "--drift-pattern", "drift_ppm", "--drifts", DRIFT_PATTERNS[0]),
+)
+
+
 def _cmd_sweep(args: Any) -> int:
     from netsim.cliutil import EXIT_INTERRUPTED, CommandError
     from netsim.models.scenario import ScenarioError
@@ -387,11 +412,21 @@ def _cmd_sweep(args: Any) -> int:
         "drift_ppm": _floats(args.drifts, "--drifts"),
         "threshold": _floats(args.thresholds, "--thresholds"),
     }
+    # a pattern other than the default is an axis of one value (the default is no axis,
+    # so the cells' keys stay those of a sweep without the option)
+    for axis, _, _, _, default in _PATTERN_OPTIONS:
+        chosen = getattr(args, axis, None)
+        if chosen is not None:
+            axes[axis] = [] if chosen == default else [chosen]
     if preset is not None:  # the preset's axes, unless given
         for axis, values in preset.axes.items():
             if axes.get(axis) is None:
                 axes[axis] = list(values)
         agents, taus = axes.get("agents"), axes.get("tau")
+    for axis, option, spread, spread_option, _ in _PATTERN_OPTIONS:
+        if getattr(args, axis, None) is not None and not axes.get(spread):
+            raise CommandError(f"{option} {getattr(args, axis)}: needs {spread_option} (the "
+                               "values it spreads over the agents)")
     if agents and min(agents) < 2:
         raise CommandError("--sizes: a network needs at least 2 agents")
     if axes["loss"] and max(axes["loss"]) > 1:
@@ -444,6 +479,7 @@ def _cmd_sweep(args: Any) -> int:
             (f"{k} {v['verdict']} (MSE {_f(v['steady_state_mse'])})" if "steady_state_mse" in v
              else f"{k} {v['verdict']} (last MSE {_f(v.get('last_trusted_mse'))})")
             + (f" rate {_f(v['message_rate'])}" if "message_rate" in v else "")
+            + (f" [{v['engine']}]" if "engine" in v else "")
             for k, v in res["estimators"].items())
         lines.append(f"  {p}: {verdicts}")
     sys.stdout.write("\n".join(lines) + "\n")

@@ -164,6 +164,8 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
                   else {}),
                "last_trusted_mse": e["last_trusted_mse"],
                "growth_rate": e["growth_rate"], "diverged_trials": len(e["diverged_trials"]),
+               # the engine that ran the family: vectorised (batched) or events
+               "engine": result.engines.get(name, result.engine),
                "messages_sent": e["messages"]["sent"],
                "messages_delivered": e["messages"]["delivered"],
                # [time] scenarios: estimates sent per agent and time unit (triggers)
@@ -177,9 +179,15 @@ def scenario_sweep_cell(params: dict[str, Any], seed: Any, context: dict[str, An
 def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], trials: int, steps: int,
                        families: Sequence[str], seed: int, engine: str = "auto",
                        **options: Any):
-    """Grid over ``axes`` (delays, tau, topology, agents, seed) of one base scenario.
+    """Grid over ``axes`` (delays, tau, topology, agents, seed, loss, offset, drift_ppm,
+    threshold, offset_pattern, drift_pattern; :func:`netsim.bench.variants.sweep_variant`)
+    of one base scenario.
 
-    ``engine`` runs the trials (``auto``: vectorised); it is part of every cell's key.
+    ``engine`` runs the trials (``auto``: vectorised where it can); it is part of every
+    cell's key. With ``auto`` each ``[time]`` cell runs on the batched timed engine where
+    it expresses the cell (fixed offsets and drifts, no trigger holding updates back),
+    else on the event kernel; each family's row names its ``engine``. An unknown pattern
+    value is a ValueError naming its axis.
     """
     from netsim.runner import choose_engine, family_of
     from netsim.sweep import grid, run_sweep
@@ -192,8 +200,12 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], tria
     # the scenario's own first, so --estimators may use their short names
     resolve_families(base.estimators, "run.estimators", scenario_folder(base))
     declared = [family_of(f, base, "--estimators") for f in families]
-    from netsim.bench.variants import TIME_AXES
+    from netsim.bench.variants import TIME_AXES, check_time_patterns
 
+    patterns = {k: v for k, v in axes.items() if k.endswith("_pattern") and v}
+    for axis, values in patterns.items():
+        for value in values:
+            check_time_patterns({axis: value})
     probe = base
     timed = any(axes.get(k) for k in TIME_AXES)
     if timed:
@@ -201,8 +213,9 @@ def run_scenario_sweep(scenario: str, *, axes: dict[str, list[Any] | None], tria
         if engine == "vectorised":  # every [time] cell must be one the lockstep expresses
             for k in TIME_AXES:
                 for value in axes.get(k) or ():
-                    choose_engine(engine, declared,
-                                  scenario=sweep_variant(data, source, {k: value}))
+                    for pattern in grid(**patterns):
+                        choose_engine(engine, declared, scenario=sweep_variant(
+                            data, source, {k: value, **pattern}))
     requested = engine
     engine = choose_engine(engine, declared, scenario=probe)
     if engine == "mixed" or (timed and requested == "auto"):

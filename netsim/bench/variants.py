@@ -14,7 +14,9 @@ import numpy as np
 from netsim.bench.presets import DELAY_MODELS, NO_DELAY
 from netsim.models.scenario import DelaySpec, Scenario
 
-__all__ = ["delay_variant", "scenario_data", "scenario_fingerprint", "sweep_variant"]
+__all__ = ["DRIFT_PATTERNS", "OFFSET_PATTERNS", "TIME_AXES", "check_time_patterns",
+           "delay_variant", "fixed_pattern", "scenario_data", "scenario_fingerprint",
+           "sweep_variant"]
 
 
 def delay_variant(scenario: Scenario, setting: str, tau: int) -> Scenario:
@@ -71,7 +73,9 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
     ``seed`` (run seed), ``loss`` (every link loses each message with this probability,
     Bernoulli, ``[links] loss``), and the ``[time]`` axes (:mod:`netsim.models.timing`):
     ``offset`` (clock offsets uniform in [-o, o]), ``drift_ppm`` (drifts N(0, s^2) ppm),
-    ``threshold`` (a send-on-delta trigger)."""
+    ``threshold`` (a send-on-delta trigger), with ``offset_pattern`` (``uniform``, the
+    default: drawn per trial; ``fixed``: :func:`fixed_pattern`) and ``drift_pattern``
+    (``normal``, the default; ``fixed``)."""
     from netsim.models.scenario import parse_scenario
 
     data = copy.deepcopy(data)
@@ -114,21 +118,76 @@ def sweep_variant(data: dict[str, Any], source: str, params: dict[str, Any]) -> 
     return parse_scenario(data, source)
 
 
-#: Sweep axes that set the ``[time]`` table (clocks, triggers; the event kernel only).
+#: Sweep axes that set the ``[time]`` table (clocks, triggers).
 TIME_AXES = ("offset", "drift_ppm", "threshold")
+#: How ``offset`` spreads over the agents: ``uniform`` draws each agent's offset per
+#: trial uniform in [-o, o] (the event kernel runs it); ``fixed`` gives agent i the offset
+#: o * p_i of :func:`fixed_pattern` in every trial (the batched timed engine runs it).
+OFFSET_PATTERNS = ("uniform", "fixed")
+#: How ``drift_ppm`` spreads over the agents: ``normal`` draws N(0, s^2) ppm per agent and
+#: trial; ``fixed`` gives agent i the drift s * p_i ppm in every trial.
+DRIFT_PATTERNS = ("normal", "fixed")
+_PATTERN_AXES = {"offset_pattern": ("offset", OFFSET_PATTERNS),
+                 "drift_pattern": ("drift_ppm", DRIFT_PATTERNS)}
+
+
+def fixed_pattern(n_agents: int) -> list[float]:
+    """The fixed clock pattern (-1, 1, -1/2, 1/2, -1/3, 1/3, ...): agent i gets
+    (-1)^(i+1) / (i // 2 + 1), so the agents' clocks disagree by every fraction of the
+    swept value up to its double, and the mean of an even count is 0.
+
+    Parameters
+    ----------
+    n_agents : int
+        The number of agents N.
+
+    Returns
+    -------
+    list of float
+        N multipliers p_i (agent i's offset is o p_i time units, its drift s p_i ppm).
+    """
+    return [(1.0 if i % 2 else -1.0) / (i // 2 + 1) for i in range(int(n_agents))]
+
+
+def check_time_patterns(params: dict[str, Any]) -> None:
+    """Raise ValueError (one line naming the axis) for an unknown ``offset_pattern`` or
+    ``drift_pattern`` value in ``params``."""
+    for axis, (_, allowed) in _PATTERN_AXES.items():
+        if axis in params and params[axis] not in allowed:
+            raise ValueError(f"{axis}: unknown pattern {params[axis]!r}; expected "
+                             f"{' or '.join(allowed)}")
+
+
+def _agent_count(data: dict[str, Any]) -> int:
+    """The number of agents of the scenario's TOML dict (parsed without its ``[time]``
+    table, which costs a matrix logarithm)."""
+    from netsim.models.scenario import parse_scenario
+
+    plain = {k: v for k, v in data.items() if k != "time"}
+    return parse_scenario(plain, "sweep").n_agents
 
 
 def _time_axes(data: dict[str, Any], params: dict[str, Any]) -> None:
     """Write the cell's ``[time]`` axes into the scenario's TOML dict (in place)."""
     if not any(k in params for k in TIME_AXES):
         return
+    check_time_patterns(params)
     time = data.get("time")
     time = data["time"] = dict(time) if isinstance(time, dict) else {}
+    fixed = [axis for axis, (value, _) in _PATTERN_AXES.items()
+             if params.get(axis) == "fixed" and float(params.get(value, 0.0))]
+    pattern = fixed_pattern(_agent_count(data)) if fixed else []
     if "offset" in params:
         o = float(params["offset"])
-        time["offset"] = {"distribution": "uniform", "low": -o, "high": o} if o else 0.0
+        if "offset_pattern" in fixed:
+            time["offset"] = [o * p for p in pattern]
+        else:
+            time["offset"] = {"distribution": "uniform", "low": -o, "high": o} if o else 0.0
     if "drift_ppm" in params:
         s = float(params["drift_ppm"])
-        time["drift_ppm"] = {"distribution": "normal", "std": s} if s else 0.0
+        if "drift_pattern" in fixed:
+            time["drift_ppm"] = [s * p for p in pattern]
+        else:
+            time["drift_ppm"] = {"distribution": "normal", "std": s} if s else 0.0
     if "threshold" in params:
         time["trigger"] = {"kind": "send-on-delta", "threshold": float(params["threshold"])}

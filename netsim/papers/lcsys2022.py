@@ -85,6 +85,7 @@ from netsim.papers._lcsys2022_experiments import (
     build_baselines,
     build_loss,
 )
+from netsim.papers._lcsys2022_time import TIME_SWEEPS
 from netsim.reproduce.items import (
     BuildContext,
     Item,
@@ -888,7 +889,7 @@ PAPER = register_paper(Paper(
     claims=CLAIMS,
     items=ITEMS,
     presets=PRESETS,
-    sweeps=(LOSS_SWEEP,),
+    sweeps=(LOSS_SWEEP, *TIME_SWEEPS),
     bench_rows=(BenchRow("L-rho", _rho_row), BenchRow("L-tau-star", _c_tau_star),
                 BenchRow("L-eq26", _c_eq26), BenchRow("L-stable-0-3-8", _c_stable_038),
                 BenchRow("L-hom-19", _c_hom19), BenchRow("L-het-19", _c_het19),

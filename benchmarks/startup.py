@@ -55,7 +55,8 @@ HEAVY = ("cvxpy", "matplotlib", "mcap", "dask", "distributed", "pandas", "networ
 PROBE = ("import sys\nfrom netsim.cli import main\n"
          "try:\n    main({argv!r})\nexcept SystemExit:\n    pass\n"
          "print(sorted(m for m in {heavy!r} if m in sys.modules), file=sys.stderr)\n"
-         "print(sorted(m for m in ('scipy.linalg', 'scipy.sparse', 'simpy', 'tqdm') "
+         "print(sorted(m for m in ('scipy.linalg', 'scipy.sparse', 'simpy', 'tqdm', "
+         "'importlib.metadata', 'numpy.ma') "
          "if m in sys.modules), file=sys.stderr)")
 
 

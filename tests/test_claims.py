@@ -169,7 +169,7 @@ def test_netsim_claims_finds_and_writes_a_theorem1_counterexample(tmp_path, caps
 
 
 def test_json_equals_text_verdicts(tmp_path, capsys):
-    args = ["claims", "D-table1", "D-cond75", "D-eq94", "A-naive-growth", "L-rho",
+    args = ["claims", "D-table1", "D-cond75", "D-eq94", "A-naive-growth", "L-rho", "L-hom-19",
             "--instances", "8", "--out", str(tmp_path), "--no-progress"]
     assert main(args) == 0
     text = capsys.readouterr().out
@@ -180,7 +180,9 @@ def test_json_equals_text_verdicts(tmp_path, capsys):
         line = next(ln for ln in text.splitlines() if ln.startswith(cid + " "))
         assert line.split(None, 1)[1].startswith(v.upper())
         assert v in VERDICTS
-    assert verdicts["L-rho"] == UNDECIDED and verdicts["D-table1"] == PROVED
+    # L-rho: attained on the calibrated instance; L-hom-19's rho = 1 by none of them
+    assert verdicts["L-rho"] == PROVED and verdicts["L-hom-19"] == UNDECIDED
+    assert verdicts["D-table1"] == PROVED
 
 
 def test_bad_input_is_one_line_exit_2(capsys):

@@ -61,6 +61,7 @@ def test_every_item_is_listed_for_the_four_papers():
                       ("aoi", "Corollary 1 (experiment)"), ("dkfe", "Table I"),
                       ("dkfe", "Example 2"), *(("dkfe", f"Fig. {k}") for k in range(3, 9)),
                       ("LCSYS2022", "Section IV (calibrated)"),
+                      ("LCSYS2022", "Fig. 1 (calibrated)"),
                       ("delay-tolerant", "Figs. 1-2 (calibrated)"),
                       ("dkfe", "eq. (94), readings"), ("dkfe", "(71)-(72) against d"),
                       ("dkfe", "r_i sweep"), ("dkfe", "Theorem 4"), ("dkfe", "Remark 1")}

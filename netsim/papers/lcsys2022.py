@@ -6,13 +6,16 @@ Theorem 1 and eq. (26), the bench preset ``lcsys2022-fig1`` and its claim rows, 
 reproduce item Fig. 1, and the paper's delay bound (eq. (26), tau* of Theorem 1) for the
 compensating and block estimators. Everything is declared in :data:`PAPER` at the end.
 The paper prints no A, C, P or K: the checks use our instance of its system
-(:func:`lcsys_instance`, scenario ``lcsys2022-homogeneous``).
+(:func:`lcsys_instance`, scenario ``lcsys2022-homogeneous``); the printed numbers are
+checked on the calibrated instances too (:mod:`netsim.papers._calibrated`), and Fig. 1 is
+also drawn on ``lcsys2022-calibrated-rho-tau`` (item ``lcsys2022-fig1-calibrated``).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -24,7 +27,6 @@ from netsim.bench.presets import Preset
 from netsim.claims.checks import (
     BOUND_SLACK_FIXED,
     eq14_on,
-    exact_rho,
     from_bench,
     homogeneous_delays,
     kron_observable,
@@ -67,6 +69,13 @@ from netsim.cliutil import tau_star_text
 from netsim.estimators.registry import RECURSION_BLOCK, RECURSION_COMPENSATED
 from netsim.models.augmented import delay_bound_lcsys
 from netsim.papers import BenchRow, DelayBound, Paper, Search, register_paper
+from netsim.papers._calibrated import (
+    build_fig1_calibrated,
+    check_lcsys_eq26,
+    check_lcsys_hom19,
+    check_lcsys_rho,
+    check_lcsys_tau_star,
+)
 from netsim.papers._consensus import (
     bench_common,
     bound_judge,
@@ -328,33 +337,6 @@ def ours_rho(context: Context) -> tuple[float, int | None]:
     """Our instance's rho(A-hat) and tau*."""
     inst = lcsys_instance(context)
     return float(inst["gains"].rho), inst["star"].contiguous
-
-
-def check_printed_rho(context: Context) -> Outcome:
-    rho, star = ours_rho(context)
-    from netsim.cliutil import tau_star_text
-
-    return Outcome(UNDECIDED, f"ours: rho(A-hat) = {rho:.4f}, tau* = {tau_star_text(star)} on our "
-                   "instance", {"rho_delay_free": rounded(rho), "tau_star": star},
-                   reason="the paper does not print A, C, P or K")
-
-
-def check_printed_eq26(context: Context) -> Outcome:
-    inst = lcsys_instance(context)
-    P, A, C, L = inst["P"], inst["A"], inst["C"], inst["L"]
-    ours = {t: float(delay_bound_lcsys(P, A, C, L, t)) for t in (3, 8, 19)}
-    return Outcome(UNDECIDED, "ours: " + ", ".join(f"tau {t}: {v:.3f}"
-                                                       for t, v in ours.items()),
-                   {str(t): rounded(v) for t, v in ours.items()},
-                   reason="the paper does not print A, C, P or K")
-
-
-def check_hom19(context: Context) -> Outcome:
-    inst = lcsys_instance(context)
-    r = exact_rho(inst["P"], inst["A"], inst["C"], inst["L"], 19)
-    return Outcome(UNDECIDED, f"ours: exact rho at homogeneous tau = 19 is {r:.4f}",
-                   {"exact_rho_19": rounded(r)},
-                   reason="rho = 1 is a number of the paper's unprinted system")
 
 
 def check_lemma1(context: Context) -> Outcome:
@@ -721,6 +703,9 @@ _L_HYP = ("Lemma 1: P row-stochastic and irreducible on a self-looped graph, "
           "Assumption 2: fixed (time-invariant) delays bounded by tau-bar; here one common "
           "tau on every link, self-loops undelayed")
 _NOT_PRINTED = "the paper's own unprinted system"
+#: Section IV's numbers, for the checks on the calibrated instances (_calibrated).
+_PRINTED = {"rho_delay_free": LCSYS_RHO, "tau_star": LCSYS_TAU_STAR, "eq26": LCSYS_EQ26,
+            "hom19_rho": LCSYS_HOM19_RHO}
 
 CLAIMS = (
     Claim("L-theorem1", LCSYS, "Theorem 1",
@@ -770,14 +755,16 @@ CLAIMS = (
           "theorem", check_block),
     Claim("L-rho", LCSYS, "Section IV",
           f"the LMI gains give rho(A-hat) = {LCSYS_RHO:g}", (_NOT_PRINTED,), "printed",
-          check_printed_rho, {"rho_delay_free": LCSYS_RHO}, bench=_rho_row),
+          partial(check_lcsys_rho, printed=_PRINTED), {"rho_delay_free": LCSYS_RHO},
+          bench=_rho_row),
     Claim("L-tau-star", LCSYS, "Section IV",
           f"tau* = {LCSYS_TAU_STAR} (Theorem 1)", (_NOT_PRINTED,), "printed",
-          check_printed_rho, {"tau_star": LCSYS_TAU_STAR}, bench=_c_tau_star),
+          partial(check_lcsys_tau_star, printed=_PRINTED), {"tau_star": LCSYS_TAU_STAR},
+          bench=_c_tau_star),
     Claim("L-eq26", LCSYS, "Section IV",
           "eq. (26) bounds " + ", ".join(f"{v:g}" for v in LCSYS_EQ26.values())
           + " at tau = " + ", ".join(str(t) for t in LCSYS_EQ26),
-          (_NOT_PRINTED,), "printed", check_printed_eq26,
+          (_NOT_PRINTED,), "printed", partial(check_lcsys_eq26, printed=_PRINTED),
           {str(t): v for t, v in LCSYS_EQ26.items()}, bench=_c_eq26),
     Claim("L-stable-0-3-8", LCSYS, "Fig. 1",
           "compensated MSE bounded, steady-state stable for tau = 0, 3, 8 (homogeneous and "
@@ -786,7 +773,8 @@ CLAIMS = (
           searches=("bench:lcsys2022-fig1",)),
     Claim("L-hom-19", LCSYS, "Fig. 1, Section IV",
           "homogeneous tau = 19: the MSE is marginally unstable, rho(A-bar) = 1",
-          (_NOT_PRINTED,), "printed", check_hom19, {"rho_19": LCSYS_HOM19_RHO},
+          (_NOT_PRINTED,), "printed", partial(check_lcsys_hom19, printed=_PRINTED),
+          {"rho_19": LCSYS_HOM19_RHO},
           bench=_c_hom19),
     Claim("L-het-19", LCSYS, "Fig. 1", "heterogeneous tau = 19: the MSE is stable",
           (_NOT_PRINTED,), "figure", check_het19_bench, bench=_c_het19,
@@ -861,6 +849,18 @@ ITEMS = (
           "lcsys2022 --reading no-root), shown beside our instance lcsys2022-heterogeneous.",),
          ("L-rho", "L-tau-star", "L-eq26", "L-hom-19", "L-het-19"),
          _build_lcsys_calibrated),
+    Item("lcsys2022-fig1-calibrated", LCSYS, "Fig. 1 (calibrated)",
+         "MSEs are bounded steady-state stable for tau-bar = 0, 3, 8. For tau-bar = 19 > "
+         "tau-bar* = 10 the MSE is marginally unstable for the homogeneous case, while it is "
+         "stable for the heterogeneous case.",
+         "rho(A-bar) = 0.64, tau* = 10; for homogeneous tau-bar = 19, rho(A-bar) = 1; the "
+         "heterogeneous tau-bar = 19 case is stable.",
+         ("Calibrated instance: the scenario lcsys2022-calibrated-rho-tau (netsim calibrate "
+          "lcsys2022 --targets rho,tau-star), shown above our instance "
+          "lcsys2022-heterogeneous with the same settings; the compensating estimator "
+          "only.",),
+         ("L-rho", "L-tau-star", "L-hom-19", "L-het-19", "L-stable-0-3-8"),
+         partial(build_fig1_calibrated, printed=_PRINTED)),
 )
 
 #: eq. (26): rho((I-KD_C)(P kron A^(tau+1)))^(1/(tau+1)), the bound of the compensating

@@ -33,7 +33,7 @@ measurement fails).
 
 Usage::
 
-    python benchmarks/goals.py                    # everything, about 3-5 min on 2 cores
+    python benchmarks/goals.py            # everything: 1 min idle, 3 min at load 6-9
     python benchmarks/goals.py --quick            # fewer rounds, every row
     python benchmarks/goals.py --only startup,million
     python benchmarks/goals.py --json > goals.json

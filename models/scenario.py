@@ -94,7 +94,6 @@ from netsim.models.topology import GraphSequence, LinkSchedule, TopologyError, a
 if TYPE_CHECKING:
     import networkx as nx
     import scipy.sparse as sp
-
     from netsim.models.timing import TimeSpec
 else:  # imported on first use (start-up latency): small dense scenarios need neither
     nx = lazy_module("networkx")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 import math
 import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, overload
 
@@ -147,6 +147,17 @@ def _executor_options(parser: Any) -> None:
     parser.add_argument("--no-progress", action="store_true", help="no progress bar on stderr")
 
 
+def _split(text: str, option: str, convert: Callable[[str], Any], what: str) -> list[Any]:
+    """The non-blank comma-separated items of ``text`` converted (one-line error)."""
+    from netsim.cliutil import CommandError
+
+    try:
+        return [convert(v) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise CommandError(f"{option}: expected comma-separated {what}, got {text!r}"
+                           ) from None
+
+
 @overload
 def _ints(text: str, option: str) -> list[int]: ...
 @overload
@@ -156,11 +167,7 @@ def _ints(text: str | None, option: str) -> list[int] | None:
 
     if text is None:
         return None
-    try:
-        values = [int(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise CommandError(f"{option}: expected comma-separated integers, got {text!r}"
-                           ) from None
+    values = _split(text, option, int, "integers")
     if not values:
         raise CommandError(f"{option}: empty list")
     if any(v < 0 for v in values):
@@ -211,11 +218,7 @@ def _floats(text: str | None, option: str) -> list[float] | None:
 
     if text is None:
         return None
-    try:
-        values = [float(v) for v in text.split(",") if v.strip()]
-    except ValueError:
-        raise CommandError(f"{option}: expected comma-separated numbers, got {text!r}"
-                           ) from None
+    values = _split(text, option, float, "numbers")
     if not values or any(not math.isfinite(v) or v < 0 for v in values):
         raise CommandError(f"{option}: expected non-negative finite numbers, got {text!r}")
     return values

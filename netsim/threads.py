@@ -34,13 +34,27 @@ import threading
 from collections.abc import Iterator
 from typing import Any
 
-__all__ = ["single_threaded_blas", "limit_worker_threads"]
+__all__ = ["single_threaded_blas", "limit_worker_threads", "mark_process_single_threaded"]
 
 #: Open :func:`single_threaded_blas` blocks in this process (any thread), and the
 #: limiter the first one set (restored when the last one closes).
 _lock = threading.Lock()
 _open = 0
 _limiter: Any = None
+#: Set by :func:`mark_process_single_threaded`: the BLAS of this whole process was
+#: limited to one thread before it loaded (the ``netsim`` command, :mod:`netsim.console`).
+_process_single_threaded = False
+
+
+def mark_process_single_threaded() -> None:
+    """Record that this process's BLAS runs one thread for its whole life.
+
+    Called by the ``netsim`` command's entry point (:func:`netsim.console.main`) after it
+    set the thread variables to 1 before numpy loaded; :func:`single_threaded_blas` is
+    then free (no threadpoolctl, no walk over the loaded libraries).
+    """
+    global _process_single_threaded
+    _process_single_threaded = True
 
 
 @contextlib.contextmanager
@@ -58,6 +72,9 @@ def single_threaded_blas() -> Iterator[None]:
     None
     """
     global _open, _limiter
+    if _process_single_threaded:  # the netsim command: one thread since start-up
+        yield
+        return
     with _lock:
         if _open == 0:
             from threadpoolctl import threadpool_limits

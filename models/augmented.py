@@ -95,9 +95,11 @@ __all__ = [
     "GROWTH_BLOCK",
     "GROWTH_FULL_MAX",
     "LIMIT_BLAS_THREADS",
+    "RADIUS_METHODS",
     "TauStar",
     "augmented_closed_loop",
     "augmented_consensus",
+    "augmented_radius_and_method",
     "augmented_spectral_radius",
     "closed_loop_sequence_growth",
     "convergence_time_augmented",
@@ -903,6 +905,7 @@ def _arpack_rho(
     else RuntimeError.
     """
     if D <= k + 2:  # ARPACK needs k < D - 1
+        _last_structured.method = RADIUS_METHODS[0]
         return _dense_operator_rho(power(1), D)
     eigs = _sparse_linalg("eigs")
     LinearOperator = _sparse_linalg("LinearOperator")  # noqa: N806
@@ -946,6 +949,7 @@ def _arpack_rho(
         with np.errstate(over="ignore", invalid="ignore"):
             res = float(np.linalg.norm(apply(v) - mu * v) / np.linalg.norm(v))
         if math.isfinite(res) and res <= 1e-8 * max(abs(mu), norm_est):
+            _last_structured.method = RADIUS_METHODS[1]
             return float(np.max(np.abs(vals))) ** (1.0 / j)
         failures.append(f"{label}: top Ritz pair residual {res:.3g} for |mu|={abs(mu):.6g}")
     reason = "; ".join(failures)
@@ -956,6 +960,7 @@ def _arpack_rho(
             RuntimeWarning,
             stacklevel=4,
         )
+        _last_structured.method = RADIUS_METHODS[2]
         return _dense_operator_rho(power(1), D)
     raise RuntimeError(
         f"ARPACK could not compute the spectral radius of the {what} "
@@ -1318,6 +1323,43 @@ def augmented_spectral_radius(
     float
         ``rho`` of the augmented closed loop; ``inf`` if ``A^(r+1)`` overflows.
     """
+    return augmented_radius_and_method(P, A, C, L, delays, tau, compensated, method)[0]
+
+
+#: How :func:`augmented_radius_and_method` computed a radius: dense eigenvalues of the
+#: whole matrix, ARPACK on the structured operator, dense eigenvalues after ARPACK
+#: failed (with a RuntimeWarning), or no eigenproblem (the structured operator
+#: overflows: ``inf``; or it is nilpotent: 0).
+RADIUS_METHODS: tuple[str, ...] = ("dense eigenvalues", "ARPACK",
+                                   "dense eigenvalues (ARPACK failed)", "no eigenproblem")
+
+#: What the last structured radius of this thread used (set by :func:`_arpack_rho`).
+_last_structured = threading.local()
+
+
+def augmented_radius_and_method(
+    P: ArrayLike,
+    A: ArrayLike,
+    C: Sequence[ArrayLike],
+    L: Sequence[ArrayLike],
+    delays: ArrayLike,
+    tau: int | None = None,
+    compensated: bool = True,
+    method: str = "auto",
+) -> tuple[float, str]:
+    """:func:`augmented_spectral_radius` and how it was computed (one of :data:`RADIUS_METHODS`).
+
+    Parameters
+    ----------
+    P, A, C, L, delays, tau, compensated, method
+        As in :func:`augmented_spectral_radius`.
+
+    Returns
+    -------
+    (float, str)
+        The spectral radius (the same value :func:`augmented_spectral_radius` returns)
+        and the method that computed it.
+    """
     P_arr, A_arr, C_list = _check_system(P, A, C)
     _check_method(method)
     d = _as_delays(P_arr, delays)
@@ -1329,12 +1371,14 @@ def augmented_spectral_radius(
     if method == "dense" or (method == "auto" and N * n * (tau + 1) <= DENSE_SIZE_THRESHOLD):
         with np.errstate(over="ignore", invalid="ignore"):
             M = augmented_closed_loop(P_arr, A_arr, C_list, L, d, tau, compensated)
-        return spectral_radius(M)
+        return spectral_radius(M), RADIUS_METHODS[0]
     index = np.where(P_arr != 0, d, 0)
     depth = _max_edge_delay(P_arr, d) + 1
     B = _delay_blocks(A_arr, depth, compensated)
     row = _FirstRow(G, P_arr, index, B)
-    return _companion_rho(row, "augmented closed loop")
+    _last_structured.method = RADIUS_METHODS[3]
+    rho = _companion_rho(row, "augmented closed loop")
+    return rho, _last_structured.method
 
 
 def delay_bound_lcsys(

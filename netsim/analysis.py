@@ -29,6 +29,7 @@ import numpy as np
 from netsim.estimators.gains import GainDesign
 from netsim.models.augmented import (
     DENSE_SIZE_THRESHOLD,
+    augmented_radius_and_method,
     augmented_spectral_radius,
     delay_bound_lcsys,
     tau_star_report,
@@ -41,7 +42,7 @@ from netsim.threads import single_threaded_blas
 __all__ = ["BOUND_SLACK", "DEFAULT_TAU_RANGE", "DENSE_SECONDS_PER_CUBE",
            "STRUCTURED_SECONDS_PER_CALL", "STRUCTURED_SECONDS_PER_ROW", "BoundRow",
            "ANALYSIS_PARALLEL_MIN_SECONDS",
-           "AnalysisReport", "analysis_seconds", "analyze"]
+           "AnalysisReport", "analysis_seconds", "analyze", "radii_line"]
 
 #: Numerical slack before an exact value above a bound counts as a violation.
 BOUND_SLACK = 1e-9
@@ -83,6 +84,10 @@ class BoundRow:
     verdict_tolerant : str
     decay_rate_eq14 : float
         1 - bound_eq26 (LCSYS2022 eq. 14; negative: no decay predicted).
+    source_compensated, source_uncompensated : str
+        How the exact value was computed (one of
+        :data:`netsim.models.augmented.RADIUS_METHODS`), or ``"cache (<method>)"``
+        when it was read from the radius cache (:mod:`netsim.radiuscache`).
     """
 
     tau: int
@@ -94,6 +99,8 @@ class BoundRow:
     bound_tolerant: float
     verdict_tolerant: str
     decay_rate_eq14: float
+    source_compensated: str = ""
+    source_uncompensated: str = ""
 
     def to_dict(self) -> dict[str, Any]:
         return {k: _jsonable(v) for k, v in self.__dict__.items()}
@@ -114,6 +121,9 @@ class AnalysisReport:
     violations: list[str] = field(default_factory=list)
     #: Predictions (Theorem 1's "stable for tau <= tau*") that the exact rho contradicts.
     contradictions: list[str] = field(default_factory=list)
+    #: How the exact radii were obtained: ``{"computed": {method: count}, "cached":
+    #: {method: count}, "cache": folder or None}`` (:func:`radii_line` says it in a line).
+    radii: dict[str, Any] = field(default_factory=dict)
 
     def __repr__(self) -> str:
         """One line (the rows are in ``rows``, ``to_dict()`` or ``_repr_html_``)."""
@@ -154,6 +164,7 @@ class AnalysisReport:
             },
             "violations": self.violations,
             "contradictions": self.contradictions,
+            "radii": self.radii,
         }
 
 
@@ -167,6 +178,52 @@ def _exact_pair(task: tuple[Any, ...]) -> tuple[float, float, float]:
     exact_c = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=True)
     exact_u = augmented_spectral_radius(P, A, C, L, delays, depth, compensated=False)
     return exact_c, exact_u, float(delay_bound_lcsys(P, A, C, L, depth))
+
+
+def _exact_task(task: tuple[Any, ...]) -> tuple[Any, Any, float]:
+    """One delay pattern's radii not in the cache, and its eq. (26) bound.
+
+    ``task = (P, A, C, L, delays, depth, flags)``, ``flags`` a pair for (compensated,
+    uncompensated): the flag where that radius is to be computed, None where the cache
+    has it. Returns ``((rho, method) or None, (rho, method) or None, bound)``, the same
+    numbers as :func:`_exact_pair`; a module-level function so that
+    :func:`netsim.parallel.ordered_map` can send it to a worker process.
+    """
+    P, A, C, L, delays, depth, flags = task
+    c, u = (augmented_radius_and_method(P, A, C, L, delays, depth, compensated=flag)
+            if flag is not None else None for flag in flags)
+    return c, u, float(delay_bound_lcsys(P, A, C, L, depth))
+
+
+def _radii_summary(sources: Sequence[tuple[str, str]], folder: Any) -> dict[str, Any]:
+    """How the exact radii were obtained: counts by method, computed now or cached."""
+    computed: dict[str, int] = {}
+    cached: dict[str, int] = {}
+    for pair in sources:
+        for source in pair:
+            if source.startswith("cache ("):
+                how = source[len("cache ("):-1]
+                cached[how] = cached.get(how, 0) + 1
+            else:
+                computed[source] = computed.get(source, 0) + 1
+    return {"computed": computed, "cached": cached,
+            "cache": None if folder is None else str(folder)}
+
+
+def radii_line(radii: dict[str, Any]) -> str:
+    """One line saying how the report's exact radii were obtained (``AnalysisReport.radii``)."""
+    def counts(by: dict[str, int]) -> str:
+        return ", ".join(f"{k} {v}" for k, v in sorted(by.items()))
+
+    n_new, n_old = sum(radii["computed"].values()), sum(radii["cached"].values())
+    where = ("radius cache off" if radii["cache"] is None
+             else f"radius cache {radii['cache']}")
+    parts = []
+    if n_new:
+        parts.append(f"{n_new} computed now ({counts(radii['computed'])})")
+    if n_old:
+        parts.append(f"{n_old} read from the cache (computed by {counts(radii['cached'])})")
+    return f"exact radii: {'; '.join(parts) or 'none'} [{where}]"
 
 
 #: Seconds per ``D^3`` of a dense eigenvalue call (``D`` rows), and per row of a
@@ -208,6 +265,7 @@ def analyze(
     scenario: Scenario, gains: GainDesign, tau_max: int = DEFAULT_TAU_RANGE, *,
     progress: Callable[[int], None] | None = None,
     workers: int | None = 1,
+    cache: bool = True,
 ) -> AnalysisReport:
     """Compute the bounds and exact spectral radii of a scenario's closed loop.
 
@@ -226,6 +284,11 @@ def analyze(
         estimated serial work, :func:`analysis_seconds`, is at least
         :data:`ANALYSIS_PARALLEL_MIN_SECONDS` and
         :data:`netsim.parallel.PARALLEL_MIN_SECONDS`). The report is the same either way.
+    cache : bool, default True
+        Read the exact radii from the radius cache (:mod:`netsim.radiuscache`) and
+        store those computed; False (or ``--no-cache``, ``NETSIM_CACHE_DIR=off``,
+        ``NETSIM_RADIUS_CACHE=off``): compute every one. The numbers are the same bits
+        either way; ``AnalysisReport.radii`` and the rows' ``source_*`` say which.
 
     Raises
     ------
@@ -281,23 +344,63 @@ def analyze(
         else:
             tasks.append((P, A, C, L, fixed, top_fixed))
     depths = [t[-1] for t in tasks]
+    # the exact radii already in the radius cache (netsim.radiuscache) are not recomputed
+    from netsim import radiuscache
+
+    folder = radiuscache.radius_dir() if cache else None
+    keys = ([(radiuscache.radius_key(*t[:6], True), radiuscache.radius_key(*t[:6], False))
+             for t in tasks] if folder is not None else [])
+    found = radiuscache.load(folder, [k for pair in keys for k in pair]) if keys else {}
+    flags = [tuple(flag if not keys or keys[i][j] not in found else None
+                   for j, flag in enumerate((True, False))) for i in range(len(tasks))]
+    todo = [i for i, f in enumerate(flags) if f != (None, None)]
+    todo_depths = [depths[i] for i in todo]
     # each worker holds one augmented problem at a time: as many as fit in memory
-    memory, _ = budget.analysis_cost(n, N, depths)
+    memory, _ = budget.analysis_cost(n, N, todo_depths or [0])
     fit = max(1, int(budget.memory_limit()[0] // max(memory, 1.0)))
-    if N * n * (max(depths) + 1) > DENSE_SIZE_THRESHOLD:  # a structured (ARPACK) radius:
-        # load ARPACK here, before ordered_map may fork workers that would each import
+    if todo and N * n * (max(todo_depths) + 1) > DENSE_SIZE_THRESHOLD:  # ARPACK:
+        # load it here, before ordered_map may fork workers that would each import
         # it again (0.2-0.35 s of CPU apiece)
         import scipy.sparse.csgraph  # noqa: F401
         import scipy.sparse.linalg  # noqa: F401
-    estimate = analysis_seconds(N, n, depths)
+    estimate = analysis_seconds(N, n, todo_depths)
     if workers is None and estimate < ANALYSIS_PARALLEL_MIN_SECONDS:
         workers = 1  # small: serial (the same report; ANALYSIS_PARALLEL_MIN_SECONDS)
-    results = ordered_map(
-        _exact_pair, tasks, estimated_seconds=estimate,
+    for _ in range(len(tasks) - len(todo)):
+        if progress is not None:
+            progress(1)  # a delay pattern whose radii are all in the cache
+    computed = ordered_map(
+        _exact_task, [(*tasks[i], flags[i]) for i in todo], estimated_seconds=estimate,
         workers=workers, max_workers=fit, progress=progress, check=interrupt.check,
-    )
+    ) if todo else []
+    by_task = dict(zip(todo, computed, strict=True))
+    fresh: dict[str, tuple[float, str]] = {}
+    results: list[tuple[float, float, float]] = []
+    sources: list[tuple[str, str]] = []
+    for i, task in enumerate(tasks):
+        got = by_task.get(i)
+        pair: list[float] = []
+        source: list[str] = []
+        for j in range(2):
+            value = None if got is None else got[j]
+            if value is None:  # from the cache
+                rho, how = found[keys[i][j]]
+                source.append(f"cache ({how})")
+            else:
+                rho, how = value
+                source.append(how)
+                if keys:
+                    fresh[keys[i][j]] = (rho, how)
+            pair.append(rho)
+        b26 = got[2] if got is not None else float(delay_bound_lcsys(*task[:4], task[5]))
+        results.append((pair[0], pair[1], b26))
+        sources.append((source[0], source[1]))
+    if folder is not None:
+        radiuscache.store(folder, fresh)
+    report.radii = _radii_summary(sources, folder)
     if same_as is not None:
         results = [*results, results[same_as]]
+        sources = [*sources, sources[same_as]]
         if progress is not None:
             progress(1)  # the scenario's own delays: done with their homogeneous row
     for tau, (exact_c, exact_u, b26) in enumerate(results[: tau_max + 1]):
@@ -312,6 +415,8 @@ def analyze(
             bound_tolerant=btol,
             verdict_tolerant=_verdict(exact_u, btol),
             decay_rate_eq14=1.0 - b26,
+            source_compensated=sources[tau][0],
+            source_uncompensated=sources[tau][1],
         )
         report.rows.append(row)
         if row.verdict_eq26 == "violated":
@@ -342,6 +447,8 @@ def analyze(
             "rho_uncompensated": exact_u,
             "bound_tolerant": btol,
             "verdict_tolerant": _verdict(exact_u, btol),
+            "source_compensated": sources[-1][0],
+            "source_uncompensated": sources[-1][1],
         }
         if report.realised["verdict_eq26"] == "violated":
             report.violations.append(

@@ -1080,6 +1080,9 @@ def _cmd_analyze(args: argparse.Namespace) -> int:
     if report.contradictions:
         lines.append(f"{len(report.contradictions)} predictions contradicted by the exact rho:")
         lines += [f"  PREDICTION CONTRADICTED {v}" for v in report.contradictions]
+    from netsim.analysis import radii_line
+
+    lines.append(radii_line(report.radii))
     lines.append("Note: the uncompensated eq. (11) matrix is the error recursion only for a "
                  "plant whose state does not move; on a moving state its error also carries "
                  "(A^(r+1) - A) x_{k-1-r}.")

@@ -130,7 +130,8 @@ def test_parallel_report_is_the_serial_report(scenario, gains):
     fixed = with_delays(scenario, model="fixed",
                         links={(0, 1): 2.0, (1, 2): 0.0, (2, 3): 4.0, (3, 0): 1.0})
     ticks = {1: [], 2: []}
-    reports = {w: analyze(fixed, gains, tau_max=14, workers=w, progress=ticks[w].append)
+    reports = {w: analyze(fixed, gains, tau_max=14, workers=w, progress=ticks[w].append,
+                          cache=False)
                for w in (1, 2)}
     assert reports[1].to_dict() == reports[2].to_dict()
     assert ticks[1] == ticks[2] == [1] * 16

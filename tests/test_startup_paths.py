@@ -37,11 +37,13 @@ NOT_FOR_RUN = ("cvxpy", "matplotlib", "mcap", "networkx", "dask", "pandas",
                "numpy.testing", "simpy", "netsim.kernel", "netsim.links",
                "importlib.metadata", "numpy.ma")
 
-#: analyze needs ARPACK (scipy.sparse.linalg, which imports scipy.linalg) but never the
-#: event kernel, the engines or a bar.
+#: analyze never needs the event kernel, the engines or a bar; a warm one reads its exact
+#: radii from the radius cache (netsim.radiuscache), so it needs no ARPACK
+#: (scipy.sparse.linalg, which imports scipy.linalg) either.
 NOT_FOR_ANALYZE = ("cvxpy", "matplotlib", "mcap", "networkx", "dask", "pandas", "simpy",
                    "tqdm", "netsim.kernel", "netsim.vectorised", "netsim.calibrate",
-                   "netsim.bench", "netsim.aoi", "netsim.fusion", "netsim.traces")
+                   "netsim.bench", "netsim.aoi", "netsim.fusion", "netsim.traces",
+                   "scipy.sparse", "scipy.linalg")
 
 
 def test_the_kernel_names_the_light_modules_objects():
@@ -69,6 +71,17 @@ def test_a_warm_analyze_loads_no_unused_module():
     argv = ["analyze", "lcsys2022-homogeneous", "--tau-max", "12", "--no-progress"]
     _loaded(argv, NOT_FOR_ANALYZE)
     assert _loaded(argv, NOT_FOR_ANALYZE) == []
+
+
+def test_an_analysis_without_arpack_does_not_import_it(monkeypatch):
+    """Radii computed now, all by dense eigenvalues (tau = 0..11: at most 288 rows):
+    scipy.sparse is not imported; at tau = 12 (312 rows) ARPACK is."""
+    monkeypatch.setenv("NETSIM_RADIUS_CACHE", "off")
+    argv = ["analyze", "lcsys2022-homogeneous", "--tau-max", "11", "--no-progress"]
+    _loaded(argv, ())  # warms the gain cache
+    assert _loaded(argv, ("scipy.sparse",)) == []
+    argv[3] = "12"
+    assert _loaded(argv, ("scipy.sparse",)) == ["scipy.sparse"]
 
 
 def _reference_power(row: aug._FirstRow, X: np.ndarray, q: int) -> np.ndarray:

@@ -179,14 +179,18 @@ def test_a_good_entry_is_read_without_a_warning_or_a_solve(scenario, fresh, entr
         _same(scenario_gains(scenario), fresh)
 
 
-def test_run_with_a_nan_entry_warns_once_and_runs_with_the_fresh_gains(scenario, entries,
-                                                                       cache, capsys):
+def test_run_with_a_nan_entry_warns_once_and_runs_with_the_fresh_gains(
+        scenario, fresh, entries, cache, capsys, monkeypatch):
     """The reported failure: a NaN entry blocked every run until --no-cache."""
     key = gaincache.fingerprint(scenario, design_request(scenario))
     path = cache / f"{key}.npz"
     _damage(path, "NaN", entries)
+    calls = []  # the solves: the module's fresh design, counted
+    monkeypatch.setattr("netsim.runner.design_for_scenario",
+                        lambda s: calls.append(s) or fresh)
     argv = ["run", NAME, "--steps", "10", "--trials", "1", "--no-progress", "--json"]
     assert main(argv) == 0
+    assert len(calls) == 1                         # the entry not trusted: solved
     out, err = capsys.readouterr()
     lines = [line for line in err.splitlines() if "gain cache" in line]
     assert len(lines) == 1 and lines[0].startswith("netsim run: warning: gain cache: ")
@@ -194,26 +198,30 @@ def test_run_with_a_nan_entry_warns_once_and_runs_with_the_fresh_gains(scenario,
     cached = json.loads(out)["gains"]
     assert main([*argv, "--no-cache"]) == 0
     out, err = capsys.readouterr()
-    assert "gain cache" not in err
+    assert "gain cache" not in err and len(calls) == 2
     assert cached == json.loads(out)["gains"]      # the fresh design's gains
     assert main(argv) == 0                         # rewritten: no second warning
-    assert "gain cache" not in capsys.readouterr().err
+    assert "gain cache" not in capsys.readouterr().err and len(calls) == 2
 
 
-def test_design_with_wrong_gains_does_not_claim_their_certificate(scenario, entries, cache,
-                                                                   capsys):
+def test_design_with_wrong_gains_does_not_claim_their_certificate(
+        scenario, fresh, entries, cache, capsys, monkeypatch):
     """The reported failure: L = 1e6 was used as is and reported 'certified, rho 0.8276'."""
     key = gaincache.fingerprint(scenario, design_request(scenario))
     path = cache / f"{key}.npz"
     _damage(path, "K and L x 1e6, re-signed", entries)
+    calls = []  # the solves (no option given): the module's fresh design, counted
+    monkeypatch.setattr("netsim.estimators.gains.design_for_scenario",
+                        lambda s, **options: calls.append(options) or fresh)
     assert main(["design", NAME, "--json"]) == 0
+    assert len(calls) == 1 and not any(calls[0].values())  # not trusted: solved
     out, err = capsys.readouterr()
     lines = [line for line in err.splitlines() if "gain cache" in line]
     assert len(lines) == 1 and lines[0].startswith("netsim design: warning: gain cache: ")
     cached = json.loads(out)["design"]
     assert main(["design", NAME, "--json", "--no-cache"]) == 0
     fresh = json.loads(capsys.readouterr().out)["design"]
-    assert cached == fresh
+    assert cached == fresh and len(calls) == 2
     # independent of the stored numbers: the reported rho is that of the reported gains
     P, A, C = scenario.weights, scenario.plant.A, scenario.plant.C
     blocks = [np.eye(A.shape[0]) - np.asarray(L) @ Ci for L, Ci in zip(cached["L"], C,
@@ -366,8 +374,8 @@ def _sensor_variant():
     return parse_scenario(data)
 
 
-def test_a_scenario_differing_in_one_sensor_gets_its_own_gains(scenario, fresh, cache,
-                                                              monkeypatch):
+def test_a_scenario_differing_in_one_sensor_gets_its_own_gains(scenario, fresh, entries,
+                                                              cache, monkeypatch):
     variant = _sensor_variant()
     assert np.array_equal(variant.weights, scenario.weights)
     assert np.array_equal(variant.plant.A, scenario.plant.A)
@@ -375,11 +383,12 @@ def test_a_scenario_differing_in_one_sensor_gets_its_own_gains(scenario, fresh, 
                                                  strict=True)] == [True, False, True, True]
     own = design_for_scenario(variant)             # solved, not cached
     assert not np.array_equal(own.L[1], fresh.L[1])
-    _same(scenario_gains(scenario), fresh)         # the first scenario's entry
-    calls = []
-    real = design_for_scenario
+    key = gaincache.fingerprint(scenario, design_request(scenario))
+    (cache / f"{key}.npz").write_bytes(entries[0])  # the first scenario's (real) entry
+    _same(scenario_gains(scenario), fresh)
+    calls = []  # the variant's solve: its design above, counted
     monkeypatch.setattr("netsim.runner.design_for_scenario",
-                        lambda s: calls.append(s) or real(s))
+                        lambda s: calls.append(s) or own)
     with warnings.catch_warnings():
         warnings.simplefilter("error", gaincache.GainCacheWarning)
         got = scenario_gains(variant)              # not a hit on the other's entry

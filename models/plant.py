@@ -141,7 +141,7 @@ class LinearPlant:
     @property
     def noise_width(self) -> int:
         """Standard normals one step draws: n process noise, then sum m_i sensor noise."""
-        return self.n_states + sum(C.shape[0] for C in self.C)
+        return self.n_states + sum(map(len, self.C))  # len(C_i) = m_i
 
     def standard_noise(self, rng: np.random.Generator, steps: int,
                        out: np.ndarray | None = None) -> np.ndarray:

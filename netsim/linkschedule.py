@@ -119,8 +119,7 @@ class LinkSchedule:
         With delays at most D every message sent at s <= end - 1 - D has arrived and
         none sent after end - 1 has, so only the D rows of sending steps in between
         are compared, per group of trials with the same end (the same counts as the
-        whole (T, L, S) comparison). The arrays are read in their stored (S, L, T)
-        layout.
+        whole (T, L, S) comparison). The arrays are read as (S, L, T) views.
         """
         send = self.send_steps
         T, L, S = self.delay_steps.shape
@@ -385,13 +384,15 @@ def build_schedule(
     static = _static_schedule(delay_models, links, send_steps)
     if static is not None:
         return static
-    # stored (message, link, trial), the layout the engine's selection reads; the
-    # schedule's arrays are (T, L, S) views of it
+    # stored (trial, message, link): each trial's (messages, links) block lands in
+    # place, one contiguous write (the selection reads it as (S, L, T) through one
+    # transposing copy into bytes, :func:`_select_bounded`); the schedule's arrays
+    # are (T, L, S) views of it
     # whole-set integer step draws (asynchronous delays): kept as integers
     integer = all(getattr(m, "link", None) is None and hasattr(m, "draw_block")
                   and not m.time_invariant and m.unit == "steps" for m in delay_models)
-    stored = np.zeros((S, L, T), dtype=np.int32 if integer else float)
-    latency = stored.transpose(2, 1, 0)
+    stored = np.zeros((T, S, L), dtype=np.int32 if integer else float)
+    latency = stored.transpose(0, 2, 1)
     in_steps = np.zeros(L, dtype=bool)
     reasons: list[str] = []
     index: dict[str, int] = {}
@@ -413,7 +414,7 @@ def build_schedule(
         plain = getattr(model, "link", None) is None  # no per-link models to resolve
         if plain and hasattr(model, "draw_block") and not model.time_invariant:
             in_steps[:] = model.unit == "steps"
-            stored[:, :, t] = model.draw_block(links, send_steps)
+            stored[t] = model.draw_block(links, send_steps)
             continue
         for l_, (j, i) in enumerate(links):
             delays, configured = (model, None) if plain else resolve_link(model, j, i)
@@ -425,7 +426,7 @@ def build_schedule(
             if configured is not None:
                 configured_links.append((t, l_, configured))
         for delays, columns in blocks.values():
-            stored[:, columns, t] = delays.draw_block([links[c] for c in columns], send_steps)
+            stored[t][:, columns] = delays.draw_block([links[c] for c in columns], send_steps)
     # Link._stamp: a step delay d waits 1 + d periods; a latency l waits l / Ts and
     # counts as d = ceil(l / Ts) - 1 (at least 0)
     if integer and (not stored.size or stored.min() >= 0):
@@ -526,11 +527,11 @@ def _select_bounded(schedule: LinkSchedule, K: int) -> MessageSelection:
     :func:`_select_bounded_wide`, element for element.
     """
     T, L, S = schedule.delay_steps.shape
-    d = np.ascontiguousarray(schedule.delay_steps.transpose(2, 1, 0))  # (S, L, T)
-    D = int(d.max()) if d.size else 0
+    D = schedule.max_delay_steps
     if D >= 127:
         return _select_bounded_wide(schedule, K)
-    small = d.astype(np.uint8)  # (S, L, T), the delays in one byte
+    # (S, L, T), the delays in one byte: one transposing copy of the schedule's array
+    small = schedule.delay_steps.transpose(2, 1, 0).astype(np.uint8, order="C")
     chosen = np.empty((K + 1, L, T), dtype=np.int32)
     chosen[0] = -1  # nothing arrives before step 1
     stale = np.zeros((S, L, T), dtype=bool)

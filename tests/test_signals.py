@@ -14,6 +14,12 @@ import pytest
 from netsim.traces.reader import read_trace
 
 TIMEOUT = 180
+#: Steps per trial. The traced run replays its trials in batches of 2^24 values (about
+#: 700k trial-steps here, netsim.runner) and stops at the next batch: 4000 steps make
+#: 174-trial batches, so the 400 trials span three and the signal, sent while the first
+#: batch's traces are written, always lands before the end; the three traces read back
+#: cost 4000 steps each (20000 before: the reading was most of the test's time).
+STEPS = 4000
 
 
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
@@ -21,7 +27,7 @@ def test_a_signal_ends_a_traced_run_with_finished_traces(tmp_path, sig):
     trace = tmp_path / "t.mcap"
     proc = subprocess.Popen(
         [sys.executable, "-m", "netsim.cli", "run", "lcsys2022-heterogeneous", "--steps",
-         "20000", "--trials", "400", "--estimators", "compensated", "--trace", str(trace),
+         str(STEPS), "--trials", "400", "--estimators", "compensated", "--trace", str(trace),
          "--no-progress"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
         start_new_session=True, cwd=tmp_path)
     try:

@@ -28,7 +28,7 @@ import numpy as np
 
 from netsim.estimators.gains import GainDesign
 from netsim.models.augmented import (
-    DENSE_SIZE_THRESHOLD,
+    AUGMENTED_DENSE_SIZE_THRESHOLD,
     augmented_radius_and_method,
     augmented_spectral_radius,
     delay_bound_lcsys,
@@ -228,13 +228,14 @@ def radii_line(radii: dict[str, Any]) -> str:
 
 #: Seconds per ``D^3`` of a dense eigenvalue call (``D`` rows), and per row of a
 #: structured (ARPACK) call, plus a fixed cost per structured call; fitted (issue 34,
-#: 2026-12-02) to the CPU time of :func:`_exact_pair` per tau on lcsys2022-homogeneous
-#: (N = 4, n = 6, tau = 0..30: dense 0.04-0.10 s at D = 192-288, structured 0.02-0.12 s
-#: at D = 336-744) on the 2-core development machine (single-threaded BLAS); only
-#: used to decide whether :func:`analyze` starts worker processes.
+#: 2026-12-02) to the CPU time of one augmented radius on lcsys2022-homogeneous (N = 4,
+#: n = 6: dense 3-10 ms at D = 72-120; structured, ARPACK on M^48 with 40 Krylov
+#: vectors, 10-16 ms at D = 144-312 and 30-90 ms at D = 744) on the 2-core development
+#: machine (single-threaded BLAS); only used to decide whether :func:`analyze` starts
+#: worker processes.
 DENSE_SECONDS_PER_CUBE = 2.5e-9
-STRUCTURED_SECONDS_PER_ROW = 8.0e-5
-STRUCTURED_SECONDS_PER_CALL = 0.0
+STRUCTURED_SECONDS_PER_ROW = 6.0e-5
+STRUCTURED_SECONDS_PER_CALL = 0.008
 #: ``analyze(workers=None)`` runs serially below this many estimated serial seconds
 #: (:func:`analysis_seconds`). Measured on the 2-core machine, lcsys2022-homogeneous
 #: (about 2 s of serial work): two workers took 3.2-3.4 s wall and 2.3-2.6 s CPU, the
@@ -247,13 +248,13 @@ def analysis_seconds(n_agents: int, n: int, depths: Sequence[int]) -> float:
     """Estimated serial seconds of :func:`_exact_pair` over delay depths ``depths``.
 
     Two augmented spectral radii (dimension ``D = N n (depth + 1)``) per depth: dense
-    (``D^3``) up to :data:`netsim.models.augmented.DENSE_SIZE_THRESHOLD`, structured
+    (``D^3``) up to :data:`netsim.models.augmented.AUGMENTED_DENSE_SIZE_THRESHOLD`, structured
     (linear in ``D``) above. A rough model, used only to choose serial or parallel.
     """
     total = 0.0
     for depth in depths:
         D = n_agents * n * (int(depth) + 1)
-        if D <= DENSE_SIZE_THRESHOLD:
+        if D <= AUGMENTED_DENSE_SIZE_THRESHOLD:
             total += 2 * DENSE_SECONDS_PER_CUBE * float(D) ** 3
         else:
             total += 2 * (STRUCTURED_SECONDS_PER_CALL + STRUCTURED_SECONDS_PER_ROW * D)
@@ -358,7 +359,7 @@ def analyze(
     # each worker holds one augmented problem at a time: as many as fit in memory
     memory, _ = budget.analysis_cost(n, N, todo_depths or [0])
     fit = max(1, int(budget.memory_limit()[0] // max(memory, 1.0)))
-    if todo and N * n * (max(todo_depths) + 1) > DENSE_SIZE_THRESHOLD:  # ARPACK:
+    if todo and N * n * (max(todo_depths) + 1) > AUGMENTED_DENSE_SIZE_THRESHOLD:  # ARPACK:
         # load it here, before ordered_map may fork workers that would each import
         # it again (0.2-0.35 s of CPU apiece)
         import scipy.sparse.csgraph  # noqa: F401

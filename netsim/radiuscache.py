@@ -111,7 +111,8 @@ def _parameters() -> str:
 
     names = ("DENSE_SIZE_THRESHOLD", "DENSE_FALLBACK_MAX", "ARPACK_K", "ARPACK_TOL",
              "ARPACK_MAXITER", "ARPACK_NCV", "ARPACK_RETRIES", "ARPACK_BASIS_BYTES",
-             "ARPACK_POWER", "AUGMENTED_ARPACK_POWER")
+             "ARPACK_POWER", "AUGMENTED_ARPACK_POWER", "AUGMENTED_ARPACK_NCV",
+             "AUGMENTED_DENSE_SIZE_THRESHOLD")
     return ";".join(f"{name}={getattr(aug, name, None)!r}" for name in names)
 
 

@@ -450,8 +450,10 @@ def test_structured_spectral_radius_matches_dense(seed, N, n, tau, kw, compensat
         P, A, C, L, delays, tau, compensated, method="structured"
     )
     assert abs(structured - dense) <= 1e-8
-    # below the threshold, auto is the dense computation
-    assert augmented_spectral_radius(P, A, C, L, delays, tau, compensated) == dense
+    # below the threshold, auto is the dense computation; above it, the structured one
+    auto = augmented_spectral_radius(P, A, C, L, delays, tau, compensated)
+    small = N * n * (tau + 1) <= aug.AUGMENTED_DENSE_SIZE_THRESHOLD
+    assert auto == (dense if small else structured)
     # padding with unused delay slots changes nothing
     padded = augmented_spectral_radius(
         P, A, C, L, delays, tau + 2, compensated, method="structured"
@@ -556,13 +558,15 @@ def test_structured_failure_is_never_silent(monkeypatch):
 
 
 def test_structured_above_threshold_uses_arpack(monkeypatch):
-    """``auto`` switches to the structured method above DENSE_SIZE_THRESHOLD."""
+    """``auto`` switches to the structured method above DENSE_SIZE_THRESHOLD (the
+    augmented closed loop: above AUGMENTED_DENSE_SIZE_THRESHOLD)."""
     P, A, C, L, delays = random_instance(1, 6, 4, 3)
     dense = augmented_spectral_radius(P, A, C, L, delays, method="dense")
     calls = []
     original = aug._companion_rho
     monkeypatch.setattr(aug, "_companion_rho", lambda *a: calls.append(1) or original(*a))
     monkeypatch.setattr(aug, "DENSE_SIZE_THRESHOLD", 10)
+    monkeypatch.setattr(aug, "AUGMENTED_DENSE_SIZE_THRESHOLD", 10)
     assert augmented_spectral_radius(P, A, C, L, delays) == pytest.approx(dense, abs=1e-8)
     assert delay_free_spectral_radius(P, A, C, L) == pytest.approx(
         spectral_radius(delay_free_closed_loop(P, A, C, L)), abs=1e-8

@@ -64,7 +64,7 @@ def _sources(report):
 
 def test_cached_radii_are_the_recomputed_ones_bit_for_bit(scenario, gains, folder,
                                                           monkeypatch):
-    monkeypatch.setattr(aug, "DENSE_SIZE_THRESHOLD", 100)
+    monkeypatch.setattr(aug, "AUGMENTED_DENSE_SIZE_THRESHOLD", 100)
     cold = analyze(scenario, gains, TAU_MAX)
     assert _sources(cold) == {"dense eigenvalues", "ARPACK"}
     assert cold.radii["cached"] == {} and cold.radii["cache"] == str(folder)

@@ -74,13 +74,16 @@ def test_a_warm_analyze_loads_no_unused_module():
 
 
 def test_an_analysis_without_arpack_does_not_import_it(monkeypatch):
-    """Radii computed now, all by dense eigenvalues (tau = 0..11: at most 288 rows):
-    scipy.sparse is not imported; at tau = 12 (312 rows) ARPACK is."""
+    """Radii computed now, all by dense eigenvalues (N n (tau + 1) rows up to
+    AUGMENTED_DENSE_SIZE_THRESHOLD): scipy.sparse is not imported; one more tau, by
+    ARPACK, imports it."""
     monkeypatch.setenv("NETSIM_RADIUS_CACHE", "off")
-    argv = ["analyze", "lcsys2022-homogeneous", "--tau-max", "11", "--no-progress"]
+    last_dense = aug.AUGMENTED_DENSE_SIZE_THRESHOLD // 24 - 1  # N n = 24
+    argv = ["analyze", "lcsys2022-homogeneous", "--tau-max", str(last_dense),
+            "--no-progress"]
     _loaded(argv, ())  # warms the gain cache
     assert _loaded(argv, ("scipy.sparse",)) == []
-    argv[3] = "12"
+    argv[3] = str(last_dense + 1)
     assert _loaded(argv, ("scipy.sparse",)) == ["scipy.sparse"]
 
 

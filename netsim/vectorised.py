@@ -225,6 +225,32 @@ class _Outputs:
                 return False
         return True
 
+    def record_chunk(self, k0: int, sums: np.ndarray, estimates: np.ndarray | None,
+                     states: np.ndarray) -> bool:
+        """Record steps k0, k0 + 1, ... from their squared errors ``sums`` (c, N, T) and
+        (when recorded) estimates held state-major, (c, n, N, T); ``states`` (c, n, T).
+
+        The same as :meth:`record_errors` step by step; False when all trials have
+        diverged (the steps after that are not recorded).
+        """
+        c = len(sums)
+        if self.all_alive:
+            sq = self.sq[k0:k0 + c]
+            np.copyto(sq, sums.transpose(0, 2, 1))
+            worst = sq.max(initial=0.0)
+            if worst <= self.threshold_sq and worst < np.inf:
+                if self.estimates is not None and estimates is not None:
+                    self.estimates[k0:k0 + c] = estimates.transpose(0, 3, 2, 1)
+                return True
+            sq[...] = np.nan  # recorded again step by step below
+        for q in range(c):
+            if not self.record_errors(
+                    k0 + q, sums[q].T,
+                    None if estimates is None else estimates[q].transpose(2, 1, 0),
+                    states[q].T):
+                return False
+        return True
+
     def record(self, k: int, estimates: np.ndarray, state: np.ndarray) -> bool:
         """Record step k (estimates (N, T, n), state (T, n)); False when all diverged."""
         err = estimates - state[None]
@@ -670,6 +696,169 @@ def _consensus_run_numba(scenario: Scenario, rule: LockstepRule, gains: GainDesi
     return outputs, np.arange(last + 1)
 
 
+def _sparse_into(indptr: np.ndarray, indices: np.ndarray, data: np.ndarray, columns: int,
+                 out: np.ndarray, use_scipy: bool) -> Callable[[np.ndarray], np.ndarray]:
+    """``product(x)`` writes the CSR matrix ``(data, indices, indptr)`` times x into
+    ``out`` (2-D), its entries summed in the order given (scipy's kernel, or the same
+    sums with numpy: the same bits)."""
+    if use_scipy:
+        import scipy.sparse as sp
+
+        matrix = sp.csr_matrix((data, indices, indptr), shape=(len(indptr) - 1, columns))
+        return _sparse_product_into(matrix, out)
+    return _csr_product_into((indptr, indices, data), out)
+
+
+def _uniform_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch, terms: _Terms,
+                 Cp: np.ndarray, Lp: np.ndarray, d: int, steps: int, record_estimates: bool,
+                 use_scipy: bool) -> tuple[_Outputs, np.ndarray]:
+    """:func:`_consensus_run` with one constant delay d on every link, a message every
+    step (not the block rule), the estimates held state-major, (n, N, T).
+
+    LCSYS2022 eq. (4) with one delay d,
+
+        x^i_{k|k-1} = p_ii A x^i_{k-1} + sum_j p_ij A^(d+1) x^j_{k-1-d}
+
+    (eq. 6: A in place of A^(d+1); before step d + 1 nothing has arrived and agent
+    i's own prediction stands in with the whole row's weight, DESIGN.md), then eq. (5),
+    x^i_{k|k} = x^i_{k|k-1} + L_i (y^i_k - C_i x^i_{k|k-1}). Every array is a stack of
+    rows of N T (or T) numbers, so each operation is one call over all agents and
+    trials:
+
+    * each estimate x(s) is multiplied once, when it is stored, by [A^(d+1); A], one
+      (2n x n) product into ring slot s (a dense product, or a sparse one over the
+      nonzero entries of A^(d+1) and A when at most half of them are nonzero);
+    * the prior is one sparse product over the whole ring, by the matrix of the
+      step's ring position: row (a, i) holds p_ij at component a of A^(d+1) x^j in
+      slot k-1-d (j in order), then p_ii at component a of A x^i in slot k-1;
+    * C_i x^i_{k|k-1} is one sparse product over the nonzero entries of the C_i;
+      the squared errors are whole-array operations a chunk of steps at a time.
+    """
+    plant = scenario.plant
+    A = plant.A
+    n = plant.n_states
+    K = int(steps)
+    T = batch.states.shape[1]
+    N = scenario.n_agents
+    E = len(terms.i)
+    lag = min(d + 1, K) if rule.compensate else 1
+    far = _powers(A, lag)[lag] if lag > 1 else A
+    depth = min(d, K) + 1  # slot k - 1 - d is slot k: read before step k writes it
+    # slots 0 .. depth-1: A^(d+1) x(s) at slot s % depth; slot depth: A x(k-1)
+    ring = np.zeros((depth + 1, n, N, T))
+    ring_rows = ring.reshape(-1, T)
+    m = Cp.shape[1]
+    prior = np.empty((n, N, T))
+    prior_rows = prior.reshape(n * N, T)
+    innovation_rows = np.empty((m * N, T))
+
+    def product_by(matrix: np.ndarray, out: np.ndarray) -> Callable[[np.ndarray], Any]:
+        # matrix (n x n) @ x (n x N T) into out: dense, or over the nonzero entries
+        # when at most half are nonzero (A's structural zeros)
+        nonzero = matrix != 0
+        if 2 * int(nonzero.sum()) > matrix.size:
+            return lambda x: np.matmul(matrix, x, out=out)
+        r_, c_ = np.nonzero(nonzero)
+        ptr = np.zeros(len(matrix) + 1, dtype=np.int64)
+        np.cumsum(np.bincount(r_, minlength=len(matrix)), out=ptr[1:])
+        return _sparse_into(ptr, c_.astype(np.int64), matrix[r_, c_], matrix.shape[1], out,
+                            use_scipy)
+
+    far_into = [product_by(far, ring[q].reshape(n, N * T)) for q in range(depth)]
+    near_into = product_by(A, ring[depth].reshape(n, N * T))
+
+    # the prior: the sparse matrix of each ring position q = k % depth (steps k > d),
+    # row (a, i): the terms of receiver i (senders in order), then its own term
+    order = np.lexsort((np.r_[np.zeros(E), np.ones(N)], np.r_[terms.i, np.arange(N)]))
+    sender = np.r_[terms.j, np.arange(N)][order]
+    own = np.r_[np.zeros(E, dtype=bool), np.ones(N, dtype=bool)][order]
+    weight = np.r_[terms.weight, terms.diagonal][order]
+    indptr = np.zeros(n * N + 1, dtype=np.int64)
+    np.cumsum(np.tile(np.bincount(terms.i, minlength=N) + 1, n), out=indptr[1:])
+    component = np.repeat(np.arange(n, dtype=np.int64) * N, len(sender))
+    data = np.tile(weight, n)
+    prior_at = []
+    for q in range(depth if d < K else 0):
+        base = np.where(own, depth * n * N, (q - 1 - d) % depth * n * N) + sender
+        prior_at.append(_sparse_into(indptr, component + np.tile(base, n), data,
+                                     len(ring_rows), prior_rows, use_scipy))
+    # before anything arrives: the whole row's weight on the own prediction
+    if use_scipy:
+        row_sum = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1)
+    else:
+        dense = scenario.dense_weights()
+        nz_rows, nz_cols = np.nonzero(dense)
+        row_sum = _csr_row_sums(_csr_parts(dense[nz_rows, nz_cols], nz_rows, nz_cols, N)[0],
+                                dense[nz_rows, nz_cols]).reshape(N, 1)
+
+    # eq. (5): row (o, i) of C x is sum_a C_i[o, a] x^i[a] (the nonzero entries)
+    i_, o_, a_ = np.nonzero(Cp)
+    c_order = np.lexsort((a_, i_, o_))
+    i_, o_, a_ = i_[c_order], o_[c_order], a_[c_order]
+    c_ptr = np.zeros(m * N + 1, dtype=np.int64)
+    np.cumsum(np.bincount(o_ * N + i_, minlength=m * N), out=c_ptr[1:])
+    output_of = _sparse_into(c_ptr, (a_ * N + i_).astype(np.int64), Cp[i_, o_, a_], n * N,
+                             innovation_rows, use_scipy)
+    innovation = innovation_rows.reshape(m, N, T)
+    # L_i[:, o] repeated over the trials, (n, N, T): a product of whole rows (half the
+    # time of broadcasting an (n, N, 1) column over rows of T)
+    gain = [np.ascontiguousarray(np.broadcast_to(Lp[:, :, o].T[:, :, None], (n, N, T)))
+            for o in range(m)]
+    correction = np.empty((n, N, T)) if m > 1 else None
+    x = np.empty((n, N, T))
+    errors = np.empty((n, N, T))
+    Y = _agent_measurements(batch, m)  # (K+1, N, T, m)
+    states = np.ascontiguousarray(batch.states.transpose(0, 2, 1))  # (K+1, n, T)
+    x0 = np.broadcast_to(np.asarray(plant.x0_mean, dtype=float)[:, None, None], (n, N, T))
+    outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
+    # each step's squared errors are computed while its estimates are in cache, and
+    # recorded (with the divergence test) a chunk of steps at a time; the estimates are
+    # kept for the chunk only when they are recorded
+    chunk_steps = max(1, min(32, 100_000 // max(1, N * T)))
+    sums = np.empty((chunk_steps, N, T))
+    kept = np.empty((chunk_steps, n, N, T)) if record_estimates else None
+    chunk_start = 0
+    last = K
+    with np.errstate(all="ignore"):
+        for k in range(K + 1):
+            if k:
+                interrupt.check()  # a requested Ctrl-C stops here, between steps
+            if k == 0:
+                np.copyto(prior, x0)
+            elif k <= d:
+                np.multiply(row_sum, ring[depth], out=prior)
+            else:
+                prior_at[k % depth](ring_rows)
+            output_of(prior_rows)  # C_i x^i_{k|k-1}
+            for o in range(m):
+                # y - C_i x^i_{k|k-1}, then x = prior + sum_o L_i[:, o] (y - C_i prior)
+                np.subtract(Y[k, :, :, o], innovation[o], out=innovation[o])
+                if o == 0:
+                    np.multiply(gain[0], innovation[0], out=x)
+                else:
+                    np.multiply(gain[o], innovation[o], out=correction)
+                    x += correction
+            x += prior
+            np.subtract(x, states[k][:, None, :], out=errors)
+            rows = x.reshape(n, N * T)
+            far_into[k % depth](rows)
+            near_into(rows)
+            # ||x^i_k - x_k||^2, the components summed in order
+            np.square(errors, out=errors)
+            np.add.reduce(errors, axis=0, out=sums[k - chunk_start])
+            if kept is not None:
+                np.copyto(kept[k - chunk_start], x)
+            if k + 1 - chunk_start == chunk_steps or k == K:
+                c = k + 1 - chunk_start
+                if not outputs.record_chunk(chunk_start, sums[:c],
+                                            None if kept is None else kept[:c],
+                                            states[chunk_start:k + 1]):
+                    last = k
+                    break
+                chunk_start = k + 1
+    return outputs, np.arange(last + 1)
+
+
 def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
                    batch: PlantBatch, schedule: LinkSchedule, selection: MessageSelection,
                    steps: int, record_estimates: bool, kernel: str = "numpy"
@@ -726,6 +915,10 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     if kernel == "numba" and not rule.block:
         return _consensus_run_numba(scenario, rule, gains, batch, selection,
                                     schedule.send_steps, terms, steps, record_estimates)
+    if (not rule.block and selection.uniform_delay is not None
+            and not np.any(terms.link < 0)):
+        return _uniform_run(scenario, rule, batch, terms, Cp, Lp, selection.uniform_delay,
+                            K, record_estimates, use_scipy)
     E = len(terms.i)
     own_weight = terms.diagonal.copy()
     block = rule.block

@@ -62,6 +62,7 @@ ROOT = os.path.dirname(HERE)
 GOALS: dict[str, str] = {
     "startup-run": "startup",
     "startup-analyze": "startup",
+    "startup-analyze-cold": "startup",
     "engine-numpy-anchor": "engine",
     "engine-numba-loop": "engine",
     "engine-floor": "engine",
@@ -183,6 +184,11 @@ def part_startup(repeat: int, wanted: set[str]) -> tuple[dict[str, Any], list[Ro
             rows.append(Row(goal_id, text, "", anchor, f"{cpu[name]:.3f} s CPU",
                             x(ratio[name]), f"<= {limit:g}x", ratio[name] <= limit, command,
                             ratio[name]))
+    if "startup-analyze-cold" in wanted and "analyze-cold" in cpu:  # no goal: a reference
+        rows.append(Row("startup-analyze-cold", "the same analyze with its 62 exact radii "
+                        "computed now (NETSIM_RADIUS_CACHE=off), CPU", "", anchor,
+                        f"{cpu['analyze-cold']:.3f} s CPU", x(ratio["analyze-cold"]), "-",
+                        None, command, ratio["analyze-cold"]))
     return data, rows
 
 

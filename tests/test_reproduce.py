@@ -31,6 +31,7 @@ import pytest
 import scipy.linalg as sla
 
 from netsim.cli import main
+from netsim.papers._dkfe_readings import EQ94_EVALUATIONS, EQ94_QUICK_MIN
 from netsim.reproduce import ITEMS, PAPERS, items_for
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -308,3 +309,55 @@ def test_baselines_experiment_has_every_family_and_the_optimum(reproduced):
         if r["family"] == "centralized-kf":
             assert float(r["last_trusted_mse"]) == pytest.approx(_centralised_kf_trace(),
                                                                  rel=0.25)
+
+
+# -- a quick run (--trials below the default) does a share of the dkfe issue-31 work -------
+
+
+def test_quick_share_and_the_full_computation_at_the_default_trials(monkeypatch):
+    """The arguments the computations get: the full ones (as ``netsim claims``) at the
+    default trials and above, a share below; recorded, not run."""
+    from types import SimpleNamespace
+
+    import netsim.models.dkfe as dk
+
+    from netsim.papers import _dkfe_readings as rd
+    from netsim.reproduce.report import DEFAULT_TRIALS
+
+    assert rd.quick_fraction(None) == rd.quick_fraction(DEFAULT_TRIALS) == 1.0
+    assert rd.quick_fraction(10 * DEFAULT_TRIALS) == 1.0
+    assert rd.quick_fraction(DEFAULT_TRIALS // 4) == 0.25
+    seen = []
+    stub = SimpleNamespace(to_dict=lambda: {"rows": []})
+    monkeypatch.setattr(dk, "eq94_readings", lambda **kw: seen.append(kw) or stub)
+    monkeypatch.setattr("netsim.fusion.eq94_transient", lambda: [])
+    rd._computed.cache_clear()
+    try:
+        for trials in (None, DEFAULT_TRIALS, 4 * DEFAULT_TRIALS, DEFAULT_TRIALS // 2, 1):
+            data = rd.compute("eq94", 0, trials)
+            assert ("quick" in data) == (trials is not None and trials < DEFAULT_TRIALS)
+    finally:
+        rd._computed.cache_clear()
+    # None, the default and 4x share one full computation; half and one trial: a share
+    assert seen == [{"search_evaluations": rd.EQ94_EVALUATIONS},
+                    {"search_evaluations": rd.EQ94_EVALUATIONS // 2},
+                    {"search_evaluations": rd.EQ94_QUICK_MIN}]
+
+
+def test_quick_run_solves_the_lmis_next_to_the_boundary_and_says_so(reproduced):
+    """At 4 trials: every cell keeps its exact radius; (71)-(72) are solved on both sides
+    of radius 1 and agree with it; the report names the quick share."""
+    data = json.loads((reproduced / "dkfe-gamma-delay.json").read_text())
+    g, s = data["example1"], data["example2"]
+    assert "quick" in g and "quick" in s
+    assert len(g["cells"]) == len(g["gammas"]) * len(g["delays"])
+    solved = [c for c in g["cells"] if c["lmi71_72"] is not None]
+    assert {c["radius"] < 1 for c in solved} == {True, False}
+    assert all(c["lmi71_72"] == (c["radius"] < 1) for c in solved)
+    for sink, largest in enumerate(s["largest_feasible_delay"], start=1):
+        rows = {r["d"]: r for r in s["rows"] if r["sink"] == sink}
+        assert len(rows) == len(s["delays"])
+        assert rows[largest]["lmi71_72"] is True and rows[largest + 1]["lmi71_72"] is False
+    eq94 = json.loads((reproduced / "dkfe-eq94-readings.json").read_text())
+    assert f"ran {EQ94_QUICK_MIN} of {EQ94_EVALUATIONS} evaluations" in eq94["quick"]
+    assert (reproduced / "report.md").read_text().count("Quick run (4 trials)") == 3

@@ -9,6 +9,15 @@ The computations are :func:`netsim.models.dkfe.eq94_readings`,
 once per ``netsim claims`` (as the job ``dkfe-issue31:NAME``, in a worker process) and
 once per ``netsim reproduce`` (cached in the build context). Their results are the
 JSON-safe ``to_dict()`` forms.
+
+A ``netsim reproduce`` run with fewer ``--trials`` than its default (a quick look,
+:func:`quick_fraction` < 1) does less of the two costly ones, with the same rows and
+columns: the (94) marginal search gets that fraction of its :data:`EQ94_EVALUATIONS`
+(at least :data:`EQ94_QUICK_MIN`), and (71)-(72) are solved only at the cells next to
+the radius-1 boundary (Example 1: per d_1 the feasible cell of largest radius and the
+infeasible one of smallest; Example 2: per sink the largest feasible delay and the next),
+the other cells' ``lmi71_72`` being None (not solved). At the default trials or more,
+and under ``netsim claims``, the computations are the full ones, bit for bit.
 """
 
 from __future__ import annotations
@@ -22,9 +31,18 @@ import numpy as np
 
 from netsim.claims.checks import rounded
 from netsim.claims.core import PROVED, REFUTED, Context, Outcome
-from netsim.reproduce.items import BuildContext, ItemResult, figure, fmt, write_csv, write_json
+from netsim.reproduce.items import (
+    REPRODUCE_TRIALS,
+    BuildContext,
+    ItemResult,
+    figure,
+    fmt,
+    write_csv,
+    write_json,
+)
 
-__all__ = ["JOB", "JOB_NAMES", "compute", "job", "check_eq94_readings",
+__all__ = ["JOB", "JOB_NAMES", "EQ94_EVALUATIONS", "EQ94_QUICK_MIN", "quick_fraction",
+           "compute", "job", "check_eq94_readings",
            "check_theorem2_delays", "check_theorem4", "check_remark1",
            "build_eq94_readings", "build_gamma_delay", "build_dimension",
            "build_theorem4", "build_remark1"]
@@ -32,25 +50,69 @@ __all__ = ["JOB", "JOB_NAMES", "compute", "job", "check_eq94_readings",
 #: The job prefix (``Paper.jobs``) and its arguments.
 JOB = "dkfe-issue31"
 JOB_NAMES = ("eq94", "gamma", "sinks", "dimension", "theorem4", "remark1")
+#: Evaluations of the (94) search for the closest categorical law with the printed
+#: marginals (92), in a full run.
+EQ94_EVALUATIONS = 40
+#: The fewest evaluations of that search in a quick run.
+EQ94_QUICK_MIN = 4
 
 
-def _eq94() -> dict[str, Any]:
+def quick_fraction(trials: int | None) -> float:
+    """The share of the full work a ``netsim reproduce`` run with ``trials`` does: 1 for
+    None (``netsim claims``) and from the default trials
+    (:data:`netsim.reproduce.report.DEFAULT_TRIALS`) on, else trials / default."""
+    from netsim.reproduce.report import DEFAULT_TRIALS
+
+    if trials is None or trials >= DEFAULT_TRIALS:
+        return 1.0
+    return max(int(trials), 1) / DEFAULT_TRIALS
+
+
+def _eq94(evaluations: int = EQ94_EVALUATIONS) -> dict[str, Any]:
     from netsim.fusion import eq94_transient
     from netsim.models.dkfe import eq94_readings
 
-    return {**eq94_readings(search_evaluations=40).to_dict(), "transient": eq94_transient()}
+    out = {**eq94_readings(search_evaluations=evaluations).to_dict(),
+           "transient": eq94_transient()}
+    if evaluations != EQ94_EVALUATIONS:
+        out["quick"] = f"the marginal search ran {evaluations} of {EQ94_EVALUATIONS} evaluations"
+    return out
 
 
-def _gamma() -> dict[str, Any]:
+def _gamma(quick: bool = False) -> dict[str, Any]:
+    from dataclasses import replace
+
     from netsim.models.dkfe import gamma_delay_table
 
-    return gamma_delay_table(lmi75=False).to_dict()
+    if not quick:
+        return gamma_delay_table(lmi75=False).to_dict()
+    table = gamma_delay_table(lmis=False)
+    for d in table.delays:  # the cells on either side of radius 1, solved
+        cells = [c for c in table.cells if c.d == d]
+        inside = [c for c in cells if c.radius < 1.0]
+        outside = [c for c in cells if not c.radius < 1.0]
+        for c in ([max(inside, key=lambda c: c.radius)] if inside else []) + (
+                [min(outside, key=lambda c: c.radius)] if outside else []):
+            (solved,) = gamma_delay_table((c.gamma,), (d,), resolution=1, lmi75=False).cells
+            table.cells[table.cells.index(c)] = replace(c, lmi71_72=solved.lmi71_72,
+                                                        status=solved.status)
+    return {**table.to_dict(), "quick": "(71)-(72) solved at the cells next to radius 1"}
 
 
-def _sinks() -> dict[str, Any]:
+def _sinks(quick: bool = False) -> dict[str, Any]:
     from netsim.models.dkfe import sink_delay_table
 
-    return sink_delay_table().to_dict()
+    if not quick:
+        return sink_delay_table().to_dict()
+    table = sink_delay_table(lmis=False)
+    edges = sorted({e for v in table.largest_delay
+                    for e in ((0,) if v is None else (v, v + 1)) if e in table.delays})
+    solved = {(r["sink"], r["d"]): r["lmi71_72"]
+              for r in sink_delay_table(delays=edges, lmis=True).rows}
+    for r in table.rows:
+        r["lmi71_72"] = solved.get((r["sink"], r["d"]))
+    return {**table.to_dict(),
+            "quick": "(71)-(72) solved at each sink's largest feasible delay and the next"}
 
 
 def _dimension() -> dict[str, Any]:
@@ -75,33 +137,38 @@ def _remark1(seed: int) -> dict[str, Any]:
     return remark1_check(seed=seed).to_dict()
 
 
-_COMPUTE: dict[str, Callable[[int], dict[str, Any]]] = {
-    "eq94": lambda seed: _eq94(),
-    "gamma": lambda seed: _gamma(),
-    "sinks": lambda seed: _sinks(),
-    "dimension": lambda seed: _dimension(),
-    "theorem4": lambda seed: _theorem4(),
-    "remark1": _remark1,
+_COMPUTE: dict[str, Callable[[int, float], dict[str, Any]]] = {
+    "eq94": lambda seed, share: _eq94(
+        EQ94_EVALUATIONS if share >= 1 else
+        max(EQ94_QUICK_MIN, min(EQ94_EVALUATIONS, int(EQ94_EVALUATIONS * share)))),
+    "gamma": lambda seed, share: _gamma(share < 1),
+    "sinks": lambda seed, share: _sinks(share < 1),
+    "dimension": lambda seed, share: _dimension(),
+    "theorem4": lambda seed, share: _theorem4(),
+    "remark1": lambda seed, share: _remark1(seed),
 }
 
 
 @functools.lru_cache(maxsize=16)
-def _computed(name: str, seed: int) -> str:
+def _computed(name: str, seed: int, share: float) -> str:
     from netsim.threads import single_threaded_blas
 
     with single_threaded_blas():
-        return json.dumps(_COMPUTE[name](seed))
+        return json.dumps(_COMPUTE[name](seed, share))
 
 
-def compute(name: str, seed: int = 0) -> dict[str, Any]:
+def compute(name: str, seed: int = 0, trials: int | None = None) -> dict[str, Any]:
     """The result of ``name`` (one of :data:`JOB_NAMES`); only Remark 1 uses ``seed``.
 
-    Computed once per process and seed (``netsim reproduce`` builds the items and checks
-    their claims from the same result); each call returns a fresh copy.
+    ``trials``: the ``netsim reproduce`` run's trials (None: the full computation; below
+    the default a quick one, see the module docstring). Computed once per process, seed
+    and quick share (``netsim reproduce`` builds the items and checks their claims from
+    the same result); each call returns a fresh copy.
     """
     if name not in _COMPUTE:
         raise KeyError(f"unknown computation {name!r}; choose from {list(JOB_NAMES)}")
-    return dict(json.loads(_computed(name, int(seed))))
+    share = quick_fraction(trials) if name in ("eq94", "gamma", "sinks") else 1.0
+    return dict(json.loads(_computed(name, int(seed), share)))
 
 
 def job(argument: str, seed: int) -> dict[str, Any]:
@@ -110,11 +177,12 @@ def job(argument: str, seed: int) -> dict[str, Any]:
 
 
 def _claims_data(context: Context, name: str) -> dict[str, Any]:
-    return context.cached(f"{JOB}:{name}", lambda: compute(name, context.seed))
+    trials = context.cache.get(REPRODUCE_TRIALS)  # set by netsim reproduce only
+    return context.cached(f"{JOB}:{name}", lambda: compute(name, context.seed, trials))
 
 
 def _build_data(ctx: BuildContext, name: str) -> dict[str, Any]:
-    return ctx.cached(f"{JOB}:{name}", lambda: compute(name, ctx.seed))
+    return ctx.cached(f"{JOB}:{name}", lambda: compute(name, ctx.seed, ctx.trials))
 
 
 # -- (94) ------------------------------------------------------------------------------
@@ -219,6 +287,8 @@ def build_eq94_readings(ctx: BuildContext) -> ItemResult:
             f"{d['match_tolerance']} and at least {d['match_exact_entries']} of the 16 entries "
             "of Omega_1 agree to 4 decimals; labellings tried: as printed, transposed, sinks "
             "swapped, both."]
+    if "quick" in d:
+        ours.append(f"Quick run ({ctx.trials} trials): {d['quick']}.")
     return ItemResult(fig, files, ours, numbers={"matching": d["matching"],
                                                  "closest": d["closest"]})
 
@@ -327,6 +397,7 @@ def build_gamma_delay(ctx: BuildContext) -> ItemResult:
             "is below 1 where they fail at " + (", ".join(c77_only) or "no delay")
             + ": (77) alone does not decide convergence.",
             f"LMI verdicts agree with the exact radius: {g['lmi_agrees_with_radius']}."]
+    ours += [f"Quick run ({ctx.trials} trials): {x['quick']}." for x in (g, s) if "quick" in x]
     return ItemResult(fig, files, ours, numbers={
         "intervals": g["feasible_gamma_intervals"],
         "largest_feasible_delay": s["largest_feasible_delay"]})

@@ -30,7 +30,13 @@ if TYPE_CHECKING:
 
 __all__ = ["PAPERS", "PAPER_TITLES", "Item", "ItemResult", "BuildContext",  # noqa: F822
            "ITEMS", "items", "items_for", "write_csv", "write_json", "fmt", "figure",
-           "positive", "bench_data", "bench_curves", "bench_files", "mse_axes"]
+           "positive", "bench_data", "bench_curves", "bench_files", "mse_axes",
+           "REPRODUCE_TRIALS"]
+
+#: Key of the run's ``--trials`` in the claims context's cache while ``netsim reproduce``
+#: checks its items' claims (absent under ``netsim claims``): a check whose computation is
+#: shared with an item reads it to compute what the item computes (the same quick share).
+REPRODUCE_TRIALS = "reproduce:trials"
 
 
 def __getattr__(name: str) -> Any:

@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from netsim.reproduce.items import BuildContext, Item, items_for
+from netsim.reproduce.items import REPRODUCE_TRIALS, BuildContext, Item, items_for
 
 __all__ = ["ClaimVerdict", "ItemReport", "ReproduceResult", "claim_verdicts", "output_names",
            "reproduce",
@@ -284,6 +284,7 @@ def reproduce(papers: Sequence[str] | None = None, *, out: str | Path = "reprodu
     ctx = BuildContext(folder, int(trials), int(seed), int(workers))
     claim_ctx = Context(seed=int(seed), budget=None if claim_budget is None
                         else float(claim_budget), out=None)
+    claim_ctx.cache[REPRODUCE_TRIALS] = int(trials)
     checks: dict[str, Any] = {}
     start, cpu0 = time.perf_counter(), _cpu()
     _run_claim_searches(chosen, claim_ctx, int(workers))

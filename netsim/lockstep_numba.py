@@ -89,7 +89,8 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
     uT = np.uint64(T)
     unT = np.uint64(n * T)
     used = np.zeros(R + 1, dtype=np.bool_)
-    lag = np.empty(T, dtype=np.int64)
+    src_at = np.empty(T, dtype=np.uint64)  # a term's source offset per trial
+    dst_at = np.empty(T, dtype=np.uint64)  # and the offset of its lag's sum
     # the rows one blocked sum adds: offsets into rf (uniform terms) or af (lags)
     rows = np.empty(max(N, (R + 1) * n), dtype=np.uint64)
     coef = np.empty(max(N, (R + 1) * n))
@@ -144,45 +145,32 @@ def consensus_chunk(k0, k1, ring, ring_flat, powers, own_weight, term_ptr, term_
                             continue
                         j = term_j[e]
                         w = term_w[e]
-                        # a message of its own per trial: lag k - s per trial (0:
-                        # none, the own prediction), then one masked pass per lag in
-                        # use, in which every trial reads the same slot s = k - r
-                        none = False
+                        # a message of its own per trial, of lag r = k - s (none:
+                        # the own prediction x^i(k-1) stands in, in the lag-1 sum):
+                        # per trial the offsets of its source row and of the sum of
+                        # its lag, then ONE pass in which every trial adds its message
+                        # to that sum (accumulators are zeroed when first used; each
+                        # sum still adds the terms in term order)
                         for t in range(T):
                             q = chosen[k, link, t]
                             if q < 0:
-                                lag[t] = 0
-                                none = True
+                                src_at[t] = own + np.uint64(t)
+                                dst_at[t] = unT + np.uint64(t)
                             else:
-                                lag[t] = k - send[q]
-                        if none:
-                            for a in range(n):
-                                dst = unT + np.uint64(a) * uT
-                                src = own + np.uint64(a) * uT
-                                for t in range(uT):
-                                    if lag[t] == 0:
-                                        af[dst + t] += w * rf[src + t]
-                        for r in range(1, depth):
-                            present = False
+                                r = k - send[q]
+                                ra = r if compensate else 1
+                                if not used[ra]:
+                                    used[ra] = True
+                                    dst = np.uint64(ra) * unT
+                                    for u in range(unT):
+                                        af[dst + u] = 0.0
+                                src_at[t] = (np.uint64(((k - r) % depth) * N + j) * unT
+                                             + np.uint64(t))
+                                dst_at[t] = np.uint64(ra) * unT + np.uint64(t)
+                        for a in range(n):
+                            pa = np.uint64(a) * uT
                             for t in range(T):
-                                if lag[t] == r:
-                                    present = True
-                                    break
-                            if not present:
-                                continue
-                            ra = r if compensate else 1
-                            if not used[ra]:
-                                used[ra] = True
-                                dst = np.uint64(ra) * unT
-                                for u in range(unT):
-                                    af[dst + u] = 0.0
-                            base = np.uint64(((k - r) % depth) * N + j) * unT
-                            for a in range(n):
-                                dst = np.uint64(ra) * unT + np.uint64(a) * uT
-                                src = base + np.uint64(a) * uT
-                                for t in range(uT):
-                                    if lag[t] == r:
-                                        af[dst + t] += w * rf[src + t]
+                                af[dst_at[t] + pa] += w * rf[src_at[t] + pa]
                 # prior row a = sum over the lags r in use and b of A^r[a, b] acc[r, b]
                 for a in range(n):
                     count = 0

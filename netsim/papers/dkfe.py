@@ -42,6 +42,8 @@ from netsim.papers._dkfe_figures import (
     build_fig8,
     build_fig34,
     build_table1,
+    example2_data,
+    table1_data,
 )
 from netsim.papers._dkfe_readings import (
     JOB,
@@ -188,9 +190,7 @@ def fusion_report(seed: int, scale: float = 1.0, trials: int = 20) -> dict[str, 
 
 
 def _table1(context: Context) -> list[dict[str, Any]]:
-    from netsim.models.dkfe import table1_rows
-
-    return context.cached("table1", table1_rows)
+    return context.cached("table1", table1_data)
 
 
 def check_dkfe_table1(context: Context) -> Outcome:
@@ -242,9 +242,7 @@ def check_dkfe_77(context: Context) -> Outcome:
 
 
 def _example2(context: Context) -> dict[str, Any]:
-    from netsim.fusion import example2
-
-    return context.cached("example2", lambda: example2(json=True)[0])
+    return context.cached("example2", lambda: example2_data()[0])
 
 
 def _table1_data(context: Context) -> dict[str, Any]:

@@ -40,9 +40,9 @@ def add_reproduce_parser(subparsers: Any) -> argparse.ArgumentParser:
             "for each item our figure, the paper's caption and statement, where our "
             "system differs from the paper's, and the verdicts of the claims it bears on "
             "(netsim claims). The default run takes a few minutes on 2 cores; --trials "
-            "trades time for precision (below the default, a quick look: the dkfe (94) "
-            "search and the (71)-(72) LMIs against the delay also do that share of their "
-            "work, and the report says so)."),
+            "trades time for precision (below the default, a quick look: an item's costly "
+            "searches and LMI tables may also do that share of their work, and the report "
+            "says so)."),
     )
     rep.add_argument("papers", nargs="*", metavar="PAPER",
                      help=f"papers to reproduce ({', '.join(keys)}); default all")

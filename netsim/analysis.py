@@ -168,6 +168,10 @@ class AnalysisReport:
         }
 
 
+#: An exact radius and how it was computed (:func:`augmented_radius_and_method`).
+_Radius = tuple[float, str]
+
+
 def _exact_pair(task: tuple[Any, ...]) -> tuple[float, float, float]:
     """One delay pattern: (exact rho compensated, uncompensated, eq. (26) bound).
 
@@ -180,7 +184,7 @@ def _exact_pair(task: tuple[Any, ...]) -> tuple[float, float, float]:
     return exact_c, exact_u, float(delay_bound_lcsys(P, A, C, L, depth))
 
 
-def _exact_task(task: tuple[Any, ...]) -> tuple[Any, Any, float]:
+def _exact_task(task: tuple[Any, ...]) -> tuple[_Radius | None, _Radius | None, float]:
     """One delay pattern's radii not in the cache, and its eq. (26) bound.
 
     ``task = (P, A, C, L, delays, depth, flags)``, ``flags`` a pair for (compensated,
@@ -349,9 +353,11 @@ def analyze(
     from netsim import radiuscache
 
     folder = radiuscache.radius_dir() if cache else None
-    keys = ([(radiuscache.radius_key(*t[:6], True), radiuscache.radius_key(*t[:6], False))
+    keys = ([(radiuscache.radius_key(P, A, C, L, t[4], t[5], True),
+              radiuscache.radius_key(P, A, C, L, t[4], t[5], False))
              for t in tasks] if folder is not None else [])
-    found = radiuscache.load(folder, [k for pair in keys for k in pair]) if keys else {}
+    found = (radiuscache.load(folder, [k for pair in keys for k in pair])
+             if folder is not None else {})
     flags = [tuple(flag if not keys or keys[i][j] not in found else None
                    for j, flag in enumerate((True, False))) for i in range(len(tasks))]
     todo = [i for i, f in enumerate(flags) if f != (None, None)]
@@ -383,7 +389,7 @@ def analyze(
         pair: list[float] = []
         source: list[str] = []
         for j in range(2):
-            value = None if got is None else got[j]
+            value = None if got is None else (got[0], got[1])[j]
             if value is None:  # from the cache
                 rho, how = found[keys[i][j]]
                 source.append(f"cache ({how})")
@@ -393,7 +399,7 @@ def analyze(
                 if keys:
                     fresh[keys[i][j]] = (rho, how)
             pair.append(rho)
-        b26 = got[2] if got is not None else float(delay_bound_lcsys(*task[:4], task[5]))
+        b26 = got[2] if got is not None else float(delay_bound_lcsys(P, A, C, L, task[5]))
         results.append((pair[0], pair[1], b26))
         sources.append((source[0], source[1]))
     if folder is not None:

@@ -806,7 +806,7 @@ def _state_major_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch,
     # time of broadcasting an (n, N, 1) column over rows of T)
     gain = [np.ascontiguousarray(np.broadcast_to(Lp[:, :, o].T[:, :, None], (n, N, T)))
             for o in range(m)]
-    correction = np.empty((n, N, T)) if m > 1 else None
+    correction = np.empty((n, N, T) if m > 1 else (0, 0, 0))  # (several outputs)
     x = np.empty((n, N, T))
     errors = np.empty((n, N, T))
     Y = _agent_measurements(batch, m)  # (K+1, N, T, m)

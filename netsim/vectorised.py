@@ -463,6 +463,28 @@ def _use_scipy(scenario: Scenario, trials: int | None = None,
     return stored * T * scenario.plant.n_states * (K + 1) > NUMPY_PRODUCT_MAX_WORK
 
 
+#: Above this many multiply-adds of the consensus products in a run (the count of
+#: :data:`NUMPY_PRODUCT_MAX_WORK`), the step with one delay on every link runs
+#: state-major (:func:`_state_major_run`: fewer, wider calls, which pay on large
+#: arrays); at or below it, and always for the block rule, agent-major (a few BLAS
+#: products on short arrays, faster there: 19 ms against 45 ms at N = 4, 100 x 200).
+#: A count of its own, so that the choice of scipy or numpy products never changes the
+#: step (``tests/test_startup_numpy_paths.py``).
+STATE_MAJOR_MIN_WORK = 4_000_000
+
+
+def _state_major(scenario: Scenario, trials: int, steps: int) -> bool:
+    """Whether a run with one delay on every link takes :func:`_state_major_run` (see
+    :data:`STATE_MAJOR_MIN_WORK`; sparse weights always do)."""
+    from netsim.models.lazy import issparse
+
+    if issparse(scenario.weights):
+        return True
+    stored = int(np.count_nonzero(np.asarray(scenario.weights))) + scenario.n_agents
+    return stored * int(trials) * scenario.plant.n_states * (int(steps) + 1) \
+        > STATE_MAJOR_MIN_WORK
+
+
 def _csr_parts(data: np.ndarray, rows: np.ndarray, cols: np.ndarray, n_rows: int
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(indptr, indices, data)`` of the CSR matrix with these (distinct) entries, rows
@@ -876,8 +898,12 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     has arrived yet, DESIGN.md) is one sparse product per step over a ring of past
     estimates that already carry their compensation, so no per-lag work remains:
 
-    * one constant delay d on every link and a message every step (not the block
-      rule): :func:`_state_major_run`, the estimates state-major, (n, N, T);
+    * one constant delay d on every link (``uniform``), a large run
+      (:func:`_state_major`): :func:`_state_major_run`, the estimates state-major,
+      (n, N, T); a small one: ring slot s keeps the pair A^(d+1) x(s), A x(s + d)
+      (one product each when an estimate is computed), and the prior is one sparse
+      (N x 2N) product [P - diag | diag(p_ii)] with the slot of s = k - 1 - d, i.e.
+      p_ij A^(d+1) x^j(k-1-d) and p_ii A x^i(k-1);
     * otherwise: a ring Z of compensated estimates, Z[s] = A^(k - s) x(s), advanced
       by one product per step (Z <- A Z); the message each term holds is gathered
       from it (one ``take``) and summed by one sparse (N x (N + E)) product.
@@ -915,7 +941,7 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
         return _consensus_run_numba(scenario, rule, gains, batch, selection,
                                     schedule.send_steps, terms, steps, record_estimates)
     if (not rule.block and selection.uniform_delay is not None
-            and not np.any(terms.link < 0)):
+            and not np.any(terms.link < 0) and _state_major(scenario, T, K)):
         return _state_major_run(scenario, rule, batch, terms, Cp, Lp,
                                 selection.uniform_delay, K, record_estimates, use_scipy)
     Y = _agent_measurements(batch, Cp.shape[1])
@@ -924,6 +950,9 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
     block = rule.block
     period = scenario.delay_bound + 1 if block else 1
     send = schedule.send_steps
+    # one constant delay d on every link, a message every step (see the docstring)
+    uniform = (selection.uniform_delay if not block and not np.any(terms.link < 0)
+               else None)
     # the delay horizon that can matter: a power A^r with r > K is never applied (a
     # message delayed past the last step never arrives; a block period beyond K only
     # propagates the step-0 estimate, with A^(k - 0), k <= K), so the rings stop
@@ -957,77 +986,119 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             np.add(prior, correction, out=out)
         return out
 
-    # ring Z[s % depth]: eq. (4) A^(k - s) x(s) (advanced by A every step), or
-    # x(s) itself for eq. (6); gathered per (term, trial), own term first
-    depth = horizon
-    ring = np.zeros((depth, N, T, n))
-    spare = np.empty_like(ring)
-    # ring rows fit int32 below 2^31 (halves the index arrays)
-    index_type: type[np.signedinteger[Any]] = (
-        np.int32 if depth * N * T < 2**31 - 1 else np.int64)
-    trials = np.arange(T, dtype=index_type)[None, :]
-    no_link = terms.link < 0
-    any_no_link = bool(no_link.any())
-    term_row = np.maximum(terms.link, 0)
-    term_j = terms.j.astype(index_type)[:, None]
-    own_agent = np.arange(N, dtype=index_type)[:, None]
-    index_steps = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
-    index_chunk: list[np.ndarray] = []
-    index_start = [0]
+    if uniform is not None:
+        # eq. (4) with one delay d: prior(k) = p_ii A x^i(k-1) + sum_j p_ij A^(d+1)
+        # x^j(k-1-d) (eq. 6: A x^j(k-1-d)). Ring slot s holds the pair
+        # [A^(d+1) x(s) ; A x(s+d)] as one (2N, T n) block, so the prior is ONE
+        # sparse product of [P minus its diagonal | diag(p_ii)] with slot k-1-d;
+        # each x(k) costs two products into the ring when it is stored
+        d = uniform
+        depth = d + 1
+        lag = min(d + 1, K) if rule.compensate else 1
+        far_T = np.ascontiguousarray(_powers(A, lag)[lag].T) if lag > 1 else A_T
+        ring = np.zeros((depth, 2, N, T, n))
+        if use_scipy:
+            row_sum3 = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1, 1)
+        else:
+            dense = scenario.dense_weights()
+            nz_rows, nz_cols = np.nonzero(dense)
+            row_sum3 = _csr_row_sums(
+                _csr_parts(dense[nz_rows, nz_cols], nz_rows, nz_cols, N)[0],
+                dense[nz_rows, nz_cols]).reshape(N, 1, 1)
 
-    # the ring row of message q of a link from sender j in trial t is
-    # slot_row[q] + base[term, t], with slot_row[q] = (s_q % depth) N T
-    slot_row = ((send % depth) * (N * T)).astype(index_type)
-    base = (term_j * T + trials).astype(index_type)  # (E, T)
-    terms_are_links = (not any_no_link and len(term_row) == selection.chosen.shape[1]
-                       and bool(np.array_equal(term_row, np.arange(len(term_row)))))
+        def store(k: int, estimate: np.ndarray) -> None:
+            x = estimate.reshape(-1, n)
+            np.matmul(x, far_T, out=ring[k % depth, 0].reshape(-1, n))
+            np.matmul(x, A_T, out=ring[(k - d) % depth, 1].reshape(-1, n))
 
-    def gather_index(k0: int, k1: int) -> np.ndarray:
-        # (k1 - k0, N + E, T) rows of the ring: the own term (the slot of step
-        # k - period) and the message each term holds (sent at s, slot s), or the
-        # own term's row when nothing has arrived from j yet
-        c = k1 - k0
-        ks = np.arange(k0, k1, dtype=index_type)[:, None, None]
-        out = np.empty((c, N + E, T), dtype=index_type)
-        own_rows = out[:, :N]
-        np.add((((ks - period) % depth) * N + own_agent) * T, trials, out=own_rows)
-        held = selection.chosen[k0:k1]
-        if not terms_are_links:
-            held = held[:, term_row]  # (c, E, T)
-            if any_no_link:
-                held[:, no_link] = -1
-        rows = out[:, N:]
-        np.take(slot_row, held, out=rows, mode="wrap")  # -1: replaced below
-        rows += base
-        if held.size and int(held.min()) < 0:
-            np.copyto(rows, own_rows[:, terms.i], where=held < 0)
-        return out
+        prior_buffer = np.empty((N, T, n))
+        # [P minus its diagonal | diag(p_ii)]: p_ij x^j summed in the order of j,
+        # then p_ii A x^i
+        pair_product = product_into(
+            np.concatenate([terms.weight, own_weight]),
+            np.concatenate([terms.i, np.arange(N)]),
+            np.concatenate([terms.j, N + np.arange(N)]), (N, 2 * N),
+            prior_buffer.reshape(N, T * n), sort=True)
 
-    payload = np.empty(((N + E) * T, n))
-    prior_buffer = np.empty((N, T, n))
-    uncompensated = np.empty((N, T, n)) if not rule.compensate else None
-    # [diag(p_ii) | the terms' weights]: the own term first, then the terms
-    agg_product = product_into(
-        np.concatenate([own_weight, terms.weight]),
-        np.concatenate([np.arange(N), terms.i]), np.arange(N + E), (N, N + E),
-        prior_buffer.reshape(N, T * n), sort=False)
+        def prior_at(k: int) -> np.ndarray:
+            slot = ring[(k - 1 - d) % depth]
+            if k <= d:
+                # nothing has arrived: the own prediction with the whole row's weight
+                return np.multiply(row_sum3, slot[1], out=prior_buffer)
+            pair_product(slot.reshape(2 * N, T * n))
+            return prior_buffer
+    else:
+        # ring Z[s % depth]: eq. (4) A^(k - s) x(s) (advanced by A every step), or
+        # x(s) itself for eq. (6); gathered per (term, trial), own term first
+        depth = horizon
+        ring = np.zeros((depth, N, T, n))
+        spare = np.empty_like(ring)
+        # ring rows fit int32 below 2^31 (halves the index arrays)
+        index_type: type[np.signedinteger[Any]] = (
+            np.int32 if depth * N * T < 2**31 - 1 else np.int64)
+        trials = np.arange(T, dtype=index_type)[None, :]
+        no_link = terms.link < 0
+        any_no_link = bool(no_link.any())
+        term_row = np.maximum(terms.link, 0)
+        term_j = terms.j.astype(index_type)[:, None]
+        own_agent = np.arange(N, dtype=index_type)[:, None]
+        index_steps = max(1, min(64, 2_000_000 // max(1, (N + E) * T)))
+        index_chunk: list[np.ndarray] = []
+        index_start = [0]
 
-    def prior_at(k: int) -> np.ndarray:
-        if not index_chunk or k >= index_start[0] + len(index_chunk[0]):
-            index_start[0] = k
-            index_chunk[:] = [gather_index(k, min(k + index_steps, K + 1))]
-        index = index_chunk[0][k - index_start[0]]
-        # mode "clip": the rows are valid, and "raise" would buffer the output
-        ring.reshape(-1, n).take(index.reshape(-1), axis=0, out=payload, mode="clip")
-        agg_product(payload.reshape(N + E, T * n))
-        if uncompensated is not None:
-            # eq. (6): A on every term
-            np.matmul(prior_buffer.reshape(-1, n), A_T, out=uncompensated.reshape(-1, n))
-            return uncompensated
-        return prior_buffer
+        # the ring row of message q of a link from sender j in trial t is
+        # slot_row[q] + base[term, t], with slot_row[q] = (s_q % depth) N T
+        slot_row = ((send % depth) * (N * T)).astype(index_type)
+        base = (term_j * T + trials).astype(index_type)  # (E, T)
+        terms_are_links = (not any_no_link and len(term_row) == selection.chosen.shape[1]
+                           and bool(np.array_equal(term_row, np.arange(len(term_row)))))
 
-    def store(k: int, estimate: np.ndarray) -> None:
-        ring[k % depth] = estimate
+        def gather_index(k0: int, k1: int) -> np.ndarray:
+            # (k1 - k0, N + E, T) rows of the ring: the own term (the slot of step
+            # k - period) and the message each term holds (sent at s, slot s), or the
+            # own term's row when nothing has arrived from j yet
+            c = k1 - k0
+            ks = np.arange(k0, k1, dtype=index_type)[:, None, None]
+            out = np.empty((c, N + E, T), dtype=index_type)
+            own_rows = out[:, :N]
+            np.add((((ks - period) % depth) * N + own_agent) * T, trials, out=own_rows)
+            held = selection.chosen[k0:k1]
+            if not terms_are_links:
+                held = held[:, term_row]  # (c, E, T)
+                if any_no_link:
+                    held[:, no_link] = -1
+            rows = out[:, N:]
+            np.take(slot_row, held, out=rows, mode="wrap")  # -1: replaced below
+            rows += base
+            if held.size and int(held.min()) < 0:
+                np.copyto(rows, own_rows[:, terms.i], where=held < 0)
+            return out
+
+        payload = np.empty(((N + E) * T, n))
+        prior_buffer = np.empty((N, T, n))
+        uncompensated = np.empty((N, T, n)) if not rule.compensate else None
+        # [diag(p_ii) | the terms' weights]: the own term first, then the terms
+        agg_product = product_into(
+            np.concatenate([own_weight, terms.weight]),
+            np.concatenate([np.arange(N), terms.i]), np.arange(N + E), (N, N + E),
+            prior_buffer.reshape(N, T * n), sort=False)
+
+        def prior_at(k: int) -> np.ndarray:
+            if not index_chunk or k >= index_start[0] + len(index_chunk[0]):
+                index_start[0] = k
+                index_chunk[:] = [gather_index(k, min(k + index_steps, K + 1))]
+            index = index_chunk[0][k - index_start[0]]
+            # mode "clip": the rows are valid, and "raise" would buffer the output
+            ring.reshape(-1, n).take(index.reshape(-1), axis=0, out=payload, mode="clip")
+            agg_product(payload.reshape(N + E, T * n))
+            if uncompensated is not None:
+                # eq. (6): A on every term
+                np.matmul(prior_buffer.reshape(-1, n), A_T, out=uncompensated.reshape(-1, n))
+                return uncompensated
+            return prior_buffer
+
+        def store(k: int, estimate: np.ndarray) -> None:
+            ring[k % depth] = estimate
 
     outputs = _Outputs(K, N, T, n, scenario.divergence_threshold, record_estimates)
     # estimates are recorded (squared errors, divergence test) a chunk of steps at a
@@ -1050,7 +1121,7 @@ def _consensus_run(scenario: Scenario, rule: LockstepRule, gains: GainDesign,
             if not alive or k > K:
                 break
             interrupt.check()  # a requested Ctrl-C stops here, between steps
-            if rule.compensate:
+            if uniform is None and rule.compensate:
                 # Z <- A Z: every past estimate gains one power of A (eq. 4's A^(k - s))
                 np.matmul(ring.reshape(-1, n), A_T, out=spare.reshape(-1, n))
                 ring, spare = spare, ring

@@ -40,7 +40,9 @@ the augmented closed loop). Its roots are first scaled towards the unit circle, 
 2^k w`` (exact in floating point, :func:`_root_scale`): without that, ARPACK on a
 companion whose first-row blocks are far larger or smaller than its identity blocks
 returned wrong values that passed the residual check. Every result is
-residual-checked; failures fall back to dense eigenvalues (small) or raise.
+residual-checked (for the augmented loop also: the top Ritz vector must be an
+eigenvector of ``M`` itself, :func:`_base_pair_error`); failures fall back to dense
+eigenvalues (small) or raise.
 
 Only numpy and scipy are used; nothing is imported from the rest of the project.
 """
@@ -93,6 +95,8 @@ __all__ = [
     "ARPACK_POWER",
     "ARPACK_RETRIES",
     "ARPACK_TOL",
+    "PAIR_CHECK_RTOL",
+    "ROOT_SCALE_FREE",
     "AUGMENTED_ARPACK_NCV",
     "AUGMENTED_ARPACK_POWER",
     "AUGMENTED_DENSE_SIZE_THRESHOLD",
@@ -844,7 +848,7 @@ def _cyclic_class(row: _FirstRow) -> tuple[int, np.ndarray]:
 
 
 def _companion_rho(row: _FirstRow, what: str, first_power: int | None = None,
-                   ncv: int | None = None) -> float:
+                   ncv: int | None = None, pair_check: bool = False) -> float:
     """Spectral radius of ``row``'s block companion matrix ``M`` (structured).
 
     Uses the cyclic reduction of :func:`_cyclic_class` (``rho(M) = rho(M^p on one
@@ -880,7 +884,8 @@ def _companion_rho(row: _FirstRow, what: str, first_power: int | None = None,
     q = max(1, round((ARPACK_POWER if first_power is None else first_power) / p))
     safe = max(1, round(ARPACK_POWER / p))
     return _arpack_rho(power, nodes.size, label, q, ncv=ncv,
-                       safe_power=safe if q > safe else None) ** (1.0 / p)
+                       safe_power=safe if q > safe else None,
+                       pair_check=pair_check) ** (1.0 / p)
 
 
 def _arpack_attempts(q: int, D: int, k: int, ncv: int | None = None
@@ -918,6 +923,7 @@ def _arpack_rho(
     seed: int = 0,
     ncv: int | None = None,
     safe_power: int | None = None,
+    pair_check: bool = False,
 ) -> float:
     """Spectral radius of a ``D x D`` operator ``M`` by ARPACK (``which="LM"``).
 
@@ -934,7 +940,8 @@ def _arpack_rho(
     is at most ``1e-8 max(|mu|, ||M^j x|| / ||x||)``. ``ncv`` replaces
     :data:`ARPACK_NCV`; with ``safe_power``, a first run whose ``||M^q v0|| / ||v0||``
     lies outside ``[1e-150, 1e150]`` (the power would over- or underflow) uses
-    ``M^safe_power`` instead. If every run fails: dense
+    ``M^safe_power`` instead. With ``pair_check``, the top Ritz vector must also be an
+    eigenvector of ``M`` itself (:func:`_base_pair_error`). If every run fails: dense
     eigenvalues of ``M`` up to :data:`DENSE_FALLBACK_MAX` (with a RuntimeWarning),
     else RuntimeError.
     """
@@ -992,8 +999,12 @@ def _arpack_rho(
         with np.errstate(over="ignore", invalid="ignore"):
             res = float(np.linalg.norm(apply(v) - mu * v) / np.linalg.norm(v))
         if math.isfinite(res) and res <= 1e-8 * max(abs(mu), norm_est):
-            _last_structured.method = RADIUS_METHODS[1]
-            return float(np.max(np.abs(vals))) ** (1.0 / j)
+            bad = _base_pair_error(power, v, mu, j) if pair_check else None
+            if bad is None:
+                _last_structured.method = RADIUS_METHODS[1]
+                return float(np.max(np.abs(vals))) ** (1.0 / j)
+            failures.append(f"{label}: {bad}")
+            continue
         failures.append(f"{label}: top Ritz pair residual {res:.3g} for |mu|={abs(mu):.6g}")
     reason = "; ".join(failures)
     if D <= DENSE_FALLBACK_MAX:
@@ -1009,6 +1020,34 @@ def _arpack_rho(
         f"ARPACK could not compute the spectral radius of the {what} "
         f"(dimension {D}): {reason}. Use method='dense' if it fits in memory."
     )
+
+
+#: :func:`_base_pair_error`: largest ``||M v - z v|| / (|z| ||v||)`` accepted.
+PAIR_CHECK_RTOL: float = 1e-7
+
+
+def _base_pair_error(power: Callable[[int], Callable[[np.ndarray], np.ndarray]],
+                     v: np.ndarray, mu: complex, j: int) -> str | None:
+    """Why the Ritz pair ``(mu, v)`` of ``M^j`` is not an eigenpair of ``M``, or None.
+
+    ``z`` is the Rayleigh quotient of ``v`` for ``M = power(1)``; the pair passes if
+    ``||M v - z v|| <=`` :data:`PAIR_CHECK_RTOL` ``|z| ||v||`` and ``|z|^j = |mu|`` to
+    1e-6. The residual check of :func:`_arpack_rho` is relative to ``||M^j||``; on a
+    strongly non-normal companion (``rho^j`` far below ``||M^j||``) ARPACK returned
+    Ritz values that are no eigenvalue (issue 34: a radius 0.3981 for the true
+    0.3962) and passed it; this check, relative to the eigenvalue, rejects them.
+    """
+    with np.errstate(over="ignore", invalid="ignore", under="ignore"):
+        Mv = power(1)(v)
+        vv = float(np.real(np.vdot(v, v)))
+        z = complex(np.vdot(v, Mv)) / vv
+        res = float(np.linalg.norm(Mv - z * v)) / math.sqrt(vv)
+        ratio = abs(z) ** j / abs(mu) if mu != 0 else math.inf
+    if not (math.isfinite(res) and res <= PAIR_CHECK_RTOL * abs(z)):
+        return f"the top Ritz vector is no eigenvector of M (residual {res:.3g}, |z|={abs(z):.6g})"
+    if not abs(ratio - 1.0) <= 1e-6:
+        return f"the top Ritz value {abs(mu):.6g} is not |z|^{j} = {abs(z) ** j:.6g}"
+    return None
 
 
 def _dense_operator_rho(apply: Callable[[np.ndarray], np.ndarray], D: int) -> float:
@@ -1429,7 +1468,7 @@ def augmented_radius_and_method(
     row = _FirstRow(G, P_arr, index, B)
     _last_structured.method = RADIUS_METHODS[3]
     rho = _companion_rho(row, "augmented closed loop", AUGMENTED_ARPACK_POWER,
-                         AUGMENTED_ARPACK_NCV)
+                         AUGMENTED_ARPACK_NCV, pair_check=True)
     return float(np.ldexp(rho, k)), _last_structured.method
 
 

@@ -60,8 +60,9 @@ __all__ = [
 #: Bumped when the stored layout changes (it enters the key).
 LAYOUT = 1
 #: Bumped when the computation of the radii changes in a way the parameters in the
-#: key do not show (it enters the key, so older entries are never looked up).
-METHOD_VERSION = 1
+#: key do not show (it enters the key, so older entries are never looked up). 2: the
+#: structured radius' root scaling and eigenvector check (issue 34).
+METHOD_VERSION = 2
 #: Most entries kept (about 300 bytes each).
 MAX_ENTRIES = 4096
 
@@ -112,7 +113,7 @@ def _parameters() -> str:
     names = ("DENSE_SIZE_THRESHOLD", "DENSE_FALLBACK_MAX", "ARPACK_K", "ARPACK_TOL",
              "ARPACK_MAXITER", "ARPACK_NCV", "ARPACK_RETRIES", "ARPACK_BASIS_BYTES",
              "ARPACK_POWER", "AUGMENTED_ARPACK_POWER", "AUGMENTED_ARPACK_NCV",
-             "AUGMENTED_DENSE_SIZE_THRESHOLD")
+             "AUGMENTED_DENSE_SIZE_THRESHOLD", "ROOT_SCALE_FREE", "PAIR_CHECK_RTOL")
     return ";".join(f"{name}={getattr(aug, name, None)!r}" for name in names)
 
 

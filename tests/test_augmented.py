@@ -564,7 +564,8 @@ def test_structured_above_threshold_uses_arpack(monkeypatch):
     dense = augmented_spectral_radius(P, A, C, L, delays, method="dense")
     calls = []
     original = aug._companion_rho
-    monkeypatch.setattr(aug, "_companion_rho", lambda *a: calls.append(1) or original(*a))
+    monkeypatch.setattr(aug, "_companion_rho",
+                        lambda *a, **k: calls.append(1) or original(*a, **k))
     monkeypatch.setattr(aug, "DENSE_SIZE_THRESHOLD", 10)
     monkeypatch.setattr(aug, "AUGMENTED_DENSE_SIZE_THRESHOLD", 10)
     assert augmented_spectral_radius(P, A, C, L, delays) == pytest.approx(dense, abs=1e-8)

@@ -138,3 +138,42 @@ def test_the_scenarios_clustered_top_moduli():
     assert abs(top[0].imag) > 1e-8
     assert abs(top[5]) > abs(top[0]) * (1 - 1e-3)  # clustered
     _check(P, A, C, L, delays, True)
+
+
+def test_a_spurious_ritz_value_is_rejected():
+    """A strongly non-normal companion (n = 1, A = -0.398, compensated, tau = 24: the
+    last first-row block is of size 0.4^25 beside identity blocks): ARPACK on M^48 with
+    40 vectors returned 0.39808, no eigenvalue, with a residual within its operator-norm
+    check. The eigenvector check against M itself rejects it; the value returned is a
+    root modulus: T(z) = I - sum_r z^-(r+1) M_r is singular at z = -rho, and not at
+    z = -0.39808 (scanned by hand: the smallest singular value on that circle, 0.09, is
+    at the negative axis)."""
+    P = np.array([
+        [0.12631751967716823, 0.17315931308474516, 0.09993278559356283, 0.22109249829858058,
+         0.37949788334594314],
+        [0.25776065278565247, 0.0, 0.44653068473299246, 0.2957086624813549, 0.0],
+        [0.20665747162087675, 0.0, 0.4376279343243122, 0.10556227986157449,
+         0.25015231419323675],
+        [0.46013871415519714, 0.13612083587414098, 0.4037404499706619, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 1.0, 0.0]])
+    A = np.array([[-0.398105405432532]])
+    C = [np.array([[c]]) for c in (1.5321064660580506, -0.41508220216800257,
+                                   1.540961415332024, 0.3534616216663202,
+                                   -0.2355253706657324)]
+    L = [np.array([[g]]) for g in (0.00826312490901077, -0.18125513728461645,
+                                   0.32197698300234584, -0.41435618386821693,
+                                   0.028574544312562348)]
+    delays = np.where((P != 0) & ~np.eye(5, dtype=bool), 24, 0)
+    M = _companion(P, A, C, L, delays, True)
+    blocks = [M[:5, 5 * r:5 * (r + 1)] for r in range(25)]
+
+    def smallest_singular_value(z):
+        T = np.eye(5, dtype=complex) - sum(z ** -(r + 1) * B for r, B in enumerate(blocks))
+        return np.linalg.svd(T, compute_uv=False)[-1]
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # may end in the dense fallback
+        rho = aug.augmented_spectral_radius(P, A, C, L, delays, compensated=True)
+    assert smallest_singular_value(-rho) < 1e-9
+    assert smallest_singular_value(-0.39808070906571935) > 1e-2
+    assert rho == pytest.approx(np.max(np.abs(np.linalg.eigvals(M))), rel=1e-9)  # dense too

@@ -210,3 +210,14 @@ def test_the_command_says_where_the_radii_came_from(folder, capsys):
                              "cache": str(folder)}
     assert {r["source_compensated"] for r in data["homogeneous"]} == {
         "cache (dense eigenvalues)"}
+
+
+def test_workers_with_some_radii_cached_give_the_serial_report(scenario, gains, folder):
+    """Two worker processes computing only the radii the cache lacks (tau 4..9; 0..3 and
+    the scenario's own delays cached) give the numbers of a serial run without cache."""
+    analyze(scenario, gains, 3)
+    ticks = []
+    mixed = analyze(scenario, gains, 9, workers=2, progress=ticks.append)
+    assert sum(mixed.radii["cached"].values()) == 2 * 4 + 2
+    assert ticks == [1] * 11
+    assert _numbers(mixed) == _numbers(analyze(scenario, gains, 9, cache=False))

@@ -789,23 +789,37 @@ def _state_major_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch,
                             use_scipy)
 
     far_into = [product_by(far, ring[q].reshape(n, N * T)) for q in range(depth)]
-    near_into = product_by(A, ring[depth].reshape(n, N * T))
+    # the own prediction p_ii A x^i(k-1): with A at most half nonzero, slot depth is
+    # x(k-1) itself (the step's estimates are written there) and the prior's rows
+    # carry p_ii A[a, b], one product fewer a step; otherwise slot depth holds A x(k-1)
+    fold = 2 * int(np.count_nonzero(A)) <= A.size
+    x_prev = ring[depth]
+    near_into = product_by(A, (prior if fold else x_prev).reshape(n, N * T))
 
     # the prior: the sparse matrix of each ring position q = k % depth (steps k > d),
-    # row (a, i): the terms of receiver i (senders in order), then its own term
-    order = np.lexsort((np.r_[np.zeros(E), np.ones(N)], np.r_[terms.i, np.arange(N)]))
-    sender = np.r_[terms.j, np.arange(N)][order]
-    own = np.r_[np.zeros(E, dtype=bool), np.ones(N, dtype=bool)][order]
-    weight = np.r_[terms.weight, terms.diagonal][order]
+    # row (a, i): the terms of receiver i (senders in order), then its own entries
+    # (b in order when folded)
+    own_a, own_b = np.nonzero(A) if fold else (np.arange(n), np.arange(n))
+    own_w = A[own_a, own_b] if fold else np.ones(n)
+    P_own = len(own_a)
+    ent_a = np.r_[np.repeat(np.arange(n), E), np.repeat(own_a, N)]
+    ent_i = np.r_[np.tile(terms.i, n), np.tile(np.arange(N), P_own)]
+    ent_own = np.r_[np.zeros(n * E, dtype=bool), np.ones(N * P_own, dtype=bool)]
+    ent_pos = np.r_[np.tile(np.arange(E), n), np.repeat(own_b, N)]
+    ent_sender = np.r_[np.tile(terms.j, n), np.tile(np.arange(N), P_own)]
+    ent_comp = np.r_[np.repeat(np.arange(n), E), np.repeat(own_b, N)]
+    ent_w = np.r_[np.tile(terms.weight, n),
+                  np.repeat(own_w, N) * np.tile(terms.diagonal, P_own)]
+    order = np.lexsort((ent_pos, ent_own, ent_i, ent_a))
+    ent_own, data = ent_own[order], ent_w[order]
+    local = (ent_comp * N + ent_sender)[order].astype(np.int64)
     indptr = np.zeros(n * N + 1, dtype=np.int64)
-    np.cumsum(np.tile(np.bincount(terms.i, minlength=N) + 1, n), out=indptr[1:])
-    component = np.repeat(np.arange(n, dtype=np.int64) * N, len(sender))
-    data = np.tile(weight, n)
+    np.cumsum(np.bincount((ent_a * N + ent_i)[order], minlength=n * N), out=indptr[1:])
     prior_at = []
     for q in range(depth if d < K else 0):
-        base = np.where(own, depth * n * N, (q - 1 - d) % depth * n * N) + sender
-        prior_at.append(_sparse_into(indptr, component + np.tile(base, n), data,
-                                     len(ring_rows), prior_rows, use_scipy))
+        base = np.where(ent_own, depth * n * N, (q - 1 - d) % depth * n * N)
+        prior_at.append(_sparse_into(indptr, base + local, data, len(ring_rows),
+                                     prior_rows, use_scipy))
     # before anything arrives: the whole row's weight on the own prediction
     if use_scipy:
         row_sum = np.asarray(scenario.weights_sparse.sum(axis=1)).reshape(N, 1)
@@ -829,7 +843,7 @@ def _state_major_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch,
     gain = [np.ascontiguousarray(np.broadcast_to(Lp[:, :, o].T[:, :, None], (n, N, T)))
             for o in range(m)]
     correction = np.empty((n, N, T) if m > 1 else (0, 0, 0))  # (several outputs)
-    x = np.empty((n, N, T))
+    x = x_prev if fold else np.empty((n, N, T))
     errors = np.empty((n, N, T))
     Y = _agent_measurements(batch, m)  # (K+1, N, T, m)
     states = np.ascontiguousarray(batch.states.transpose(0, 2, 1))  # (K+1, n, T)
@@ -850,7 +864,9 @@ def _state_major_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch,
             if k == 0:
                 np.copyto(prior, x0)
             elif k <= d:
-                np.multiply(row_sum, ring[depth], out=prior)
+                if fold:
+                    near_into(x_prev.reshape(n, N * T))  # A x(k-1), into the prior
+                np.multiply(row_sum, prior if fold else x_prev, out=prior)
             else:
                 prior_at[k % depth](ring_rows)
             output_of(prior_rows)  # C_i x^i_{k|k-1}
@@ -866,7 +882,8 @@ def _state_major_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch,
             np.subtract(x, states[k][:, None, :], out=errors)
             rows = x.reshape(n, N * T)
             far_into[k % depth](rows)
-            near_into(rows)
+            if not fold:
+                near_into(rows)
             # ||x^i_k - x_k||^2, the components summed in order
             np.square(errors, out=errors)
             np.add.reduce(errors, axis=0, out=sums[k - chunk_start])

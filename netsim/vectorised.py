@@ -749,12 +749,14 @@ def _state_major_run(scenario: Scenario, rule: LockstepRule, batch: PlantBatch,
     rows of N T (or T) numbers, so each operation is one call over all agents and
     trials:
 
-    * each estimate x(s) is multiplied once, when it is stored, by [A^(d+1); A], one
-      (2n x n) product into ring slot s (a dense product, or a sparse one over the
-      nonzero entries of A^(d+1) and A when at most half of them are nonzero);
+    * each estimate x(s) is multiplied once, when it is stored, by A^(d+1) into ring
+      slot s (a dense product, or a sparse one over the nonzero entries when at most
+      half of them are nonzero), and by A into the own slot, unless A is at most
+      half nonzero: then the own slot holds x(s) itself;
     * the prior is one sparse product over the whole ring, by the matrix of the
       step's ring position: row (a, i) holds p_ij at component a of A^(d+1) x^j in
-      slot k-1-d (j in order), then p_ii at component a of A x^i in slot k-1;
+      slot k-1-d (j in order), then p_ii at component a of A x^i(k-1) (or p_ii A[a, b]
+      at component b of x^i(k-1), b in order);
     * C_i x^i_{k|k-1} is one sparse product over the nonzero entries of the C_i;
       the squared errors are whole-array operations a chunk of steps at a time.
     """

@@ -471,12 +471,16 @@ def build_schedule(
 
 def _max_lag(chosen: np.ndarray, send: np.ndarray) -> int:
     """Largest k - s over the messages held in ``chosen`` (K+1, L, T)."""
-    max_lag = 0
-    for k in range(chosen.shape[0]):
-        used = chosen[k][chosen[k] >= 0]
-        if used.size:
-            max_lag = max(max_lag, k - int(send[used.min()]))
-    return max_lag
+    if chosen.size == 0:
+        return 0
+    held = chosen >= 0
+    # per step k, the oldest message held anywhere (index of its send step), at once
+    oldest = np.min(chosen, axis=tuple(range(1, chosen.ndim)), initial=np.iinfo(np.int32).max,
+                    where=held)
+    steps = np.flatnonzero(held.reshape(chosen.shape[0], -1).any(axis=1))
+    if steps.size == 0:
+        return 0
+    return max(0, int(np.max(steps - send[oldest[steps]])))
 
 
 def _select_constant(schedule: LinkSchedule, K: int) -> MessageSelection:

@@ -410,6 +410,7 @@ def plant_modes(A: ArrayLike, forcing_blocks: Sequence[tuple[np.ndarray, Sequenc
     radius = CLUSTER_TOLERANCE * scale
     Q_arr = None if Q is None else np.asarray(Q, dtype=float)
     S_arr = None if prior is None else np.asarray(prior, dtype=float)
+    Q_norm, S_norm = _spectral_norm(Q_arr), _spectral_norm(S_arr)  # once, not per mode
     modes = []
     for group in _clusters(values):
         lam = complex(np.mean(values[group]))
@@ -427,25 +428,39 @@ def plant_modes(A: ArrayLike, forcing_blocks: Sequence[tuple[np.ndarray, Sequenc
         if forcing_blocks is not None and T.shape[0]:
             Tinv = np.linalg.inv(T)
             norm_T = max(float(np.linalg.norm(T, 2)), np.finfo(float).tiny)
+            powers: dict[int, np.ndarray] = {}  # T^e, shared by the agents' terms
+            forced = []
             for G, terms in forcing_blocks:
                 acc = np.zeros_like(T)
                 for w, e in terms:
                     if w == 0:
                         continue
-                    acc = acc + w * (np.linalg.matrix_power(T, e) if e >= 0
+                    if e not in powers:
+                        powers[e] = (np.linalg.matrix_power(T, e) if e >= 0
                                      else np.linalg.matrix_power(Tinv, -e))
-                forcing = max(forcing, float(np.linalg.norm(G @ V @ acc, 2)) / norm_T)
+                    acc = acc + w * powers[e]
+                forced.append(G @ V @ acc)
+            if forced:  # the largest singular value of each, in one batched call
+                top = np.linalg.svd(np.stack(forced), compute_uv=False).max(axis=-1)
+                for value in top:
+                    forcing = max(forcing, float(value) / norm_T)
         modes.append(PlantMode(lam, m, bool(defective), forcing,
                                bool(forcing > FORCING_TOLERANCE),
-                               _excited(W, Q_arr), _excited(W, S_arr)))
+                               _excited(W, Q_arr, Q_norm), _excited(W, S_arr, S_norm)))
     modes.sort(key=lambda md: -md.modulus)
     return modes
 
 
-def _excited(W: np.ndarray, S: np.ndarray | None) -> bool:
+def _spectral_norm(S: np.ndarray | None) -> float:
+    """||S||_2 (0 for None)."""
+    return 0.0 if S is None else float(np.linalg.norm(S, 2))
+
+
+def _excited(W: np.ndarray, S: np.ndarray | None, total: float) -> bool:
+    """Whether the covariance ``S`` (``total`` = ||S||_2) reaches the mode's left
+    subspace ``W`` beyond :data:`EXCITATION_TOLERANCE`."""
     if S is None or W.shape[1] == 0:
         return False
-    total = float(np.linalg.norm(S, 2))
     if total == 0 or not math.isfinite(total):
         return False
     share = float(np.linalg.norm(W.conj().T @ S @ W, 2))

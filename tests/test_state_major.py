@@ -17,6 +17,7 @@ for every size and held to the same references:
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import replace
 from functools import lru_cache
 
@@ -142,3 +143,13 @@ def test_large_runs_with_one_delay_take_the_state_major_step():
     scenario = with_delays(lcsys(), model="homogeneous", tau=3)
     assert not vectorised._state_major(scenario, 3, 40)
     assert vectorised._state_major(scenario, 10_000, 500)
+
+
+def test_sparse_weights_keep_the_agent_major_step():
+    """At 100,000 agents the state-major step cost 1.4x the time and 2x the memory."""
+    from scipy import sparse
+
+    scenario = with_delays(lcsys(), model="homogeneous", tau=3)
+    sparse_scenario = dataclasses.replace(scenario, weights=sparse.csr_matrix(scenario.weights))
+    assert vectorised._state_major(scenario, 10_000, 500)
+    assert not vectorised._state_major(sparse_scenario, 10_000, 500)

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from netsim import budget, verdicts
+from netsim import budget, interrupt, verdicts
 from netsim.estimators.gains import GainDesign, design_for_scenario
 from netsim.estimators.registry import (
     EstimatorFamily,
@@ -973,6 +973,10 @@ def _family_runs(scenario, fam, gains, seeds, steps, seed, trials, engines, trac
                 batch = run_batch(scenario, family, gains, seeds[first:first + size],
                                   steps, record_estimates=True)
                 for index in range(len(batch.results)):
+                    # a safe point between traces: a trial short enough to be written
+                    # in one window never reaches the writer's own checks, and a batch
+                    # holds up to 2^24 values (hundreds of trials)
+                    interrupt.check()
                     runs.append(_traced_trial(scenario, fam, gains, seed, first + index,
                                               steps, trace, single, on_trace, batch=batch,
                                               batch_trial=index,

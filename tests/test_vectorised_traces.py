@@ -477,3 +477,26 @@ def test_an_interrupt_between_windows_finishes_a_format3_trace(tmp_path, monkeyp
     assert flushes and 0 < flushes[0] < steps
     assert trace.steps == list(range(flushes[0] + 1))
     np.testing.assert_array_equal(trace.estimates(), batch.results[0].estimates[:flushes[0] + 1])
+
+
+def test_a_stop_requested_between_replayed_traces_ends_the_batch_there(tmp_path):
+    """A graceful stop requested while trial 0's trace is finished (as a Ctrl-C then
+    does) stops before trial 1 is replayed, though the whole batch (here 30 trials)
+    is already computed and each short trial is written in one window that never
+    reaches the writer's own checks."""
+    scenario = with_delays(lcsys(), model="heterogeneous", tau=3, seed=2022)
+    written: list[str] = []
+
+    def on_trace(path: str) -> None:
+        written.append(path)
+        interrupt._requested = True  # what the graceful SIGINT handler sets
+
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            run_monte_carlo(scenario, steps=20, trials=30, seed=1, families=["compensated"],
+                            gains=lcsys_gains(), trace=str(tmp_path / "run.mcap"),
+                            on_trace=on_trace, engine="vectorised")
+    finally:
+        interrupt._requested = False
+    assert [p.rsplit("/", 1)[1] for p in written] == ["run.compensated.trial0.mcap"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run.compensated.trial0.mcap"]

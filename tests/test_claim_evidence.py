@@ -95,6 +95,9 @@ def test_same_seed_same_verdict_and_counterexample_under_load():
     assert quiet["instance"] is not None and quiet["tried"] == busy["tried"]
 
 
+@pytest.mark.slow  # 36 s of CPU: the whole default search; the default run keeps
+# test_claims.py::test_netsim_claims_finds_and_writes_a_theorem1_counterexample (40
+# instances, the hypotheses checked) and the seed and load tests above
 def test_the_default_search_refutes_theorem1_with_a_hand_checked_counterexample():
     found = search_theorem1(seed=0)
     assert found.complete and found.instance is not None
